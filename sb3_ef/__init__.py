@@ -1,0 +1,36 @@
+"""sb3-ef: Ego-Foresight for Stable-Baselines3.
+
+Public names are imported lazily so that ``import sb3_ef`` stays cheap (no MuJoCo, no rendering) and
+registers the pixel environments with gymnasium.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+from typing import Any
+
+from sb3_ef.envs.registration import register_envs
+
+with open(os.path.join(os.path.dirname(__file__), "version.txt")) as _file:
+    __version__ = _file.read().strip()
+
+_PUBLIC = {
+    "DrQv2EF": "sb3_ef.drqv2",
+    "DrQv2": "sb3_ef.drqv2",
+    "TDMPC2EF": "sb3_ef.tdmpc2",
+    "TDMPC2": "sb3_ef.tdmpc2",
+    "SequenceReplayBuffer": "sb3_ef.common.buffers",
+    "MotorBabblingCallback": "sb3_ef.common.callbacks",
+    "make_env": "sb3_ef.envs",
+}
+
+__all__ = [*_PUBLIC, "__version__"]
+
+register_envs()
+
+
+def __getattr__(name: str) -> Any:
+    if name in _PUBLIC:
+        return getattr(importlib.import_module(_PUBLIC[name]), name)
+    raise AttributeError(f"module 'sb3_ef' has no attribute {name!r}")

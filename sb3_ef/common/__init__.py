@@ -1,0 +1,1 @@
+"""Pieces shared by both algorithms: replay buffer, augmentation, layers, schedules, callbacks."""
