@@ -1,0 +1,93 @@
+"""The zoo_configs YAML files: where they are, how an entry is chosen, and which keys an entry may hold.
+
+rl-zoo3 passes every key it does not consume itself straight to the algorithm constructor, so a typo only shows up
+as a ``TypeError`` deep inside model construction (or, for a key of another task's entry, never). Checking the whole
+file up front names the entry and the key at once.
+"""
+
+from __future__ import annotations
+
+import inspect
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import yaml
+
+#: Algorithm keys this package registers in rl-zoo3.
+ZOO_ALGORITHMS = ("drqv2_ef", "drqv2", "tdmpc2_ef", "tdmpc2")
+
+#: Keys rl-zoo3's ExperimentManager consumes before the remaining ones reach the algorithm constructor.
+ZOO_KEYS = frozenset(
+    {"n_timesteps", "n_envs", "env_kwargs", "normalize", "env_wrapper", "vec_env_wrapper", "callback", "monitor_kwargs"}
+)
+
+#: Constructor arguments rl-zoo3 sets itself (from its command line); an entry repeating them breaks construction.
+SET_BY_ZOO = frozenset({"self", "env", "tensorboard_log", "seed", "verbose", "device", "_init_setup_model"})
+
+#: Keys that exist in rl-zoo3 but do not fit these algorithms, with the reason.
+REJECTED_KEYS = {
+    "frame_stack": "frames are stacked inside the env: use env_kwargs: {frame_stack: k}",
+    "noise_type": "the algorithms explore with their own noise schedules, not SB3 action noise",
+    "noise_std": "the algorithms explore with their own noise schedules, not SB3 action noise",
+}
+
+_CONFIG_DIR = Path(__file__).resolve().parents[2] / "zoo_configs"
+
+
+def default_config_path(algo: str) -> Path:
+    """The zoo_configs/<algo>.yml shipped next to the package (editable install / source checkout)."""
+    if algo not in ZOO_ALGORITHMS:
+        raise ValueError(f"No default zoo config for algorithm {algo!r}: expected one of {ZOO_ALGORITHMS}")
+    path = _CONFIG_DIR / f"{algo}.yml"
+    if not path.is_file():
+        raise FileNotFoundError(f"Default zoo config {path} not found: pass --conf-file explicitly")
+    return path
+
+
+def load_config(path: str | Path) -> dict[str, dict[str, Any]]:
+    """Read a zoo YAML file: a mapping from env id (or ``default``) to a mapping of hyperparameters."""
+    with open(path) as file:
+        config = yaml.safe_load(file)
+    if not isinstance(config, dict) or not all(isinstance(entry, dict) for entry in config.values()):
+        raise ValueError(f"{path}: expected a mapping of env id -> mapping of hyperparameters")
+    return config
+
+
+def select_entry(config: dict[str, dict[str, Any]], env_id: str) -> dict[str, Any]:
+    """The entry rl-zoo3 would use for ``env_id``: its own, else ``default`` (a copy)."""
+    if env_id in config:
+        return dict(config[env_id])
+    if "default" in config:
+        return dict(config["default"])
+    raise ValueError(f"No entry for env {env_id!r} and no 'default' entry; entries: {sorted(config)}")
+
+
+def allowed_keys(algo_class: type) -> frozenset[str]:
+    """Keys an entry may hold for ``algo_class``: its constructor arguments plus rl-zoo3's own keys."""
+    parameters = inspect.signature(algo_class.__init__).parameters
+    return frozenset(parameters) - SET_BY_ZOO | ZOO_KEYS
+
+
+def check_keys(algo: str, algo_class: type, keys: Any, where: str) -> None:
+    """Raise ``ValueError`` naming the first key that ``algo_class`` (through rl-zoo3) would not accept."""
+    allowed = allowed_keys(algo_class)
+    for key in keys:
+        if key in REJECTED_KEYS:
+            raise ValueError(f"{where}: key {key!r} is not supported for {algo}: {REJECTED_KEYS[key]}")
+        if key not in allowed:
+            raise ValueError(f"{where}: unknown key {key!r} for {algo}; expected one of {sorted(allowed)}")
+
+
+def validate_config(algo: str, algo_class: type, config: dict[str, dict[str, Any]], source: str = "config") -> None:
+    """Check every entry of a zoo config: a registered env id (or ``default``), known keys, ``policy`` and
+    ``n_timesteps`` present. Raise ``ValueError`` naming the entry and the offending key or id."""
+    registry = gym.envs.registry
+    for name, entry in config.items():
+        where = f"{source}, entry {name!r}"
+        if name != "default" and name not in registry:
+            raise ValueError(f"{where}: env id {name!r} is not registered with gymnasium (did `import sb3_ef` run?)")
+        check_keys(algo, algo_class, entry, where)
+        for required in ("policy", "n_timesteps"):
+            if required not in entry:
+                raise ValueError(f"{where}: missing required key {required!r}")

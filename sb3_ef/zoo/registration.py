@@ -1,0 +1,46 @@
+"""Register sb3-ef's algorithms with rl-zoo3 without forking it.
+
+rl-zoo3 looks algorithms up in ``rl_zoo3.utils.ALGOS`` and Optuna samplers in ``rl_zoo3.hyperparams_opt``'s two
+dictionaries; all its modules share those dictionary objects, so adding our keys in place is enough. It evaluates
+strings from the YAML files (``policy_kwargs``, ``replay_buffer_class``, ...) and ``--hyperparams`` values in the
+namespaces of ``rl_zoo3.exp_manager`` and ``rl_zoo3.utils``; the names a config may use are added there.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import Any
+
+from rl_zoo3 import exp_manager, hyperparams_opt, utils
+
+from sb3_ef.zoo.hyperparams_opt import CONVERTERS, SAMPLERS
+
+
+def algorithm_classes() -> dict[str, type]:
+    """rl-zoo3 key -> algorithm class (imported on demand: the algorithms pull in torch)."""
+    from sb3_ef.drqv2 import DrQv2, DrQv2EF
+    from sb3_ef.tdmpc2 import TDMPC2, TDMPC2EF
+
+    return {"drqv2_ef": DrQv2EF, "drqv2": DrQv2, "tdmpc2_ef": TDMPC2EF, "tdmpc2": TDMPC2}
+
+
+def config_namespace() -> dict[str, Any]:
+    """Names a zoo config string may use, e.g. ``replay_buffer_class: SequenceReplayBuffer``."""
+    from sb3_ef.common.buffers import SequenceReplayBuffer
+
+    return {"SequenceReplayBuffer": SequenceReplayBuffer}
+
+
+def register_algorithms(base_policy_kwargs: dict[str, Any] | None = None) -> None:
+    """Add ``drqv2_ef``, ``drqv2``, ``tdmpc2_ef`` and ``tdmpc2`` to rl-zoo3 (algorithms, samplers, converters).
+
+    :param base_policy_kwargs: ``policy_kwargs`` of the config entry in use. rl-zoo3 replaces the entry's
+        ``policy_kwargs`` with the sampled ones; the samplers merge into these instead, so tuning ``agent_dim`` keeps
+        the entry's other policy settings.
+    """
+    utils.ALGOS.update(algorithm_classes())
+    for key, sampler in SAMPLERS.items():
+        hyperparams_opt.HYPERPARAMS_SAMPLER[key] = partial(sampler, base_policy_kwargs=base_policy_kwargs)
+        hyperparams_opt.HYPERPARAMS_CONVERTER[key] = partial(CONVERTERS[key], base_policy_kwargs=base_policy_kwargs)
+    for module in (exp_manager, utils):
+        vars(module).update(config_namespace())
