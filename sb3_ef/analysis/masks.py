@@ -1,0 +1,76 @@
+"""Scoring a saliency map against the simulator's agent mask: threshold rule, precision, recall, IoU."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+THRESHOLD_RULES = ("mean_std", "top_fraction")
+
+
+def threshold_saliency(
+    saliency: np.ndarray, rule: str = "mean_std", num_std: float = 1.0, fraction: float = 0.1
+) -> np.ndarray:
+    """Turn a saliency map into a boolean "agent" mask.
+
+    Rules:
+
+    - ``"mean_std"`` (default): pixels whose value is strictly above ``mean + num_std * std`` of the map.
+      Scale-free, so it does not depend on how the map was normalised.
+    - ``"top_fraction"``: the ``fraction`` of pixels with the highest values (ties at the cut included).
+      Passing the true mask's pixel fraction gives the "matched size" rule, for which precision equals recall.
+
+    :param saliency: (h, w) map, e.g. ``Saliency.agent``.
+    :return: (h, w) bool array.
+    """
+    saliency = np.asarray(saliency, dtype=np.float64)
+    if saliency.ndim != 2:
+        raise ValueError(f"Expected a (height, width) saliency map, got shape {saliency.shape}")
+    if rule == "mean_std":
+        return saliency > saliency.mean() + num_std * saliency.std()
+    if rule == "top_fraction":
+        if not 0.0 < fraction <= 1.0:
+            raise ValueError(f"fraction must be in (0, 1], got {fraction}")
+        count = max(1, round(fraction * saliency.size))
+        cut = np.partition(saliency.ravel(), saliency.size - count)[saliency.size - count]
+        return saliency >= cut
+    raise ValueError(f"Unknown threshold rule {rule!r}, expected one of {THRESHOLD_RULES}")
+
+
+@dataclass(frozen=True)
+class MaskScores:
+    """Pixel-level agreement of a predicted mask with the true agent mask (NaN where a ratio is undefined)."""
+
+    precision: float
+    recall: float
+    iou: float
+
+    def as_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+def _ratio(numerator: int, denominator: int) -> float:
+    return numerator / denominator if denominator > 0 else float("nan")
+
+
+def mask_scores(predicted: np.ndarray, target: np.ndarray) -> MaskScores:
+    """Precision TP/(TP+FP), recall TP/(TP+FN) and IoU TP/(TP+FP+FN) of two boolean masks of the same shape.
+
+    A ratio with a zero denominator (nothing predicted, no agent in view, both empty) is NaN rather than a
+    made-up 0 or 1, so averages over frames can skip it with ``np.nanmean``.
+    """
+    predicted = np.asarray(predicted)
+    target = np.asarray(target)
+    if predicted.shape != target.shape:
+        raise ValueError(f"Mask shapes differ: predicted {predicted.shape}, target {target.shape}")
+    if predicted.dtype != bool or target.dtype != bool:
+        raise TypeError(f"Expected boolean masks, got predicted {predicted.dtype} and target {target.dtype}")
+    true_positive = int(np.count_nonzero(predicted & target))
+    false_positive = int(np.count_nonzero(predicted & ~target))
+    false_negative = int(np.count_nonzero(~predicted & target))
+    return MaskScores(
+        precision=_ratio(true_positive, true_positive + false_positive),
+        recall=_ratio(true_positive, true_positive + false_negative),
+        iou=_ratio(true_positive, true_positive + false_positive + false_negative),
+    )

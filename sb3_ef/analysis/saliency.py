@@ -1,0 +1,133 @@
+"""Which pixels of a predicted frame each half of the representation controls (paper Section 4.2).
+
+The decoded frame is cut into ``patch_size`` x ``patch_size`` patches. For every patch the scalar is the sum of
+its decoded pixel values over the three colour channels (values in [0, 1], before any conversion to uint8); the
+patch's score is the L2 norm of that scalar's gradient with respect to the agent features h_a fed to the
+decoder, and separately with respect to the scene features h_s. All patches are differentiated in one batched
+backward pass (``is_grads_batched``), in chunks to bound memory.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import torch as th
+from torch import nn
+
+from sb3_ef.analysis.prediction import (
+    ForesightModel,
+    as_observation_batch,
+    eval_mode,
+    module_device,
+    resolve_foresight,
+    to_uint8_frames,
+)
+
+
+@dataclass(frozen=True)
+class Saliency:
+    """Saliency of one decoded frame.
+
+    ``agent`` / ``scene`` are (h, w) maps at frame resolution, each patch's value broadcast over its pixels and
+    each map divided by its own maximum (so in [0, 1]; an all-zero map stays zero). ``agent_patches`` /
+    ``scene_patches`` keep the raw gradient norms per patch, (h / patch, w / patch), to compare magnitudes.
+    """
+
+    frame: np.ndarray
+    agent: np.ndarray
+    scene: np.ndarray
+    agent_patches: np.ndarray
+    scene_patches: np.ndarray
+
+
+def _normalise(patches: np.ndarray, patch_size: int) -> np.ndarray:
+    peak = patches.max()
+    scaled = patches / peak if peak > 0 else np.zeros_like(patches)
+    return np.kron(scaled, np.ones((patch_size, patch_size)))
+
+
+def decoder_saliency(
+    ef: nn.Module,
+    h_scene: th.Tensor,
+    h_agent: th.Tensor,
+    patch_size: int = 4,
+    skip: th.Tensor | None = None,
+    chunk_size: int = 128,
+) -> Saliency:
+    """Saliency of ``ef.decode(h_scene, h_agent)`` for a batch of one.
+
+    :param h_scene: (1, scene_dim) scene features.
+    :param h_agent: (1, agent_dim) agent features as given to the decoder (context or rolled out).
+    :param chunk_size: patches differentiated per batched backward call.
+    """
+    if h_scene.dim() != 2 or h_agent.dim() != 2 or h_scene.shape[0] != 1 or h_agent.shape[0] != 1:
+        raise ValueError(
+            f"Expected h_scene (1, scene_dim) and h_agent (1, agent_dim), got {tuple(h_scene.shape)} "
+            f"and {tuple(h_agent.shape)}"
+        )
+    h_scene = h_scene.detach().clone().requires_grad_(True)
+    h_agent = h_agent.detach().clone().requires_grad_(True)
+    with th.enable_grad(), eval_mode(ef):
+        frame = ef.decode(h_scene, h_agent, skip)
+        _, channels, height, width = frame.shape
+        if height % patch_size or width % patch_size:
+            raise ValueError(f"Frame size {height}x{width} is not divisible by patch_size={patch_size}")
+        rows, columns = height // patch_size, width // patch_size
+        patch_sums = frame[0].reshape(channels, rows, patch_size, columns, patch_size).sum(dim=(0, 2, 4)).flatten()
+        basis = th.eye(patch_sums.numel(), device=patch_sums.device, dtype=patch_sums.dtype)
+        agent_norms, scene_norms = [], []
+        for start in range(0, patch_sums.numel(), chunk_size):
+            grad_agent, grad_scene = th.autograd.grad(
+                patch_sums,
+                (h_agent, h_scene),
+                grad_outputs=basis[start : start + chunk_size],
+                retain_graph=True,
+                is_grads_batched=True,
+            )
+            agent_norms.append(grad_agent.flatten(1).norm(dim=1))
+            scene_norms.append(grad_scene.flatten(1).norm(dim=1))
+    agent_patches = th.cat(agent_norms).reshape(rows, columns).cpu().numpy()
+    scene_patches = th.cat(scene_norms).reshape(rows, columns).cpu().numpy()
+    return Saliency(
+        frame=to_uint8_frames(frame[0]),
+        agent=_normalise(agent_patches, patch_size),
+        scene=_normalise(scene_patches, patch_size),
+        agent_patches=agent_patches,
+        scene_patches=scene_patches,
+    )
+
+
+def compute_saliency(
+    observation: np.ndarray | th.Tensor,
+    actions: np.ndarray | th.Tensor | None = None,
+    model: ForesightModel | None = None,
+    encoder: Callable[[th.Tensor], th.Tensor] | None = None,
+    ef: nn.Module | None = None,
+    patch_size: int = 4,
+) -> Saliency:
+    """Saliency of the frame EF predicts after ``actions`` (T, action_dim) from one stacked observation, or of
+    its reconstruction of the newest context frame when ``actions`` is None. Gradients are taken with respect
+    to the decoder's inputs: the context's h_s and the (rolled-out) h_a."""
+    encode, foresight = resolve_foresight(model, encoder, ef)
+    device = module_device(foresight)
+    with th.no_grad(), eval_mode(foresight, encoder):
+        h_scene, h_agent = foresight.split(encode(as_observation_batch(observation, device)))
+        if actions is not None:
+            action_tensor = th.as_tensor(np.asarray(actions, dtype=np.float32)).to(device)
+            if action_tensor.dim() != 2:
+                raise ValueError(f"Expected actions of shape (steps, action_dim), got {tuple(action_tensor.shape)}")
+            h_agent = foresight.rollout(h_agent, action_tensor.unsqueeze(0))[:, -1]
+    return decoder_saliency(foresight, h_scene, h_agent, patch_size=patch_size)
+
+
+def saliency_overlay(
+    frame: np.ndarray, saliency_map: np.ndarray, alpha: float = 0.7, color: tuple[int, int, int] = (255, 0, 0)
+) -> np.ndarray:
+    """Blend ``color`` into a uint8 (h, w, 3) frame in proportion to a [0, 1] (h, w) map: weight ``alpha * map``."""
+    if frame.shape[:2] != saliency_map.shape:
+        raise ValueError(f"Frame {frame.shape[:2]} and saliency map {saliency_map.shape} differ in size")
+    weight = alpha * np.clip(saliency_map, 0.0, 1.0)[..., None]
+    blended = (1.0 - weight) * frame.astype(np.float64) + weight * np.asarray(color, dtype=np.float64)
+    return blended.round().astype(np.uint8)
