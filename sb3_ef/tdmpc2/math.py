@@ -1,0 +1,65 @@
+"""TD-MPC2 numerics: symlog/symexp, two-hot discrete regression and the discount heuristic."""
+
+from __future__ import annotations
+
+import torch as th
+from torch.nn import functional as F
+
+
+def symlog(x: th.Tensor) -> th.Tensor:
+    """Symmetric log, ``sign(x) * log(1 + |x|)``: compresses large rewards and values."""
+    return th.sign(x) * th.log1p(x.abs())
+
+
+def symexp(x: th.Tensor) -> th.Tensor:
+    """Inverse of :func:`symlog`."""
+    return th.sign(x) * th.expm1(x.abs())
+
+
+class TwoHot:
+    """Discrete regression of scalars on ``num_bins`` evenly spaced bins in symlog space.
+
+    Rewards and Q-values are predicted as logits over the bins and trained with a cross-entropy against a
+    two-hot target, which keeps the loss scale independent of the reward scale (TD-MPC2, DreamerV3).
+    """
+
+    def __init__(self, num_bins: int = 101, vmin: float = -10.0, vmax: float = 10.0):
+        if num_bins < 2:
+            raise ValueError(f"TwoHot needs at least 2 bins, got num_bins={num_bins}")
+        if not vmin < vmax:
+            raise ValueError(f"TwoHot needs vmin < vmax, got vmin={vmin}, vmax={vmax}")
+        self.num_bins = num_bins
+        self.vmin = vmin
+        self.vmax = vmax
+        self.bin_size = (vmax - vmin) / (num_bins - 1)
+
+    def encode(self, x: th.Tensor) -> th.Tensor:
+        """Scalars of any shape -> two-hot vectors with a trailing ``num_bins`` axis (clamped to the range)."""
+        position = (symlog(x).clamp(self.vmin, self.vmax) - self.vmin) / self.bin_size
+        # The lower bin stops one short of the end so that vmax lands on the last bin with weight 1.
+        lower = position.floor().clamp(max=self.num_bins - 2)
+        upper_weight = (position - lower).unsqueeze(-1)
+        lower = lower.long().unsqueeze(-1)
+        target = th.zeros(*x.shape, self.num_bins, dtype=x.dtype, device=x.device)
+        target.scatter_(-1, lower, 1.0 - upper_weight)
+        target.scatter_(-1, lower + 1, upper_weight)
+        return target
+
+    def decode(self, logits: th.Tensor) -> th.Tensor:
+        """Logits ``(..., num_bins)`` -> expected scalar ``(...)`` (softmax mean in symlog space, then symexp)."""
+        bins = th.linspace(self.vmin, self.vmax, self.num_bins, dtype=logits.dtype, device=logits.device)
+        return symexp((F.softmax(logits, dim=-1) * bins).sum(-1))
+
+    def cross_entropy(self, logits: th.Tensor, target: th.Tensor) -> th.Tensor:
+        """Cross-entropy between logits ``(..., num_bins)`` and the two-hot encoding of scalars ``(...)``."""
+        return -(self.encode(target) * F.log_softmax(logits, dim=-1)).sum(-1)
+
+
+def discount_from_episode_length(
+    episode_length: int, denominator: float = 5.0, minimum: float = 0.95, maximum: float = 0.995
+) -> float:
+    """TD-MPC2's discount heuristic: ``(L/5 - 1) / (L/5)`` clipped to [0.95, 0.995] (0.99 for 500-step episodes)."""
+    if episode_length <= 0:
+        raise ValueError(f"episode_length must be positive, got {episode_length}")
+    fraction = episode_length / denominator
+    return min(max((fraction - 1) / fraction, minimum), maximum)
