@@ -1,0 +1,254 @@
+"""DrQ-v2 networks: the pixel encoder (with Ego-Foresight's projection), the actor, the twin critic and the policy."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_mlp
+from stable_baselines3.common.type_aliases import Schedule
+from torch import nn
+
+from sb3_ef.ef import EgoForesight
+
+FRAME_CHANNELS = 3
+# Conv stack of DrQ-v2: (kernel, stride) per layer, 32 filters each.
+_CONV_LAYERS = ((3, 2), (3, 1), (3, 1), (3, 1))
+_POOL = 4
+
+
+def check_image_space(observation_space: spaces.Space) -> tuple[int, int, int]:
+    """Check for stacked uint8 RGB frames, channels-first, and return their ``(channels, height, width)``."""
+    if (
+        not isinstance(observation_space, spaces.Box)
+        or observation_space.dtype != np.uint8
+        or len(observation_space.shape) != 3
+        or observation_space.shape[0] % FRAME_CHANNELS != 0
+    ):
+        raise ValueError(
+            "DrQ-v2 expects stacked RGB frames: a uint8 Box of shape (3 * frame_stack, height, width), "
+            f"got {observation_space}"
+        )
+    channels, height, width = observation_space.shape
+    return channels, height, width
+
+
+def _conv_output_size(size: int) -> int:
+    for kernel, stride in _CONV_LAYERS:
+        size = (size - kernel) // stride + 1
+    return size
+
+
+class DrQv2Encoder(BaseFeaturesExtractor):
+    """DrQ-v2's conv stack on ``obs / 255 - 0.5``, followed, when ``features_dim`` is given, by DrQv2-EF's
+    ``AvgPool2d(4, 4)`` and a linear projection (no activation, orthogonal init) to ``features_dim``.
+
+    With Ego-Foresight the features are split by :meth:`sb3_ef.ef.EgoForesight.split`: the first ``agent_dim``
+    dimensions are the agent features, the rest the scene features. The encoder itself treats all alike.
+
+    :param observation_space: uint8 Box of shape (3 * frame_stack, height, width).
+    :param features_dim: size of the projected features; ``None`` keeps DrQ-v2's flattened conv output
+        (32 * 35 * 35 = 39200 at 84x84). Any image size works as long as the pooled map is at least 1x1
+        (21x21 and larger with the projection, 15x15 without).
+    :param n_filters: channels of every conv layer.
+    """
+
+    def __init__(self, observation_space: spaces.Box, features_dim: int | None = 2048, n_filters: int = 32):
+        channels, height, width = check_image_space(observation_space)
+        conv_height, conv_width = _conv_output_size(height), _conv_output_size(width)
+        divisor = _POOL if features_dim is not None else 1
+        if conv_height // divisor < 1 or conv_width // divisor < 1:
+            smallest = next(size for size in range(1, 1000) if _conv_output_size(size) // divisor >= 1)
+            raise ValueError(
+                f"Images of {height}x{width} are too small for the DrQ-v2 encoder"
+                f"{' with its pooled projection' if features_dim is not None else ''}: "
+                f"expected at least {smallest}x{smallest}"
+            )
+        conv_dim = n_filters * conv_height * conv_width
+        super().__init__(observation_space, features_dim if features_dim is not None else conv_dim)
+
+        layers: list[nn.Module] = []
+        in_channels = channels
+        for kernel, stride in _CONV_LAYERS:
+            layers += [nn.Conv2d(in_channels, n_filters, kernel, stride=stride), nn.ReLU()]
+            in_channels = n_filters
+        self.convnet = nn.Sequential(*layers)
+        self.projection: nn.Module = nn.Flatten()
+        if features_dim is not None:
+            pooled_dim = n_filters * (conv_height // _POOL) * (conv_width // _POOL)
+            self.projection = nn.Sequential(
+                nn.AvgPool2d(_POOL, _POOL), nn.Flatten(), nn.Linear(pooled_dim, features_dim)
+            )
+
+    def forward(self, observations: th.Tensor) -> th.Tensor:
+        return self.projection(self.convnet(observations.float() / 255.0 - 0.5))
+
+
+class DrQv2Actor(nn.Module):
+    """Deterministic actor: trunk Linear -> LayerNorm -> Tanh, then an MLP with a tanh output (the mean action)."""
+
+    def __init__(self, features_dim: int, action_dim: int, trunk_dim: int, net_arch: list[int]):
+        super().__init__()
+        self.trunk = nn.Sequential(nn.Linear(features_dim, trunk_dim), nn.LayerNorm(trunk_dim), nn.Tanh())
+        self.mu = nn.Sequential(*create_mlp(trunk_dim, action_dim, net_arch, nn.ReLU, squash_output=True))
+
+    def forward(self, features: th.Tensor) -> th.Tensor:
+        return self.mu(self.trunk(features))
+
+
+class DrQv2Critic(nn.Module):
+    """Twin Q-function: a trunk on the features (Linear -> LayerNorm -> Tanh), then one MLP per Q head on
+    ``[trunk(h), action]``."""
+
+    def __init__(self, features_dim: int, action_dim: int, trunk_dim: int, net_arch: list[int], n_critics: int = 2):
+        super().__init__()
+        self.trunk = nn.Sequential(nn.Linear(features_dim, trunk_dim), nn.LayerNorm(trunk_dim), nn.Tanh())
+        self.q_networks = nn.ModuleList(
+            nn.Sequential(*create_mlp(trunk_dim + action_dim, 1, net_arch, nn.ReLU)) for _ in range(n_critics)
+        )
+
+    def forward(self, features: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, ...]:
+        trunk_actions = th.cat([self.trunk(features), actions], dim=1)
+        return tuple(q_network(trunk_actions) for q_network in self.q_networks)
+
+
+def _orthogonal_init(module: nn.Module) -> None:
+    """DrQ-v2's initialisation: orthogonal weights (ReLU gain for convolutions), zero biases."""
+    if isinstance(module, nn.Linear):
+        nn.init.orthogonal_(module.weight)
+        nn.init.zeros_(module.bias)
+    elif isinstance(module, nn.Conv2d):
+        nn.init.orthogonal_(module.weight, nn.init.calculate_gain("relu"))
+        nn.init.zeros_(module.bias)
+
+
+class DrQv2Policy(BasePolicy):
+    """Encoder, actor, critic, critic target and (optionally) the Ego-Foresight module of DrQv2-EF / DrQ-v2.
+
+    Two optimisers: ``critic.optimizer`` trains the encoder, the critic and the EF module together (they share the
+    loss ``critic + beta * ef``); ``actor.optimizer`` trains the actor alone (it sees detached features).
+
+    :param observation_space: uint8 Box of shape (3 * frame_stack, height, width).
+    :param action_space: Box action space.
+    :param lr_schedule: learning rate schedule (the same rate for all networks, as DrQ-v2).
+    :param net_arch: hidden sizes of the actor and Q heads.
+    :param trunk_dim: size of the actor's and critic's trunk output.
+    :param n_critics: number of Q heads (their minimum is used).
+    :param features_dim: encoder projection size, ``None`` for DrQ-v2's unprojected conv features.
+    :param agent_dim: number of leading feature dimensions that are agent features (EF only).
+    :param ef_horizon: Ego-Foresight prediction horizon; ``None`` builds no EF module (plain DrQ-v2).
+    :param ef_kwargs: extra arguments for :class:`sb3_ef.ef.EgoForesight` (decoder / rollout options).
+    :param optimizer_class: optimiser class.
+    :param optimizer_kwargs: optimiser arguments other than the learning rate.
+    """
+
+    def __init__(
+        self,
+        observation_space: spaces.Box,
+        action_space: spaces.Box,
+        lr_schedule: Schedule,
+        net_arch: list[int] | None = None,
+        trunk_dim: int = 50,
+        n_critics: int = 2,
+        features_dim: int | None = 2048,
+        agent_dim: int = 32,
+        ef_horizon: int | None = 10,
+        ef_kwargs: dict[str, Any] | None = None,
+        optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
+        optimizer_kwargs: dict[str, Any] | None = None,
+    ):
+        super().__init__(
+            observation_space,
+            action_space,
+            features_extractor_class=DrQv2Encoder,
+            features_extractor_kwargs={"features_dim": features_dim},
+            normalize_images=False,
+            optimizer_class=optimizer_class,
+            optimizer_kwargs=optimizer_kwargs,
+            squash_output=True,
+        )
+        self.net_arch = net_arch if net_arch is not None else [1024, 1024]
+        self.trunk_dim = trunk_dim
+        self.n_critics = n_critics
+        self.features_dim = features_dim
+        self.agent_dim = agent_dim
+        self.ef_horizon = ef_horizon
+        self.ef_kwargs = ef_kwargs or {}
+        self._build(lr_schedule)
+
+    def _build(self, lr_schedule: Schedule) -> None:
+        action_dim = int(np.prod(self.action_space.shape))
+        self.encoder = DrQv2Encoder(self.observation_space, features_dim=self.features_dim)
+        repr_dim = self.encoder.features_dim
+        self.actor = DrQv2Actor(repr_dim, action_dim, self.trunk_dim, self.net_arch)
+        self.critic = DrQv2Critic(repr_dim, action_dim, self.trunk_dim, self.net_arch, self.n_critics)
+        for module in (self.encoder, self.actor, self.critic):
+            module.apply(_orthogonal_init)
+        self.critic_target = DrQv2Critic(repr_dim, action_dim, self.trunk_dim, self.net_arch, self.n_critics)
+        self.critic_target.load_state_dict(self.critic.state_dict())
+        self.critic_target.train(False)
+        self.critic_target.requires_grad_(False)
+
+        self.ef: EgoForesight | None = None
+        if self.ef_horizon is not None:
+            if repr_dim <= self.agent_dim:
+                raise ValueError(
+                    f"Ego-Foresight needs features_dim > agent_dim (scene features must remain), "
+                    f"got features_dim={repr_dim}, agent_dim={self.agent_dim}"
+                )
+            self.ef = EgoForesight(
+                repr_dim,
+                action_dim,
+                frame_shape=self.frame_shape,
+                agent_dim=self.agent_dim,
+                horizon=self.ef_horizon,
+                **self.ef_kwargs,
+            )
+
+        representation_params = [*self.encoder.parameters(), *self.critic.parameters()]
+        if self.ef is not None:
+            representation_params += list(self.ef.parameters())
+        self.critic.optimizer = self.optimizer_class(representation_params, lr=lr_schedule(1), **self.optimizer_kwargs)  # type: ignore[call-arg]
+        self.actor.optimizer = self.optimizer_class(self.actor.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)  # type: ignore[call-arg]
+
+    @property
+    def frame_shape(self) -> tuple[int, int, int]:
+        """Shape ``(3, height, width)`` of one RGB frame of the stacked observation."""
+        _, height, width = self.observation_space.shape
+        return (FRAME_CHANNELS, height, width)
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        del data["normalize_images"]  # fixed: the encoder scales images itself
+        data.update(
+            net_arch=self.net_arch,
+            trunk_dim=self.trunk_dim,
+            n_critics=self.n_critics,
+            features_dim=self.features_dim,
+            agent_dim=self.agent_dim,
+            ef_horizon=self.ef_horizon,
+            ef_kwargs=self.ef_kwargs,
+            lr_schedule=self._dummy_schedule,
+            optimizer_class=self.optimizer_class,
+            optimizer_kwargs=self.optimizer_kwargs,
+        )
+        return data
+
+    def forward(self, observation: th.Tensor, deterministic: bool = True) -> th.Tensor:
+        return self._predict(observation, deterministic=deterministic)
+
+    def _predict(self, observation: th.Tensor, deterministic: bool = True) -> th.Tensor:
+        """The mean action (tanh-squashed). Exploration noise is added by the algorithm during rollouts, so
+        ``deterministic`` is ignored, as in TD3."""
+        return self.actor(self.encoder(observation))
+
+    def set_training_mode(self, mode: bool) -> None:
+        self.encoder.train(mode)
+        self.actor.train(mode)
+        self.critic.train(mode)
+        if self.ef is not None:
+            self.ef.train(mode)
+        self.training = mode
