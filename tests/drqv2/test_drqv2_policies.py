@@ -1,0 +1,117 @@
+import numpy as np
+import pytest
+import torch as th
+from gymnasium import spaces
+
+from sb3_ef.drqv2.policies import DrQv2Encoder, DrQv2Policy, check_image_space
+
+
+def image_space(size: int, channels: int = 9) -> spaces.Box:
+    return spaces.Box(0, 255, (channels, size, size), np.uint8)
+
+
+ACTIONS = spaces.Box(-1.0, 1.0, (2,), np.float32)
+TINY = {"net_arch": [16], "trunk_dim": 8, "features_dim": 48, "agent_dim": 8}
+TINY_EF = {"rollout_hidden_dims": (8,), "decoder_channels": 4}
+
+
+@pytest.mark.parametrize(
+    ("size", "features_dim", "expected_dim"),
+    [(84, None, 32 * 35 * 35), (84, 2048, 2048), (64, 2048, 2048), (32, 128, 128), (21, 16, 16), (15, None, 32)],
+)
+def test_encoder_output_size(size, features_dim, expected_dim):
+    encoder = DrQv2Encoder(image_space(size), features_dim=features_dim)
+    observations = th.randint(0, 256, (2, 9, size, size), dtype=th.uint8)
+    assert encoder.features_dim == expected_dim
+    assert encoder(observations).shape == (2, expected_dim)
+
+
+def test_encoder_pools_to_the_reference_size_at_84():
+    encoder = DrQv2Encoder(image_space(84), features_dim=2048)
+    linear = encoder.projection[-1]
+    assert linear.in_features == 32 * 8 * 8
+
+
+@pytest.mark.parametrize(("size", "features_dim", "smallest"), [(20, 2048, 21), (14, None, 15)])
+def test_encoder_rejects_too_small_images(size, features_dim, smallest):
+    with pytest.raises(ValueError, match=f"{size}x{size} are too small.*at least {smallest}x{smallest}"):
+        DrQv2Encoder(image_space(size), features_dim=features_dim)
+
+
+@pytest.mark.parametrize(
+    "space",
+    [
+        spaces.Box(0.0, 1.0, (9, 32, 32), np.float32),
+        spaces.Box(0, 255, (8, 32, 32), np.uint8),
+        spaces.Box(0, 255, (32, 32), np.uint8),
+        spaces.Box(-1.0, 1.0, (5,), np.float32),
+    ],
+)
+def test_non_image_spaces_are_rejected(space):
+    with pytest.raises(ValueError, match=r"uint8 Box of shape \(3 \* frame_stack, height, width\), got"):
+        check_image_space(space)
+
+
+def test_encoder_centres_pixels():
+    encoder = DrQv2Encoder(image_space(32), features_dim=8)
+    grey = th.full((1, 9, 32, 32), 127.5)
+    with th.no_grad():
+        # obs / 255 - 0.5 maps mid-grey to 0: with zero biases the conv stack then outputs zeros.
+        for layer in encoder.convnet:
+            if isinstance(layer, th.nn.Conv2d):
+                layer.bias.zero_()
+        assert th.allclose(encoder.convnet(grey / 255.0 - 0.5), th.zeros(()))
+
+
+def make_policy(size: int = 32, ef_horizon: int | None = 3, **kwargs) -> DrQv2Policy:
+    params = {**TINY, "ef_kwargs": TINY_EF, **kwargs}
+    return DrQv2Policy(image_space(size), ACTIONS, lambda _: 1e-3, ef_horizon=ef_horizon, **params)
+
+
+def test_policy_networks_and_shapes():
+    policy = make_policy()
+    observations = th.randint(0, 256, (4, 9, 32, 32), dtype=th.uint8)
+    features = policy.encoder(observations)
+    actions = policy.actor(features)
+    assert features.shape == (4, 48)
+    assert actions.shape == (4, 2) and actions.abs().max() <= 1.0
+    q_values = policy.critic(features, actions)
+    assert len(q_values) == 2 and all(q.shape == (4, 1) for q in q_values)
+    assert policy.ef is not None and policy.ef.frame_shape == (3, 32, 32) and policy.ef.horizon == 3
+    assert policy.frame_shape == (3, 32, 32)
+    assert th.equal(policy(observations), actions)
+
+
+def test_critic_target_starts_equal_and_has_no_gradients():
+    policy = make_policy()
+    for online, target in zip(policy.critic.parameters(), policy.critic_target.parameters(), strict=True):
+        assert th.equal(online, target)
+        assert not target.requires_grad
+
+
+def test_optimisers_split_representation_and_actor():
+    policy = make_policy()
+    critic_params = {id(p) for group in policy.critic.optimizer.param_groups for p in group["params"]}
+    actor_params = {id(p) for group in policy.actor.optimizer.param_groups for p in group["params"]}
+    assert {id(p) for p in policy.encoder.parameters()} <= critic_params
+    assert {id(p) for p in policy.ef.parameters()} <= critic_params
+    assert {id(p) for p in policy.critic.parameters()} <= critic_params
+    assert actor_params == {id(p) for p in policy.actor.parameters()}
+
+
+def test_plain_policy_has_no_ef():
+    policy = make_policy(ef_horizon=None)
+    assert policy.ef is None
+
+
+def test_features_must_exceed_agent_dim():
+    with pytest.raises(ValueError, match="features_dim > agent_dim.*got features_dim=8, agent_dim=8"):
+        make_policy(features_dim=8, agent_dim=8)
+
+
+def test_policy_rebuilds_from_constructor_parameters():
+    policy = make_policy()
+    rebuilt = DrQv2Policy(**policy._get_constructor_parameters())
+    rebuilt.load_state_dict(policy.state_dict())
+    observations = th.randint(0, 256, (3, 9, 32, 32), dtype=th.uint8)
+    assert th.equal(rebuilt(observations), policy(observations))
