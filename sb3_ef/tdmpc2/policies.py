@@ -1,0 +1,205 @@
+"""The TD-MPC2 policy: world model, optional Ego-Foresight module, MPPI planner, optimisers and Q scale."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
+
+from sb3_ef.ef import EgoForesight
+from sb3_ef.tdmpc2.math import TwoHot
+from sb3_ef.tdmpc2.planner import MPPIPlanner
+from sb3_ef.tdmpc2.world_model import FRAME_SIZE, WorldModel
+
+FRAME_CHANNELS = 3
+
+
+def check_pixel_space(observation_space: spaces.Space) -> tuple[int, int, int]:
+    """Check for stacked 64x64 uint8 RGB frames, channels-first, and return ``(channels, height, width)``."""
+    if (
+        not isinstance(observation_space, spaces.Box)
+        or observation_space.dtype != np.uint8
+        or len(observation_space.shape) != 3
+        or observation_space.shape[0] % FRAME_CHANNELS != 0
+    ):
+        raise ValueError(
+            "TD-MPC2 expects stacked RGB frames: a uint8 Box of shape (3 * frame_stack, 64, 64), "
+            f"got {observation_space}"
+        )
+    channels, height, width = observation_space.shape
+    if (height, width) != (FRAME_SIZE, FRAME_SIZE):
+        raise ValueError(
+            f"TD-MPC2's encoder expects {FRAME_SIZE}x{FRAME_SIZE} frames (make_env(..., size=64)), got {height}x{width}"
+        )
+    return channels, height, width
+
+
+class TDMPC2Policy(BasePolicy):
+    """Holds everything TD-MPC2 learns and plans with.
+
+    ``optimizer`` trains the world model (encoder at ``encoder_lr_scale`` times the learning rate) and, with EF,
+    the Ego-Foresight module; ``pi_optimizer`` trains the policy prior. ``q_scale`` is the running 5-95 percentile
+    range of Q that normalises the policy loss. Actions come from MPPI planning (``plan``); ``predict`` keeps
+    one warm-start plan per env and resets it where ``episode_start`` is true.
+
+    :param observation_space: uint8 Box (3 * frame_stack, 64, 64).
+    :param action_space: Box in [-1, 1].
+    :param lr_schedule: learning rate schedule (the algorithm updates the rates during training).
+    :param num_channels: conv channels; the latent size is ``16 * num_channels`` (512 by default).
+    :param mlp_dim: hidden size of the dynamics, reward, policy and Q MLPs.
+    :param num_q: number of Q heads.
+    :param dropout: dropout in the first layer of the Q heads.
+    :param simnorm_dim: SimNorm group size.
+    :param num_bins: two-hot bins of reward and Q.
+    :param vmin: lower end of the bins (symlog space).
+    :param vmax: upper end of the bins (symlog space).
+    :param encoder_lr_scale: encoder learning rate relative to the rest.
+    :param horizon: planning / world-model horizon (set by the algorithm).
+    :param gamma: discount of the planner's value estimate (set by the algorithm).
+    :param planner_kwargs: MPPI sizes, see :class:`MPPIPlanner` (``iterations``, ``num_samples``, ...).
+    :param ef_horizon: Ego-Foresight horizon, ``None`` without EF (set by the algorithm).
+    :param agent_dim: size of the agent part of the latent (a multiple of ``simnorm_dim``).
+    :param ef_kwargs: extra arguments of :class:`EgoForesight` (decoder and rollout options).
+    :param optimizer_class: optimiser of both parameter sets.
+    :param optimizer_kwargs: extra optimiser arguments.
+    """
+
+    def __init__(
+        self,
+        observation_space: spaces.Box,
+        action_space: spaces.Box,
+        lr_schedule: Schedule,
+        num_channels: int = 32,
+        mlp_dim: int = 512,
+        num_q: int = 5,
+        dropout: float = 0.01,
+        simnorm_dim: int = 8,
+        num_bins: int = 101,
+        vmin: float = -10.0,
+        vmax: float = 10.0,
+        encoder_lr_scale: float = 0.3,
+        horizon: int = 3,
+        gamma: float = 0.99,
+        planner_kwargs: dict[str, Any] | None = None,
+        ef_horizon: int | None = None,
+        agent_dim: int = 32,
+        ef_kwargs: dict[str, Any] | None = None,
+        optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
+        optimizer_kwargs: dict[str, Any] | None = None,
+    ):
+        super().__init__(
+            observation_space,
+            action_space,
+            normalize_images=False,
+            optimizer_class=optimizer_class,
+            optimizer_kwargs=optimizer_kwargs,
+        )
+        channels, height, width = check_pixel_space(observation_space)
+        self.frame_shape = (FRAME_CHANNELS, height, width)
+        self._constructor_kwargs = {
+            "num_channels": num_channels,
+            "mlp_dim": mlp_dim,
+            "num_q": num_q,
+            "dropout": dropout,
+            "simnorm_dim": simnorm_dim,
+            "num_bins": num_bins,
+            "vmin": vmin,
+            "vmax": vmax,
+            "encoder_lr_scale": encoder_lr_scale,
+            "horizon": horizon,
+            "gamma": gamma,
+            "planner_kwargs": planner_kwargs,
+            "ef_horizon": ef_horizon,
+            "agent_dim": agent_dim,
+            "ef_kwargs": ef_kwargs,
+        }
+        action_dim = int(np.prod(action_space.shape))
+        # The world model is built before EF so that TDMPC2 and TDMPC2EF with one seed start from the same weights.
+        self.world_model = WorldModel(
+            channels,
+            action_dim,
+            num_channels=num_channels,
+            mlp_dim=mlp_dim,
+            num_q=num_q,
+            dropout=dropout,
+            simnorm_dim=simnorm_dim,
+            two_hot=TwoHot(num_bins, vmin, vmax),
+        )
+        self.ef: EgoForesight | None = None
+        if ef_horizon is not None:
+            if agent_dim % simnorm_dim != 0:
+                raise ValueError(
+                    f"agent_dim must cover whole SimNorm groups: expected a multiple of {simnorm_dim}, got {agent_dim}"
+                )
+            self.ef = EgoForesight(
+                self.world_model.latent_dim,
+                action_dim,
+                frame_shape=self.frame_shape,
+                agent_dim=agent_dim,
+                horizon=ef_horizon,
+                **(ef_kwargs or {}),
+            )
+        self.planner = MPPIPlanner(horizon=horizon, gamma=gamma, **(planner_kwargs or {}))
+        self.register_buffer("q_scale", th.ones(()))
+        self._plan_mean: th.Tensor | None = None
+
+        learning_rate = lr_schedule(1)
+        model = self.world_model
+        groups = [
+            {"name": "encoder", "params": model.encoder.parameters(), "lr_scale": encoder_lr_scale},
+            {
+                "name": "heads",
+                "params": [*model.dynamics.parameters(), *model.reward_head.parameters(), *model.q_heads.parameters()],
+            },
+        ]
+        if self.ef is not None:
+            groups.append({"name": "ef", "params": self.ef.parameters()})
+        for group in groups:
+            group["lr"] = learning_rate * group.get("lr_scale", 1.0)
+        self.optimizer = self.optimizer_class(groups, lr=learning_rate, **self.optimizer_kwargs)
+        self.pi_optimizer = self.optimizer_class(
+            model.pi_head.parameters(), lr=learning_rate, **{"eps": 1e-5, **self.optimizer_kwargs}
+        )
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        return {**super()._get_constructor_parameters(), **self._constructor_kwargs}
+
+    def encode(self, observations: th.Tensor) -> th.Tensor:
+        """Latent z (the features h that EF splits) of uint8 stacked observations, without augmentation."""
+        return self.world_model.encode(observations)
+
+    def plan(
+        self, observations: th.Tensor, previous_mean: th.Tensor | None, deterministic: bool
+    ) -> tuple[th.Tensor, th.Tensor]:
+        """MPPI actions ``(n_envs, action_dim)`` for stacked observations and the plan mean for the next call."""
+        with th.no_grad():
+            return self.planner.plan(self.world_model, self.encode(observations), previous_mean, deterministic)
+
+    def predict(
+        self,
+        observation: np.ndarray | dict[str, np.ndarray],
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = False,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
+        """SB3's predict; the warm-start plan of every env whose ``episode_start`` is true is reset first."""
+        if episode_start is not None and self._plan_mean is not None:
+            starts = th.as_tensor(np.asarray(episode_start, dtype=bool).reshape(-1), device=self._plan_mean.device)
+            if starts.shape[0] == self._plan_mean.shape[0]:
+                self._plan_mean[starts] = 0.0
+        return super().predict(observation, state, episode_start, deterministic)
+
+    def _predict(self, observation: PyTorchObs, deterministic: bool = False) -> th.Tensor:
+        assert isinstance(observation, th.Tensor)
+        if self._plan_mean is not None and self._plan_mean.shape[0] != observation.shape[0]:
+            self._plan_mean = None
+        actions, self._plan_mean = self.plan(observation, self._plan_mean, deterministic)
+        return actions
+
+    def reset_planner(self) -> None:
+        """Forget the warm-start plans used by ``predict`` (every env starts from a zero mean)."""
+        self._plan_mean = None

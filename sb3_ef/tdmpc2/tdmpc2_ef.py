@@ -1,0 +1,590 @@
+"""TDMPC2-EF: TD-MPC2 whose world-model encoder is also trained by Ego-Foresight; and TD-MPC2 itself (EF off)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any, ClassVar, NamedTuple, TypeVar
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from gymnasium.wrappers import TimeLimit
+from stable_baselines3.common.base_class import maybe_make_env
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList, ConvertCallback
+from stable_baselines3.common.noise import ActionNoise
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.vec_env import VecEnv
+
+from sb3_ef.common.augmentation import random_shift
+from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
+from sb3_ef.common.callbacks import ActionOverrideMixin, MotorBabblingCallback
+from sb3_ef.ef import EgoForesight
+from sb3_ef.tdmpc2.math import discount_from_episode_length
+from sb3_ef.tdmpc2.policies import FRAME_CHANNELS, TDMPC2Policy, check_pixel_space
+from sb3_ef.tdmpc2.world_model import WorldModel
+
+SelfTDMPC2EF = TypeVar("SelfTDMPC2EF", bound="TDMPC2EF")
+
+SHIFT_PAD = 3
+# Set by the algorithm itself, so they cannot come through policy_kwargs.
+_ALGORITHM_POLICY_KWARGS = ("horizon", "gamma", "ef_horizon")
+
+
+class Sequence(NamedTuple):
+    """One training batch laid out over time, as the world model consumes it."""
+
+    first: th.Tensor  # (B, C, h, w) augmented observation at t
+    following: th.Tensor  # (H, B, C, h, w) augmented observations at t+1 .. t+H
+    actions: th.Tensor  # (H, B, A)
+    rewards: th.Tensor  # (H, B)
+    valid: th.Tensor  # (H, B) float: step t+i was taken inside the episode
+    ef_steps: th.Tensor | None  # (B,) EF rollout lengths k
+    ef_target: th.Tensor | None  # (B, 3, h, w) frame t+k, shifted with ``first``
+    ef_valid: th.Tensor | None  # (B,) whether frame t+k exists
+
+
+class TDMPC2EF(ActionOverrideMixin, OffPolicyAlgorithm):
+    """TDMPC2-EF (Ego-Foresight on TD-MPC2): the world model is trained by ``L_TDMPC + beta * L_ef``.
+
+    TD-MPC2 learns an implicit world model (SimNorm latent, latent dynamics, two-hot reward and Q-ensemble heads)
+    with a latent consistency loss, reward and TD-value cross-entropies over a short horizon, a max-entropy policy
+    prior on detached latents, and acts by MPPI planning with that model. Ego-Foresight reads the encoder latent
+    of the first observation (agent part: the first ``agent_dim`` features), rolls the agent part forward with the
+    next ``k`` actions and decodes frame ``t+k``; motor babbling (random +-1 actions) fills the first
+    ``babbling_steps`` steps. One gradient update per environment step after ``learning_starts`` seed steps.
+
+    Papers: Nunes et al., "Ego-Foresight" (ICLR 2026); Hansen et al., "TD-MPC2" (ICLR 2024).
+
+    :param policy: ``"CnnPolicy"`` or a :class:`TDMPC2Policy` (sub)class.
+    :param env: the environment (uint8 stacked 64x64 RGB frames, channels-first; Box actions) or its id.
+    :param learning_rate: Adam learning rate (the encoder uses ``policy_kwargs["encoder_lr_scale"]`` times it).
+    :param buffer_size: replay buffer capacity (frames).
+    :param learning_starts: seed steps of uniform random actions before the first update.
+    :param batch_size: minibatch size.
+    :param tau: Polyak coefficient of the target Q-ensemble and of the running Q scale.
+    :param gamma: discount; ``None`` derives it from the episode length (TD-MPC2's heuristic, 0.99 on DMC).
+    :param horizon: world-model and planning horizon.
+    :param consistency_coef: weight of the latent consistency loss.
+    :param reward_coef: weight of the reward cross-entropy.
+    :param value_coef: weight of the value cross-entropy.
+    :param entropy_coef: weight of the policy prior's (action-dim scaled) entropy bonus.
+    :param rho: per-step decay of the loss weights over the horizon.
+    :param max_grad_norm: gradient clipping, per parameter group (encoder, dynamics/reward/Q heads, EF) and of the
+        policy prior.
+    :param beta: weight of the Ego-Foresight loss (to switch EF off, use :class:`TDMPC2`).
+    :param ef_horizon: Ego-Foresight prediction horizon H (the rollout length k is drawn in [1, H]).
+    :param babbling_steps: steps of motor babbling at the start (0: none).
+    :param babbling_mode: ``"sign"`` (random +-1) or ``"clamped_uniform"``.
+    :param replay_buffer_class: a :class:`SequenceReplayBuffer` (sub)class; ``None`` picks it.
+    :param replay_buffer_kwargs: extra buffer arguments (``n_steps`` and the window horizon are filled in).
+    :param stats_window_size: episodes averaged for the rollout logs.
+    :param tensorboard_log: tensorboard log folder (``None``: no tensorboard).
+    :param policy_kwargs: see :class:`TDMPC2Policy` (``num_channels``, ``mlp_dim``, ``num_q``, ``planner_kwargs``,
+        ``agent_dim``, ``ef_kwargs``, ...).
+    :param verbose: 0 silent, 1 info, 2 debug.
+    :param seed: random seed.
+    :param device: torch device; ``"auto"`` uses CUDA when available.
+    :param _init_setup_model: whether to build the networks at construction.
+    """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"CnnPolicy": TDMPC2Policy}
+    # Whether this class trains Ego-Foresight; the plain TDMPC2 subclass turns it off.
+    uses_ef: ClassVar[bool] = True
+    policy: TDMPC2Policy
+
+    def __init__(
+        self,
+        policy: str | type[TDMPC2Policy],
+        env: GymEnv | str,
+        learning_rate: float | Schedule = 3e-4,
+        buffer_size: int = 1_000_000,
+        learning_starts: int = 2500,
+        batch_size: int = 256,
+        tau: float = 0.01,
+        gamma: float | None = None,
+        horizon: int = 3,
+        consistency_coef: float = 20.0,
+        reward_coef: float = 0.1,
+        value_coef: float = 0.1,
+        entropy_coef: float = 1e-4,
+        rho: float = 0.5,
+        max_grad_norm: float = 20.0,
+        beta: float = 1.0,
+        ef_horizon: int = 10,
+        babbling_steps: int = 1250,
+        babbling_mode: str = "sign",
+        replay_buffer_class: type[ReplayBuffer] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+    ):
+        _check_arguments(horizon, replay_buffer_class, policy_kwargs)
+        if self.uses_ef:
+            _check_ef_arguments(beta, ef_horizon, babbling_steps)
+        episode_steps = None
+        if env is not None:
+            env = maybe_make_env(env, verbose)
+            check_pixel_space(env.observation_space)
+            if not isinstance(env.action_space, spaces.Box):
+                raise ValueError(f"TD-MPC2 needs a continuous (Box) action space, got {env.action_space}")
+        super().__init__(
+            policy,
+            env,
+            learning_rate,
+            buffer_size,
+            learning_starts,
+            batch_size,
+            tau,
+            0.99 if gamma is None else gamma,
+            train_freq=1,
+            gradient_steps=-1,
+            replay_buffer_class=replay_buffer_class,
+            replay_buffer_kwargs=replay_buffer_kwargs,
+            policy_kwargs=dict(policy_kwargs or {}),
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            verbose=verbose,
+            device=device,
+            seed=seed,
+            sde_support=False,
+            supported_action_spaces=(spaces.Box,),
+            support_multi_env=True,
+        )
+        if self.env is not None:
+            episode_steps = _episode_steps(self.env)
+            if gamma is None:
+                if episode_steps is None:
+                    raise ValueError(
+                        "gamma=None derives the discount from the episode length, which this env does not expose "
+                        "(no spec.max_episode_steps, TimeLimit, episode_length or max_episode_steps): pass gamma"
+                    )
+                self.gamma = discount_from_episode_length(episode_steps)
+        self.horizon = horizon
+        self.consistency_coef = consistency_coef
+        self.reward_coef = reward_coef
+        self.value_coef = value_coef
+        self.entropy_coef = entropy_coef
+        self.rho = rho
+        self.max_grad_norm = max_grad_norm
+        self.beta = beta if self.uses_ef else None
+        self.ef_horizon = ef_horizon if self.uses_ef else None
+        self.babbling_steps = babbling_steps
+        self.babbling_mode = babbling_mode
+        if episode_steps is not None and self.ef_horizon is not None and self.ef_horizon > episode_steps:
+            raise ValueError(
+                f"ef_horizon must not exceed the episode length: expected ef_horizon <= {episode_steps}, "
+                f"got {self.ef_horizon}"
+            )
+        self._rollout_plan: th.Tensor | None = None
+        self._ef_generator: th.Generator | None = None
+
+        if _init_setup_model:
+            self._setup_model()
+
+    def _setup_model(self) -> None:
+        """Build the sequence replay buffer (window ``max(horizon, ef_horizon)``) and the policy; the planner's
+        horizon and discount and EF's horizon are passed to the policy from the algorithm's arguments."""
+        self._setup_lr_schedule()
+        self.set_random_seed(self.seed)
+        if self.replay_buffer_class is None:
+            self.replay_buffer_class = SequenceReplayBuffer
+        if self.replay_buffer is None:
+            buffer_kwargs = {**self.replay_buffer_kwargs, "n_steps": 1, "horizon": self.window}
+            self.replay_buffer = self.replay_buffer_class(
+                self.buffer_size,
+                self.observation_space,
+                self.action_space,
+                device=self.device,
+                n_envs=self.n_envs,
+                optimize_memory_usage=self.optimize_memory_usage,
+                **buffer_kwargs,
+            )
+        self.policy_kwargs.update(horizon=self.horizon, gamma=self.gamma, ef_horizon=self.ef_horizon)
+        self.policy = self.policy_class(
+            self.observation_space, self.action_space, self.lr_schedule, **self.policy_kwargs
+        )
+        self.policy = self.policy.to(self.device)
+        self._convert_train_freq()
+        # EF's rollout lengths come from their own generator, so that EF leaves the host's random draws unchanged.
+        self._ef_generator = th.Generator(device=self.device)
+        self._ef_generator.manual_seed(int(np.random.randint(2**31)) if self.seed is None else self.seed)
+
+    @property
+    def window(self) -> int:
+        """Steps of the replay window: the world-model horizon, or EF's when it is longer."""
+        return max(self.horizon, self.ef_horizon or 0)
+
+    @property
+    def world_model(self) -> WorldModel:
+        """The TD-MPC2 world model (encoder, dynamics, reward, policy prior, Q-ensemble)."""
+        return self.policy.world_model
+
+    @property
+    def ef(self) -> EgoForesight | None:
+        """The Ego-Foresight module, or ``None`` when EF is off."""
+        return self.policy.ef
+
+    @property
+    def frame_shape(self) -> tuple[int, int, int]:
+        """Shape ``(3, height, width)`` of one RGB frame."""
+        return self.policy.frame_shape
+
+    def encode(self, observations: th.Tensor) -> th.Tensor:
+        """Latent features h of uint8 stacked observations (no augmentation; gradients flow if the caller wants)."""
+        return self.policy.encode(observations.to(self.device))
+
+    def train(self, gradient_steps: int, batch_size: int = 256) -> None:
+        """TD-MPC2's update, EF added to the world-model loss: world-model step (encoder, dynamics, reward, Q and
+        EF), policy-prior step on detached latents, then the target Q-ensemble."""
+        self.policy.set_training_mode(True)
+        self._update_learning_rates()
+        logs: dict[str, list[float]] = {}
+        for _ in range(gradient_steps):
+            self._n_updates += 1
+            batch = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
+            for key, value in self._update(batch).items():
+                logs.setdefault(key, []).append(value)
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        for key, values in logs.items():
+            self.logger.record(f"train/{key}", float(np.mean(values)))
+
+    def _update(self, batch: SequenceReplayBufferSamples) -> dict[str, float]:
+        """One gradient update from one batch; returns the scalars to log."""
+        losses, latents, valid = self.losses(batch)
+        loss = (
+            self.consistency_coef * losses["consistency_loss"]
+            + self.reward_coef * losses["reward_loss"]
+            + self.value_coef * losses["value_loss"]
+        )
+        if "ef_loss" in losses:
+            loss = loss + self.beta * losses["ef_loss"]
+        self.policy.optimizer.zero_grad()
+        loss.backward()
+        # Clipped per parameter group (encoder, heads, EF): EF's pixel-summed loss has gradient norms in the
+        # thousands, which under one global clip would shrink the TD-MPC2 heads' updates by as much.
+        grad_norms = {
+            f"{group['name']}_grad_norm": th.nn.utils.clip_grad_norm_(group["params"], self.max_grad_norm).item()
+            for group in self.policy.optimizer.param_groups
+        }
+        self.policy.optimizer.step()
+
+        pi_loss = self._policy_loss(latents.detach(), valid)
+        self.policy.pi_optimizer.zero_grad()
+        pi_loss.backward()
+        th.nn.utils.clip_grad_norm_(self.world_model.pi_head.parameters(), self.max_grad_norm)
+        self.policy.pi_optimizer.step()
+        self.world_model.soft_update_target_q(self.tau)
+
+        logs = {key: value.item() for key, value in losses.items()}
+        logs.update(total_loss=loss.item(), pi_loss=pi_loss.item())
+        logs.update(grad_norms)
+        logs["q_scale"] = self.policy.q_scale.item()
+        return logs
+
+    def losses(self, batch: SequenceReplayBufferSamples) -> tuple[dict[str, th.Tensor], th.Tensor, th.Tensor]:
+        """World-model losses of one batch: ``consistency_loss``, ``reward_loss``, ``value_loss`` (and ``ef_loss``
+        with EF), unweighted; also the latents ``(H+1, B, L)`` of the model rollout and their validity."""
+        sequence = self._sequence(batch)
+        model, horizon = self.world_model, self.horizon
+        weights = self.rho ** th.arange(horizon, device=self.device, dtype=th.float32)
+        with th.no_grad():
+            next_latents = model.encode(sequence.following.flatten(0, 1)).unflatten(0, sequence.following.shape[:2])
+            next_actions = model.pi(next_latents).action
+            td_targets = sequence.rewards + self.gamma * model.q_value(
+                next_latents, next_actions, reduce="min", target=True
+            )
+
+        z = model.encode(sequence.first)
+        latents, consistency = [z], []
+        for t in range(horizon):
+            z = model.next(z, sequence.actions[t])
+            consistency.append((z - next_latents[t]).pow(2).mean(-1))
+            latents.append(z)
+        rollout = th.stack(latents)
+        reward_ce = model.two_hot.cross_entropy(model.reward(rollout[:-1], sequence.actions), sequence.rewards)
+        q_logits = model.q(rollout[:-1], sequence.actions)
+        value_ce = model.two_hot.cross_entropy(q_logits, td_targets.expand(q_logits.shape[:-1])).mean(0)
+        losses = {
+            "consistency_loss": (weights * _masked_mean(th.stack(consistency), sequence.valid)).sum() / horizon,
+            "reward_loss": (weights * _masked_mean(reward_ce, sequence.valid)).sum() / horizon,
+            "value_loss": (weights * _masked_mean(value_ce, sequence.valid)).sum() / horizon,
+        }
+        if self.ef is not None:
+            assert sequence.ef_steps is not None and sequence.ef_target is not None
+            losses["ef_loss"] = self.ef.loss(
+                rollout[0], batch.future_actions, sequence.ef_steps, sequence.ef_target, sequence.ef_valid
+            )
+        first_valid = th.ones_like(sequence.valid[:1])
+        return losses, rollout, th.cat([first_valid, sequence.valid])
+
+    def _sequence(self, batch: SequenceReplayBufferSamples) -> Sequence:
+        """Rebuild the stacked observations t+1..t+H from the context and the future frames, and augment: the
+        observation at t shares its shift with EF's target frame, later observations get their own shifts."""
+        observations = batch.observations
+        size, channels, height, width = observations.shape
+        stack = channels // FRAME_CHANNELS
+        frames = th.cat(
+            [observations.view(size, stack, FRAME_CHANNELS, height, width), batch.future_frames[:, : self.horizon]],
+            dim=1,
+        )
+        following = th.stack([frames[:, t : t + stack].flatten(1, 2) for t in range(1, self.horizon + 1)])
+        (following,) = random_shift(following.flatten(0, 1), pad=SHIFT_PAD)
+        valid = batch.future_mask[:, : self.horizon].float().cumprod(dim=1).T
+        ef_steps = ef_target = ef_valid = None
+        if self.ef is None:
+            (first,) = random_shift(observations, pad=SHIFT_PAD)
+        else:
+            ef_steps = self.ef.draw_steps(batch.future_mask, generator=self._ef_generator)
+            rows = th.arange(size, device=observations.device)
+            first, ef_target = random_shift(observations, batch.future_frames[rows, ef_steps - 1], pad=SHIFT_PAD)
+            ef_valid = batch.future_mask[rows, ef_steps - 1]
+        return Sequence(
+            first=first,
+            following=following.unflatten(0, (self.horizon, size)),
+            actions=batch.future_actions[:, : self.horizon].transpose(0, 1),
+            rewards=batch.future_rewards[:, : self.horizon].T,
+            valid=valid,
+            ef_steps=ef_steps,
+            ef_target=ef_target,
+            ef_valid=ef_valid,
+        )
+
+    def _policy_loss(self, latents: th.Tensor, valid: th.Tensor) -> th.Tensor:
+        """Max-entropy policy prior: maximise Q (scaled by its running 5-95% range) plus the entropy bonus, with the
+        Q-ensemble frozen so that only the prior learns."""
+        model = self.world_model
+        sample = model.pi(latents)
+        model.q_heads.requires_grad_(False)
+        try:
+            q_values = model.q_value(latents, sample.action, reduce="avg")
+        finally:
+            model.q_heads.requires_grad_(True)
+        self._update_q_scale(q_values[0].detach())
+        entropy = -sample.log_prob * model.action_dim
+        objective = _masked_mean(self.entropy_coef * entropy + q_values / self.policy.q_scale, valid)
+        weights = self.rho ** th.arange(latents.shape[0], device=latents.device, dtype=th.float32)
+        return -(weights * objective).mean()
+
+    def _update_q_scale(self, q_values: th.Tensor) -> None:
+        """Move the running scale towards the 5-95 percentile range of Q (at least 1)."""
+        low, high = th.quantile(q_values, th.tensor([0.05, 0.95], device=q_values.device))
+        self.policy.q_scale.lerp_(th.clamp(high - low, min=1.0), self.tau)
+
+    def _update_learning_rates(self) -> None:
+        """Set the current learning rate on both optimisers, keeping each group's relative scale (encoder x0.3)."""
+        learning_rate = self.lr_schedule(self._current_progress_remaining)
+        self.logger.record("train/learning_rate", learning_rate)
+        for optimizer in (self.policy.optimizer, self.policy.pi_optimizer):
+            for group in optimizer.param_groups:
+                group["lr"] = learning_rate * group.get("lr_scale", 1.0)
+
+    def _sample_action(
+        self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Babbling override, else uniform seed actions, else MPPI planning with exploration noise and a warm
+        start per env (``action_noise`` is not used)."""
+        override = self._override_actions(n_envs)
+        if override is not None:
+            buffer_action = override
+        elif self.num_timesteps < learning_starts:
+            buffer_action = self.policy.scale_action(np.array([self.action_space.sample() for _ in range(n_envs)]))
+        else:
+            assert self._last_obs is not None, "self._last_obs was not set"
+            observations = th.as_tensor(self._last_obs, device=self.device)
+            if self._rollout_plan is not None and self._rollout_plan.shape[0] != n_envs:
+                self._rollout_plan = None
+            actions, self._rollout_plan = self.policy.plan(observations, self._rollout_plan, deterministic=False)
+            buffer_action = actions.cpu().numpy().astype(np.float32)
+        return self.policy.unscale_action(buffer_action), buffer_action
+
+    def _store_transition(
+        self,
+        replay_buffer: ReplayBuffer,
+        buffer_action: np.ndarray,
+        new_obs: np.ndarray | dict[str, np.ndarray],
+        reward: np.ndarray,
+        dones: np.ndarray,
+        infos: list[dict[str, Any]],
+    ) -> None:
+        """Store as SB3 does; the warm-start plan of every env whose episode ended is reset."""
+        super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
+        if self._rollout_plan is not None and dones.any():
+            self._rollout_plan[th.as_tensor(dones, device=self._rollout_plan.device)] = 0.0
+
+    def _setup_learn(self, total_timesteps: int, callback: MaybeCallback = None, *args: Any, **kwargs: Any):
+        self._rollout_plan = None
+        return super()._setup_learn(total_timesteps, callback, *args, **kwargs)
+
+    def learn(
+        self: SelfTDMPC2EF,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 4,
+        tb_log_name: str = "TDMPC2EF",
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfTDMPC2EF:
+        if self.babbling_steps > 0:
+            callback = CallbackList(
+                [MotorBabblingCallback(self.babbling_steps, mode=self.babbling_mode), *_callbacks(callback)]
+            )
+        return super().learn(
+            total_timesteps=total_timesteps,
+            callback=callback,
+            log_interval=log_interval,
+            tb_log_name=tb_log_name,
+            reset_num_timesteps=reset_num_timesteps,
+            progress_bar=progress_bar,
+        )
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "_rollout_plan", "_ef_generator"]
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        return ["policy", "policy.optimizer", "policy.pi_optimizer"], []
+
+
+class TDMPC2(TDMPC2EF):
+    """TD-MPC2 (Hansen et al., 2024) for pixels: :class:`TDMPC2EF` without Ego-Foresight and motor babbling.
+
+    Same arguments as :class:`TDMPC2EF` minus ``beta``, ``ef_horizon``, ``babbling_steps`` and ``babbling_mode``.
+    """
+
+    uses_ef: ClassVar[bool] = False
+
+    def __init__(
+        self,
+        policy: str | type[TDMPC2Policy],
+        env: GymEnv | str,
+        learning_rate: float | Schedule = 3e-4,
+        buffer_size: int = 1_000_000,
+        learning_starts: int = 2500,
+        batch_size: int = 256,
+        tau: float = 0.01,
+        gamma: float | None = None,
+        horizon: int = 3,
+        consistency_coef: float = 20.0,
+        reward_coef: float = 0.1,
+        value_coef: float = 0.1,
+        entropy_coef: float = 1e-4,
+        rho: float = 0.5,
+        max_grad_norm: float = 20.0,
+        replay_buffer_class: type[ReplayBuffer] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+    ):
+        super().__init__(
+            policy,
+            env,
+            learning_rate=learning_rate,
+            buffer_size=buffer_size,
+            learning_starts=learning_starts,
+            batch_size=batch_size,
+            tau=tau,
+            gamma=gamma,
+            horizon=horizon,
+            consistency_coef=consistency_coef,
+            reward_coef=reward_coef,
+            value_coef=value_coef,
+            entropy_coef=entropy_coef,
+            rho=rho,
+            max_grad_norm=max_grad_norm,
+            babbling_steps=0,
+            replay_buffer_class=replay_buffer_class,
+            replay_buffer_kwargs=replay_buffer_kwargs,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            policy_kwargs=policy_kwargs,
+            verbose=verbose,
+            seed=seed,
+            device=device,
+            _init_setup_model=_init_setup_model,
+        )
+
+    def learn(
+        self: SelfTDMPC2EF,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 4,
+        tb_log_name: str = "TDMPC2",
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfTDMPC2EF:
+        return super().learn(
+            total_timesteps=total_timesteps,
+            callback=callback,
+            log_interval=log_interval,
+            tb_log_name=tb_log_name,
+            reset_num_timesteps=reset_num_timesteps,
+            progress_bar=progress_bar,
+        )
+
+
+def _masked_mean(values: th.Tensor, valid: th.Tensor) -> th.Tensor:
+    """Mean over the batch (last axis) of the valid entries, per leading index: ``(T, B) -> (T,)``."""
+    return (values * valid).sum(-1) / valid.sum(-1).clamp(min=1.0)
+
+
+def _callbacks(callback: MaybeCallback) -> list[BaseCallback]:
+    """The user's callback(s) as a list, so the babbling callback can be put in front."""
+    if callback is None:
+        return []
+    if isinstance(callback, list):
+        return callback
+    if isinstance(callback, BaseCallback):
+        return [callback]
+    return [ConvertCallback(callback)]
+
+
+def _episode_steps(env: VecEnv) -> int | None:
+    """Episode length in agent steps when the env tells it: its spec, a TimeLimit, or the attributes of
+    sb3-ef's pixel envs (``episode_length`` simulator steps with ``action_repeat``) or ``max_episode_steps``."""
+    spec = env.get_attr("spec", indices=[0])[0]
+    if spec is not None and spec.max_episode_steps is not None:
+        return int(spec.max_episode_steps)
+    if env.env_is_wrapped(TimeLimit, indices=[0])[0]:
+        return int(env.get_attr("_max_episode_steps", indices=[0])[0])
+    if env.has_attr("episode_length") and env.has_attr("action_repeat"):
+        episode_length = env.get_attr("episode_length", indices=[0])[0]
+        return math.ceil(episode_length / env.get_attr("action_repeat", indices=[0])[0])
+    if env.has_attr("max_episode_steps"):
+        return int(env.get_attr("max_episode_steps", indices=[0])[0])
+    return None
+
+
+def _check_arguments(
+    horizon: int, replay_buffer_class: type[ReplayBuffer] | None, policy_kwargs: dict[str, Any] | None
+) -> None:
+    if not isinstance(horizon, int) or horizon < 1:
+        raise ValueError(f"horizon must be a positive integer, got {horizon!r}")
+    if replay_buffer_class is not None and not issubclass(replay_buffer_class, SequenceReplayBuffer):
+        raise ValueError(
+            "TD-MPC2 trains on consecutive steps: replay_buffer_class must be a SequenceReplayBuffer (sub)class, "
+            f"got {replay_buffer_class.__name__}"
+        )
+    reserved = sorted(set(policy_kwargs or {}) & set(_ALGORITHM_POLICY_KWARGS))
+    if reserved:
+        raise ValueError(f"Pass {reserved} to the algorithm, not in policy_kwargs (they are set from its arguments)")
+
+
+def _check_ef_arguments(beta: float, ef_horizon: int, babbling_steps: int) -> None:
+    if beta is None or not beta > 0:
+        raise ValueError(f"beta must be a positive number (use TDMPC2 for TD-MPC2 without Ego-Foresight), got {beta!r}")
+    if not isinstance(ef_horizon, int) or ef_horizon < 1:
+        raise ValueError(f"ef_horizon must be a positive integer, got {ef_horizon!r}")
+    if babbling_steps < 0:
+        raise ValueError(f"babbling_steps must be >= 0, got {babbling_steps}")
