@@ -1,0 +1,256 @@
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch as th
+from drqv2_fakes import EPISODE_STEPS, TINY_ALGO, TINY_POLICY, CueEnv, make_cue_env
+from gymnasium import spaces
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
+from stable_baselines3.common.vec_env import DummyVecEnv
+
+from sb3_ef.common.buffers import SequenceReplayBuffer
+from sb3_ef.drqv2 import DrQv2, DrQv2EF
+
+PLAIN_POLICY = {key: TINY_POLICY[key] for key in ("net_arch", "trunk_dim")}
+PLAIN_ALGO = {key: value for key, value in TINY_ALGO.items() if key not in ("ef_horizon", "babbling_steps")}
+
+
+def make_model(env=None, **kwargs) -> DrQv2EF:
+    params = {"policy_kwargs": TINY_POLICY, "seed": 0, **TINY_ALGO, **kwargs}
+    return DrQv2EF("CnnPolicy", env if env is not None else make_cue_env(), **params)
+
+
+def filled_batch(model: DrQv2EF, steps: int = 30):
+    """Collect ``steps`` random transitions without updating, then sample one batch."""
+    model.learning_starts = steps + 1
+    model.learn(steps)
+    return model.replay_buffer.sample(model.batch_size)
+
+
+def grads(module: th.nn.Module) -> list[th.Tensor | None]:
+    return [param.grad for param in module.parameters()]
+
+
+def zero_grads(model: DrQv2EF) -> None:
+    for module in (model.policy.encoder, model.actor, model.critic, model.ef):
+        module.zero_grad(set_to_none=True)
+
+
+def reached(module: th.nn.Module) -> bool:
+    return any(grad is not None and grad.abs().sum() > 0 for grad in grads(module))
+
+
+def test_each_loss_reaches_only_its_networks():
+    model = make_model()
+    batch = filled_batch(model)
+    std = model.exploration_schedule(model.num_timesteps)
+    model.policy.set_training_mode(True)
+
+    observations, next_observations, window = model._augment(batch)
+    features = model.policy.encoder(observations)
+    with th.no_grad():
+        next_features = model.policy.encoder(next_observations)
+    critic_loss, _ = model._critic_loss(features, batch, next_features, std)
+    critic_loss.backward()
+    assert reached(model.policy.encoder) and reached(model.critic)
+    assert not reached(model.actor) and not reached(model.ef) and not reached(model.critic_target)
+
+    zero_grads(model)
+    features = model.policy.encoder(observations)
+    model._ef_loss(features, batch.future_actions, window).backward()
+    assert reached(model.policy.encoder) and reached(model.ef)
+    assert not reached(model.critic) and not reached(model.actor)
+
+    zero_grads(model)
+    features = model.policy.encoder(observations)
+    model._actor_loss(features.detach(), std).backward()
+    assert reached(model.actor)
+    assert not reached(model.policy.encoder) and not reached(model.critic) and not reached(model.ef)
+    assert all(param.requires_grad for param in model.critic.parameters())
+
+
+def test_ef_target_is_the_frame_k_steps_ahead_shifted_with_the_context():
+    model = make_model()
+    batch = filled_batch(model)
+    observations, _, window = model._augment(batch)
+    rows = th.arange(model.batch_size)
+    assert window.steps.min() >= 1 and window.steps.max() <= model.ef_horizon
+    assert th.equal(window.valid, batch.future_mask[rows, window.steps - 1])
+    unshifted_target = batch.future_frames[rows, window.steps - 1]
+    # The cue env's moving dot and lit half make shifts visible: one offset must explain both images of a sample.
+    for sample in range(model.batch_size):
+        assert any(
+            th.equal(observations[sample, -3:], _shift(batch.observations[sample, -3:], dy, dx))
+            and th.equal(window.target[sample], _shift(unshifted_target[sample], dy, dx))
+            for dy in range(-4, 5)
+            for dx in range(-4, 5)
+        )
+
+
+def _shift(image: th.Tensor, dy: int, dx: int) -> th.Tensor:
+    """Replicate-pad shift of a (C, h, w) image by (dy, dx) pixels."""
+    height, width = image.shape[-2:]
+    rows = (th.arange(height) + dy).clamp(0, height - 1)
+    cols = (th.arange(width) + dx).clamp(0, width - 1)
+    return image[:, rows][:, :, cols]
+
+
+def test_train_logs_the_losses():
+    model = make_model()
+    model.learn(40)
+    logged = model.logger.name_to_value
+    for key in ("critic_loss", "actor_loss", "ef_loss", "q_values", "exploration_std", "n_updates"):
+        assert f"train/{key}" in logged
+    assert model._n_updates == 40 - TINY_ALGO["learning_starts"]
+    assert logged["train/exploration_std"] == pytest.approx(1.0 - 0.9 * 40 / 500_000, abs=1e-4)
+
+
+def test_critic_target_follows_slowly():
+    model = make_model(tau=0.01)
+    before = [param.clone() for param in model.critic_target.parameters()]
+    model.learn(TINY_ALGO["learning_starts"] + 3)
+    moved = [
+        (target - old).abs().max() / ((online - old).abs().max() + 1e-12)
+        for old, target, online in zip(before, model.critic_target.parameters(), model.critic.parameters(), strict=True)
+    ]
+    assert max(moved) > 0 and max(moved) < 0.1
+
+
+def test_seeded_runs_give_identical_losses():
+    logs = []
+    for _ in range(2):
+        model = make_model(seed=7)
+        model.learn(30)
+        logs.append(dict(model.logger.name_to_value))
+    assert logs[0] == logs[1]
+    assert logs[0]["train/critic_loss"] > 0
+
+
+def test_save_load_is_exact(tmp_path):
+    model = make_model()
+    model.learn(30)
+    observations = np.stack([make_cue_env().observation_space.sample() for _ in range(3)])
+    model.save(tmp_path / "model")
+    loaded = DrQv2EF.load(tmp_path / "model", env=make_cue_env())
+    assert np.array_equal(loaded.predict(observations, deterministic=True)[0], model.predict(observations)[0])
+    for name in ("actor", "critic"):
+        saved_state = getattr(model, name).optimizer.state_dict()["state"]
+        loaded_state = getattr(loaded, name).optimizer.state_dict()["state"]
+        assert saved_state.keys() == loaded_state.keys() and len(saved_state) > 0
+        assert all(th.equal(saved_state[k]["exp_avg"], loaded_state[k]["exp_avg"]) for k in saved_state)
+    for original, copy in zip(model.critic_target.parameters(), loaded.critic_target.parameters(), strict=True):
+        assert th.equal(original, copy)
+    assert loaded.ef is not None and loaded.exploration_schedule(0) == pytest.approx(1.0)
+    loaded.learn(5, reset_num_timesteps=False)
+
+
+def test_deterministic_predict_is_the_actor_mean():
+    model = make_model()
+    observation = make_cue_env().observation_space.sample()
+    action, _ = model.predict(observation, deterministic=True)
+    with th.no_grad():
+        mean = model.actor(model.encode(th.as_tensor(observation[None])))
+    assert np.allclose(action, mean.numpy()[0])
+    assert np.array_equal(action, model.predict(observation, deterministic=True)[0])
+
+
+class ActionRecorder(BaseCallback):
+    """Records the actions stored in the buffer at every rollout step."""
+
+    def __init__(self):
+        super().__init__()
+        self.actions: list[np.ndarray] = []
+
+    def _on_step(self) -> bool:
+        self.actions.append(self.locals["buffer_actions"][0].copy())
+        return True
+
+
+def test_babbling_actions_are_signs_then_policy_actions():
+    model = make_model(babbling_steps=25, learning_starts=20, buffer_size=200)
+    recorder = ActionRecorder()
+    model.learn(40, callback=recorder)
+    actions = np.array(recorder.actions)
+    assert actions.shape == (40, 2)
+    assert np.array_equal(np.abs(actions[:25]), np.ones_like(actions[:25]))
+    assert np.all(np.abs(actions[25:]) < 1.0)
+    assert model.action_override is None
+
+
+def test_two_envs():
+    env = DummyVecEnv([make_cue_env, make_cue_env])
+    model = make_model(env)
+    model.learn(40)
+    assert model.n_envs == 2 and model.num_timesteps == 40
+    assert model.replay_buffer.n_envs == 2 and model._n_updates > 0
+
+
+def test_eval_and_checkpoint_callbacks_and_progress_bar(tmp_path):
+    model = make_model()
+    eval_callback = EvalCallback(make_cue_env(), eval_freq=20, n_eval_episodes=1, log_path=str(tmp_path), verbose=0)
+    checkpoint = CheckpointCallback(save_freq=20, save_path=str(tmp_path), name_prefix="drqv2")
+    model.learn(40, callback=[eval_callback, checkpoint], progress_bar=True)
+    assert eval_callback.last_mean_reward != -np.inf
+    assert (tmp_path / "evaluations.npz").exists() and (tmp_path / "drqv2_40_steps.zip").exists()
+    DrQv2EF.load(tmp_path / "drqv2_40_steps.zip")
+
+
+def test_plain_drqv2_has_no_ef_and_the_reference_encoder():
+    model = DrQv2("CnnPolicy", make_cue_env(size=84), policy_kwargs=PLAIN_POLICY, seed=0, **PLAIN_ALGO)
+    assert model.ef is None and model.babbling_steps == 0
+    assert model.policy.encoder.features_dim == 32 * 35 * 35
+    assert isinstance(model.replay_buffer, SequenceReplayBuffer) and model.replay_buffer.n_steps == 3
+    model.learn(20)
+    assert "train/ef_loss" not in model.logger.name_to_value and model._n_updates > 0
+    assert model.encode(th.zeros(1, 9, 84, 84, dtype=th.uint8)).shape == (1, 39200)
+
+
+def test_ef_model_exposes_the_contract():
+    model = make_model()
+    assert model.frame_shape == (3, 32, 32)
+    assert model.ef.agent_dim == TINY_POLICY["agent_dim"] and model.ef.horizon == TINY_ALGO["ef_horizon"]
+    assert model.encode(th.zeros(2, 9, 32, 32, dtype=th.uint8)).shape == (2, TINY_POLICY["features_dim"])
+    assert model.replay_buffer.horizon == TINY_ALGO["ef_horizon"]
+
+
+def test_default_hyperparameters_follow_the_reference():
+    model = DrQv2EF("CnnPolicy", make_cue_env(), buffer_size=100, policy_kwargs={"ef_kwargs": TINY_POLICY["ef_kwargs"]})
+    assert (model.learning_rate, model.batch_size, model.tau, model.gamma) == (1e-4, 256, 0.01, 0.99)
+    assert (model.n_steps, model.learning_starts, model.train_freq.frequency) == (3, 2000, 2)
+    assert (model.beta, model.ef_horizon, model.babbling_steps, model.babbling_mode) == (1.0, 10, 12_500, "sign")
+    assert model.policy.encoder.features_dim == 2048 and model.ef.agent_dim == 32
+    assert model.exploration_schedule(500_000) == pytest.approx(0.1)
+
+
+class DiscreteCueEnv(CueEnv):
+    def __init__(self):
+        super().__init__()
+        self.action_space = spaces.Discrete(2)
+
+
+class VectorEnv(gym.Env):
+    observation_space = spaces.Box(-1.0, 1.0, (4,), np.float32)
+    action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
+
+
+@pytest.mark.parametrize(
+    ("env", "kwargs", "message"),
+    [
+        (VectorEnv(), {}, r"uint8 Box of shape \(3 \* frame_stack, height, width\), got Box\(-1.0, 1.0, \(4,\)"),
+        (DiscreteCueEnv(), {}, r"continuous \(Box\) action space, got Discrete\(2\)"),
+        (CueEnv(size=16), {}, r"16x16 are too small .*at least 21x21"),
+        (make_cue_env(episode_steps=5), {"ef_horizon": 6}, r"expected ef_horizon <= 5, got 6"),
+        (make_cue_env(), {"policy_kwargs": {**TINY_POLICY, "features_dim": 8}}, r"features_dim=8, agent_dim=8"),
+        (make_cue_env(), {"replay_buffer_class": ReplayBuffer}, r"must be a SequenceReplayBuffer .*got ReplayBuffer"),
+        (make_cue_env(), {"beta": 0.0}, r"beta must be a positive number \(use DrQv2 .*got 0.0"),
+        (make_cue_env(), {"ef_horizon": 0}, r"ef_horizon must be a positive integer, got 0"),
+    ],
+)
+def test_bad_input_is_rejected_at_construction(env, kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        make_model(env, **kwargs)
+
+
+def test_horizon_up_to_the_episode_length_is_accepted():
+    model = make_model(make_cue_env(episode_steps=EPISODE_STEPS), ef_horizon=EPISODE_STEPS)
+    assert model.ef.horizon == EPISODE_STEPS
