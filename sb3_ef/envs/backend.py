@@ -1,0 +1,63 @@
+"""Choice of MuJoCo's headless OpenGL backend (``MUJOCO_GL``), made before MuJoCo is imported.
+
+MuJoCo and dm-control read ``MUJOCO_GL`` once, when they are imported, so the choice must happen first. Each
+candidate is tried in a subprocess (a failed OpenGL initialisation can abort the process that tries it).
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import warnings
+
+#: Backends tried in order when ``MUJOCO_GL`` is unset, with what to install when they are missing.
+GL_BACKENDS: dict[str, str] = {
+    "egl": "libEGL with a working driver (Debian/Ubuntu: apt install libegl1 libgl1-mesa-dri)",
+    "osmesa": "OSMesa (Debian/Ubuntu: apt install libosmesa6)",
+}
+
+_PROBE = "import mujoco; context = mujoco.GLContext(8, 8); context.make_current(); context.free()"
+
+
+def _backend_works(backend: str) -> tuple[bool, str]:
+    """Create and free a tiny MuJoCo GL context with ``backend`` in a fresh interpreter."""
+    env = {**os.environ, "MUJOCO_GL": backend}
+    env.pop("PYOPENGL_PLATFORM", None)
+    try:
+        result = subprocess.run(
+            [sys.executable, "-c", _PROBE], env=env, capture_output=True, text=True, timeout=120, check=False
+        )
+    except subprocess.TimeoutExpired:
+        return False, "timed out"
+    lines = result.stderr.strip().splitlines()
+    return result.returncode == 0, lines[-1] if lines else f"exit code {result.returncode}"
+
+
+def ensure_gl_backend(candidates: dict[str, str] | None = None) -> str:
+    """Return the ``MUJOCO_GL`` backend in use, choosing and setting the first working one if it is unset.
+
+    :param candidates: backends to try in order, each with an install hint (default :data:`GL_BACKENDS`).
+    :raises RuntimeError: if ``MUJOCO_GL`` is unset and no candidate works; the message says what to install.
+    """
+    chosen = os.environ.get("MUJOCO_GL")
+    if chosen:
+        return chosen
+    if "mujoco" in sys.modules:
+        warnings.warn(
+            "mujoco was imported before MUJOCO_GL was set, so its default (GLFW, needs a display) is in use; "
+            "set MUJOCO_GL=egl (or osmesa) before importing mujoco for headless rendering."
+        )
+        return "glfw"
+    failures = []
+    for backend, hint in (GL_BACKENDS if candidates is None else candidates).items():
+        works, reason = _backend_works(backend)
+        if works:
+            os.environ["MUJOCO_GL"] = backend
+            return backend
+        failures.append(f"{backend}: {reason} (needs {hint})")
+    raise RuntimeError(
+        "No headless OpenGL backend works for MuJoCo rendering. Tried MUJOCO_GL="
+        + "; ".join(failures)
+        + ". Install one of them, or set MUJOCO_GL yourself."
+    )

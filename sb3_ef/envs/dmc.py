@@ -1,0 +1,102 @@
+"""DeepMind Control Suite tasks from pixels, through shimmy's gymnasium wrapper of dm-control.
+
+shimmy provides the gymnasium step/reset/seed semantics; frames come from our own renderer on dm-control's
+``physics`` (shimmy's render would go through dm-control's slower render path once per call and gives no
+control over shadows or segmentation). The dm-control time limit is lifted so that ours
+(``episode_length``, 1000 simulator steps as in the suite) decides truncation.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import mujoco
+import numpy as np
+from dm_control import suite
+from dm_control.suite import quadruped
+from shimmy import DmControlCompatibilityV0
+
+from sb3_ef.envs.pixel_env import PixelEnv
+from sb3_ef.envs.tasks import DMC_TASKS
+
+
+def _quadruped_sensor_names(physics: quadruped.Physics, *sensor_types: int) -> list[str]:
+    """dm-control 1.0.28's quadruped sensor lookup, with ``np.isin`` for ``np.in1d`` (removed in numpy 2.4)."""
+    if sensor_types not in physics._sensor_types_to_names:
+        sensor_ids = np.flatnonzero(np.isin(physics.model.sensor_type, sensor_types))
+        physics._sensor_types_to_names[sensor_types] = [physics.model.id2name(i, "sensor") for i in sensor_ids]
+    return physics._sensor_types_to_names[sensor_types]
+
+
+if not hasattr(np, "in1d"):
+    quadruped.Physics._get_sensor_names = _quadruped_sensor_names
+
+#: Default camera per domain (camera 0 otherwise), as in DrQ-v2 / TD-MPC2.
+DEFAULT_CAMERAS: dict[str, int] = {"quadruped": 2}
+
+
+class DMCPixelEnv(PixelEnv):
+    """A dm-control suite task with pixel observations (see :class:`~sb3_ef.envs.pixel_env.PixelEnv`).
+
+    :param task: task name as in :data:`~sb3_ef.envs.tasks.DMC_TASKS`, e.g. ``"cartpole-swingup"``.
+    :param size: frame height and width.
+    :param frame_stack: frames stacked along channels, oldest first.
+    :param action_repeat: simulator steps per agent step.
+    :param camera: camera index or name (default: 0, 2 for quadruped).
+    :param fast_render: shadows, reflections and multisampling off (frames stay correct on DMC scenes).
+    :param seed: seed of the task's random initial states.
+    :param episode_length: simulator steps before truncation (1000 as in the suite).
+    :param render_mode: ``None`` or ``"rgb_array"`` (``render()`` returns the newest frame).
+    """
+
+    def __init__(
+        self,
+        task: str,
+        size: int = 84,
+        frame_stack: int = 3,
+        action_repeat: int = 2,
+        camera: int | str | None = None,
+        fast_render: bool = False,
+        seed: int | None = None,
+        episode_length: int = 1000,
+        render_mode: str | None = None,
+    ) -> None:
+        domain, suite_task = DMC_TASKS[task]
+        self.task = task
+        dm_env = suite.load(domain, suite_task, task_kwargs={"random": seed, "time_limit": float("inf")})
+        self._env = DmControlCompatibilityV0(dm_env)
+        spec = dm_env.action_spec()
+        self._action_low, self._action_high = spec.minimum.astype(np.float64), spec.maximum.astype(np.float64)
+        try:
+            self._setup(
+                self._physics()[0],
+                action_dim=spec.shape[0],
+                size=size,
+                frame_stack=frame_stack,
+                action_repeat=action_repeat,
+                episode_length=episode_length,
+                camera=DEFAULT_CAMERAS.get(domain, 0) if camera is None else camera,
+                fast_render=fast_render,
+                multisample=not fast_render,
+                flip=False,
+                render_mode=render_mode,
+            )
+        except Exception:
+            self._env.close()
+            raise
+
+    def _physics(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        physics = self._env.physics
+        return physics.model.ptr, physics.data.ptr
+
+    def _reset_sim(self, seed: int | None, options: dict[str, Any] | None) -> dict[str, Any]:
+        return self._env.reset(seed=seed, options=options)[1]
+
+    def _step_sim(self, action: np.ndarray) -> tuple[float, bool, dict[str, Any]]:
+        scaled = self._action_low + (action.astype(np.float64) + 1.0) * 0.5 * (self._action_high - self._action_low)
+        _, reward, terminated, _, info = self._env.step(scaled)
+        return float(reward), terminated, info
+
+    def close(self) -> None:
+        super().close()
+        self._env.close()

@@ -1,0 +1,57 @@
+"""``make_env``: the one entry point that builds a pixel environment from its name."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from sb3_ef.envs.backend import ensure_gl_backend
+from sb3_ef.envs.tasks import parse_env_name
+
+#: Smallest and largest frame size accepted (the encoders need at least ~32 pixels).
+MIN_SIZE, MAX_SIZE = 32, 512
+
+
+def make_env(
+    name: str,
+    size: int = 84,
+    frame_stack: int = 3,
+    action_repeat: int = 2,
+    camera: int | str | None = None,
+    fast_render: bool = False,
+    seed: int | None = None,
+    **kwargs: Any,
+):
+    """Build a pixel environment: ``uint8`` observations ``(3 * frame_stack, size, size)``, actions in [-1, 1].
+
+    :param name: ``dmc/<domain>-<task>`` or ``metaworld/<task>``, optional ``-v0`` suffix
+        (all names: :data:`sb3_ef.envs.ENV_NAMES`).
+    :param size: frame height and width, in [MIN_SIZE, MAX_SIZE].
+    :param frame_stack: frames stacked along channels, oldest first.
+    :param action_repeat: simulator steps per agent step (rewards summed, success OR-ed).
+    :param camera: camera index or name; default camera 0 for DMC (2 for quadruped), ``"corner"`` for Meta-World.
+    :param fast_render: shadows and reflections off (and multisampling on DMC): several times faster on CPU.
+    :param seed: seed of the initial states (and of the Meta-World task variant).
+    :param kwargs: suite options: ``episode_length`` (simulator steps; 1000 DMC, 500 Meta-World),
+        ``render_mode`` (``"rgb_array"``), ``resample_task`` (Meta-World).
+    :return: a :class:`~sb3_ef.envs.pixel_env.PixelEnv`; ``env.agent_mask()`` gives the agent's pixels.
+    """
+    task = parse_env_name(name)
+    if not isinstance(size, (int, np.integer)) or isinstance(size, bool) or not MIN_SIZE <= size <= MAX_SIZE:
+        raise ValueError(f"size must be an int in [{MIN_SIZE}, {MAX_SIZE}] (e.g. 64 or 84), got {size!r}")
+    ensure_gl_backend()
+    if task.suite == "dmc":
+        from sb3_ef.envs.dmc import DMCPixelEnv as env_class
+    else:
+        from sb3_ef.envs.meta_world import MetaWorldPixelEnv as env_class
+    return env_class(
+        task.task,
+        size=int(size),
+        frame_stack=frame_stack,
+        action_repeat=action_repeat,
+        camera=camera,
+        fast_render=fast_render,
+        seed=seed,
+        **kwargs,
+    )

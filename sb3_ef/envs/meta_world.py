@@ -1,0 +1,100 @@
+"""Meta-World (metaworld 3.x, ``-v3`` tasks) from pixels.
+
+Single-task setting as in the paper: one task variant (object and goal positions) drawn from the env's seed and
+kept for every episode, or re-drawn at each reset with ``resample_task=True``. Episodes are truncated after 500
+simulator steps; ``info["is_success"]`` carries Meta-World's success flag.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import mujoco
+import numpy as np
+from metaworld.env_dict import ALL_V3_ENVIRONMENTS
+
+from sb3_ef.envs.pixel_env import PixelEnv
+from sb3_ef.envs.renderer import camera_id
+
+#: Cameras that metaworld 3.x renders upside down (their up axis points down); their frames are flipped.
+FLIPPED_CAMERAS: frozenset[str] = frozenset({"corner", "corner2", "corner3", "corner4"})
+
+
+class MetaWorldPixelEnv(PixelEnv):
+    """A Meta-World task with pixel observations (see :class:`~sb3_ef.envs.pixel_env.PixelEnv`).
+
+    :param task: task name without version, e.g. ``"door-open"`` (see :data:`~sb3_ef.envs.tasks.METAWORLD_TASKS`).
+    :param size: frame height and width.
+    :param frame_stack: frames stacked along channels, oldest first.
+    :param action_repeat: simulator steps per agent step.
+    :param camera: camera index or name (default ``"corner"``; also corner2, corner3, corner4, topview, ...).
+    :param fast_render: shadows and reflections off (multisampling stays on: without it frames come out wrong).
+    :param seed: seed of the task variant and of the env's randomness.
+    :param episode_length: simulator steps before truncation (500 as in the paper).
+    :param resample_task: draw a new task variant at every reset instead of keeping the seed's one.
+    :param render_mode: ``None`` or ``"rgb_array"`` (``render()`` returns the newest frame).
+    """
+
+    def __init__(
+        self,
+        task: str,
+        size: int = 84,
+        frame_stack: int = 3,
+        action_repeat: int = 2,
+        camera: int | str | None = None,
+        fast_render: bool = False,
+        seed: int | None = None,
+        episode_length: int = 500,
+        resample_task: bool = False,
+        render_mode: str | None = None,
+    ) -> None:
+        self.task = task
+        self.resample_task = resample_task
+        self._env = ALL_V3_ENVIRONMENTS[f"{task}-v3"]()
+        # Task variants come from the env's own seeded generator instead of a Meta-World benchmark's task list.
+        self._env._set_task_called = True
+        self._env.seeded_rand_vec = True
+        self._env.max_path_length = episode_length
+        if seed is not None:
+            self._env.seed(seed)
+        try:
+            model = self._env.model
+            camera_index = camera_id(model, "corner" if camera is None else camera)
+            self._setup(
+                model,
+                action_dim=self._env.action_space.shape[0],
+                size=size,
+                frame_stack=frame_stack,
+                action_repeat=action_repeat,
+                episode_length=episode_length,
+                camera=camera_index,
+                fast_render=fast_render,
+                multisample=True,
+                flip=model.camera(camera_index).name in FLIPPED_CAMERAS,
+                render_mode=render_mode,
+            )
+        except Exception:
+            self._env.close()
+            raise
+
+    def _physics(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        return self._env.model, self._env.data
+
+    def _reset_sim(self, seed: int | None, options: dict[str, Any] | None) -> dict[str, Any]:
+        if seed is not None:
+            self._env.seed(seed)
+        draw_variant = seed is not None or self.resample_task or self._env._last_rand_vec is None
+        self._env._freeze_rand_vec = not draw_variant
+        try:
+            _, info = self._env.reset()
+        finally:
+            self._env._freeze_rand_vec = True
+        return info
+
+    def _step_sim(self, action: np.ndarray) -> tuple[float, bool, dict[str, Any]]:
+        _, reward, terminated, _, info = self._env.step(action)
+        return float(reward), terminated, {**info, "is_success": bool(info["success"])}
+
+    def close(self) -> None:
+        super().close()
+        self._env.close()

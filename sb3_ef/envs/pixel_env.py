@@ -1,0 +1,141 @@
+"""Base class of the pixel environments: action repeat, frame stack, time limit, rendering, agent masks.
+
+A suite subclass owns the simulator and implements three hooks (``_physics``, ``_reset_sim``, ``_step_sim``);
+everything the observation contract of docs/architecture.md asks for lives here, once.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Any
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+from gymnasium import spaces
+
+from sb3_ef.envs.agent_geoms import agent_geoms
+from sb3_ef.envs.renderer import FrameRenderer
+
+
+class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
+    """Pixel observations of a MuJoCo simulation, stacked oldest first, with action repeat.
+
+    Observations are ``uint8`` arrays of shape ``(3 * frame_stack, size, size)``; ``obs[-3:]`` is the newest
+    frame; after ``reset`` the stack holds the first frame ``frame_stack`` times. One agent step applies the
+    action ``action_repeat`` times (rewards summed, ``info["is_success"]`` OR-ed when the suite reports success)
+    and renders once. The episode is truncated after ``episode_length`` simulator steps.
+
+    Subclasses call :meth:`_setup` once their simulator exists.
+    """
+
+    metadata: dict[str, Any] = {"render_modes": ["rgb_array"]}
+
+    def _setup(
+        self,
+        model: mujoco.MjModel,
+        action_dim: int,
+        size: int,
+        frame_stack: int,
+        action_repeat: int,
+        episode_length: int,
+        camera: int | str,
+        fast_render: bool,
+        multisample: bool,
+        flip: bool,
+        render_mode: str | None,
+    ) -> None:
+        for argument, value in (("frame_stack", frame_stack), ("action_repeat", action_repeat)):
+            if not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"{argument} must be an int >= 1, got {value!r}")
+        if not isinstance(episode_length, (int, np.integer)) or episode_length < 1:
+            raise ValueError(f"episode_length must be an int >= 1 (simulator steps), got {episode_length!r}")
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.size = size
+        self.frame_stack = frame_stack
+        self.action_repeat = action_repeat
+        self.episode_length = episode_length
+        self.render_mode = render_mode
+        self.observation_space = spaces.Box(0, 255, (3 * frame_stack, size, size), np.uint8)
+        self.action_space = spaces.Box(-1.0, 1.0, (action_dim,), np.float32)
+        self._renderer = FrameRenderer(
+            model, size, camera, fast=fast_render, multisample=multisample, flip=flip, agent_geoms=agent_geoms(model)
+        )
+        self._frames: deque[np.ndarray] = deque(maxlen=frame_stack)
+        self._sim_steps = 0
+        self._episode_over = True
+
+    # Hooks for the suites.
+    def _physics(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        """The simulator's current model and data."""
+        raise NotImplementedError
+
+    def _reset_sim(self, seed: int | None, options: dict[str, Any] | None) -> dict[str, Any]:
+        """Start a new episode in the simulator (re-seeded when ``seed`` is given); return the info dict."""
+        raise NotImplementedError
+
+    def _step_sim(self, action: np.ndarray) -> tuple[float, bool, dict[str, Any]]:
+        """One simulator step with an action in [-1, 1]: ``(reward, terminated, info)``."""
+        raise NotImplementedError
+
+    @property
+    def camera(self) -> int:
+        """Index of the camera that renders the observations."""
+        return self._renderer.camera
+
+    def _observation(self) -> np.ndarray:
+        return np.concatenate(self._frames, axis=0)
+
+    def _render_frame(self) -> np.ndarray:
+        return self._renderer.rgb(self._physics()[1]).transpose(2, 0, 1)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
+        super().reset(seed=seed)
+        info = self._reset_sim(seed, options)
+        self._sim_steps = 0
+        self._episode_over = False
+        frame = self._render_frame()
+        for _ in range(self.frame_stack):
+            self._frames.append(frame)
+        return self._observation(), info
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if self._episode_over:
+            raise RuntimeError("Call reset() before step(): the episode has not started or has ended")
+        action = np.asarray(action, dtype=np.float32)
+        if action.shape != self.action_space.shape:
+            raise ValueError(f"Expected an action of shape {self.action_space.shape}, got shape {action.shape}")
+        reward, terminated, success = 0.0, False, None
+        for _ in range(self.action_repeat):
+            step_reward, terminated, info = self._step_sim(action)
+            reward += step_reward
+            self._sim_steps += 1
+            if "is_success" in info:
+                success = bool(success) or bool(info["is_success"])
+            if terminated or self._sim_steps >= self.episode_length:
+                break
+        truncated = not terminated and self._sim_steps >= self.episode_length
+        self._episode_over = terminated or truncated
+        if success is not None:
+            info["is_success"] = success
+        self._frames.append(self._render_frame())
+        return self._observation(), reward, terminated, truncated, info
+
+    def agent_mask(self) -> np.ndarray:
+        """``(size, size)`` bool mask of the pixels showing the agent's body in the newest frame.
+
+        Which geoms are the agent's is decided by :func:`sb3_ef.envs.agent_geoms.agent_geoms`.
+        """
+        return self._renderer.agent_mask(self._physics()[1])
+
+    def render(self) -> np.ndarray | None:
+        """The newest frame as ``(size, size, 3)`` uint8 (no extra rendering) when ``render_mode='rgb_array'``."""
+        if self.render_mode is None or not self._frames:
+            return None
+        return self._frames[-1].transpose(1, 2, 0)
+
+    def close(self) -> None:
+        """Free the renderer; subclasses also close their simulator."""
+        self._renderer.close()
+        super().close()

@@ -1,0 +1,88 @@
+"""Square RGB and segmentation frames from one MuJoCo camera.
+
+Uses ``mujoco.Renderer`` directly (not dm-control's or gymnasium's render paths) so both suites share one code
+path with control over the scene flags (fast rendering) and segmentation (gymnasium's crashes under numpy 2).
+Import this module only after :func:`sb3_ef.envs.backend.ensure_gl_backend`.
+"""
+
+from __future__ import annotations
+
+import weakref
+
+import mujoco
+import numpy as np
+
+
+def camera_id(model: mujoco.MjModel, camera: int | str) -> int:
+    """Resolve a camera index or name to a valid index; raise ``ValueError`` naming the valid cameras."""
+    names = [model.camera(index).name for index in range(model.ncam)]
+    if isinstance(camera, str) and camera in names:
+        return names.index(camera)
+    if isinstance(camera, (int, np.integer)) and not isinstance(camera, bool) and 0 <= camera < model.ncam:
+        return int(camera)
+    valid = ", ".join(f"{index} ({name!r})" for index, name in enumerate(names))
+    raise ValueError(f"Unknown camera {camera!r}: this model's cameras are {valid}")
+
+
+class FrameRenderer:
+    """Renders ``(size, size, 3)`` uint8 frames and agent masks of a model's state from one camera.
+
+    :param model: the MuJoCo model (its offscreen buffer is enlarged to ``size`` if needed).
+    :param size: frame height and width in pixels.
+    :param camera: camera index or name.
+    :param fast: turn shadows and reflections off (several times faster on a CPU renderer).
+    :param multisample: keep multisampling (anti-aliasing); turning it off is faster but breaks some scenes.
+    :param flip: flip frames vertically (for cameras that render upside down).
+    :param agent_geoms: boolean array over the model's geoms marking the agent's body, for :meth:`agent_mask`.
+    """
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        size: int,
+        camera: int | str,
+        fast: bool = False,
+        multisample: bool = True,
+        flip: bool = False,
+        agent_geoms: np.ndarray | None = None,
+    ) -> None:
+        self.camera = camera_id(model, camera)
+        self.flip = flip
+        model.vis.global_.offwidth = max(model.vis.global_.offwidth, size)
+        model.vis.global_.offheight = max(model.vis.global_.offheight, size)
+        if fast:
+            model.vis.quality.shadowsize = 0
+        if not multisample:
+            model.vis.quality.offsamples = 0
+        self._renderer = mujoco.Renderer(model, size, size)
+        if fast:
+            self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
+            self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
+        # Index 0 stands for "no geom" (segmentation id -1), so geom g is looked up at g + 1.
+        geoms = np.zeros(model.ngeom, bool) if agent_geoms is None else np.asarray(agent_geoms, bool)
+        self._agent_lookup = np.concatenate([[False], geoms])
+        # Frees the GL context at close() or, at the latest, at interpreter exit while EGL is still alive.
+        self._finalizer = weakref.finalize(self, self._renderer.close)
+
+    def _orient(self, image: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(image[::-1]) if self.flip else image
+
+    def rgb(self, data: mujoco.MjData) -> np.ndarray:
+        """The ``(size, size, 3)`` uint8 frame of the current state."""
+        self._renderer.update_scene(data, camera=self.camera)
+        return self._orient(self._renderer.render())
+
+    def agent_mask(self, data: mujoco.MjData) -> np.ndarray:
+        """The ``(size, size)`` bool mask of pixels showing agent geoms in the current state."""
+        self._renderer.update_scene(data, camera=self.camera)
+        self._renderer.enable_segmentation_rendering()
+        try:
+            segmentation = self._renderer.render()
+        finally:
+            self._renderer.disable_segmentation_rendering()
+        geom_ids = np.where(segmentation[..., 1] == mujoco.mjtObj.mjOBJ_GEOM, segmentation[..., 0], -1)
+        return self._orient(self._agent_lookup[geom_ids + 1])
+
+    def close(self) -> None:
+        """Free the OpenGL context (idempotent)."""
+        self._finalizer()
