@@ -51,7 +51,7 @@ def convert_params(params: Params, base_policy_kwargs: Params | None = None) -> 
         hyperparams["batch_size"] = 2 ** hyperparams.pop("batch_size_pow")
     if "std_final" in hyperparams:
         final, duration = hyperparams.pop("std_final"), hyperparams.pop("std_duration")
-        hyperparams["std_schedule"] = f"linear(1.0,{final},{duration})"
+        hyperparams["exploration_std"] = f"linear(1.0,{final},{duration})"
     if "agent_dim" in hyperparams:
         hyperparams["policy_kwargs"] = {**(base_policy_kwargs or {}), "agent_dim": hyperparams.pop("agent_dim")}
     return hyperparams

@@ -1,0 +1,62 @@
+"""Small sizes for the zoo tests: hyperparameter overrides that make any zoo_configs entry cheap to build and run.
+
+The same overrides are given as dicts (for ExperimentManager) and as rl-zoo3 command-line strings.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from sb3_ef.zoo.config import ZOO_ALGORITHMS
+
+#: Per algorithm: frames of this size (TD-MPC2's encoder takes 64x64 only), short episodes, fast rendering.
+ENV_KWARGS: dict[str, dict[str, Any]] = {
+    algo: {"size": 64 if algo.startswith("tdmpc2") else 32, "fast_render": True, "episode_length": 40}
+    for algo in ZOO_ALGORITHMS
+}
+
+_DRQV2_POLICY = {"net_arch": [32], "trunk_dim": 16}
+_TDMPC2_POLICY = {
+    "num_channels": 4,
+    "mlp_dim": 32,
+    "num_q": 2,
+    "num_bins": 11,
+    "planner_kwargs": {"iterations": 1, "num_samples": 16, "num_elites": 4, "num_pi_trajs": 2},
+}
+_EF_POLICY = {"agent_dim": 8, "ef_kwargs": {"decoder_channels": 8, "rollout_hidden_dims": (16,)}}
+_EF_ALGO = {"ef_horizon": 3, "babbling_steps": 20}
+
+#: Per algorithm: hyperparameter overrides (buffer, batch, warm-up, network sizes).
+HYPERPARAMS: dict[str, dict[str, Any]] = {
+    "drqv2_ef": {
+        "buffer_size": 2000,
+        "batch_size": 8,
+        "learning_starts": 40,
+        **_EF_ALGO,
+        "policy_kwargs": {**_DRQV2_POLICY, "features_dim": 64, **_EF_POLICY},
+    },
+    "drqv2": {"buffer_size": 2000, "batch_size": 8, "learning_starts": 40, "policy_kwargs": _DRQV2_POLICY},
+    "tdmpc2_ef": {
+        "buffer_size": 2000,
+        "batch_size": 8,
+        "learning_starts": 40,
+        **_EF_ALGO,
+        "policy_kwargs": {**_TDMPC2_POLICY, **_EF_POLICY},
+    },
+    "tdmpc2": {"buffer_size": 2000, "batch_size": 8, "learning_starts": 40, "policy_kwargs": _TDMPC2_POLICY},
+}
+
+
+def cli_pairs(values: dict[str, Any]) -> list[str]:
+    """``{"a": 1}`` -> ``["a:1"]`` in rl-zoo3's ``key:value`` syntax (values as Python literals)."""
+    return [f"{key}:{value!r}" for key, value in values.items()]
+
+
+def train_args(algo: str, env_id: str, log_folder: str, n_timesteps: int) -> list[str]:
+    """rl-zoo3 train arguments for a short, small, unevaluated run."""
+    return [
+        "--algo", algo, "--env", env_id, "-n", str(n_timesteps), "-f", log_folder, "--seed", "0",
+        "--eval-freq", "-1", "--num-threads", "1", "--verbose", "0",
+        "--env-kwargs", *cli_pairs(ENV_KWARGS[algo]),
+        "--hyperparams", *cli_pairs(HYPERPARAMS[algo]),
+    ]  # fmt: skip
