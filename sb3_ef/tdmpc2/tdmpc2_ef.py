@@ -302,7 +302,7 @@ class TDMPC2EF(ActionOverrideMixin, OffPolicyAlgorithm):
                 next_latents, next_actions, reduce="min", target=True
             )
 
-        z = model.encode(sequence.first)
+        first_latent = z = model.encode(sequence.first)
         latents, consistency = [z], []
         for t in range(horizon):
             z = model.next(z, sequence.actions[t])
@@ -320,7 +320,7 @@ class TDMPC2EF(ActionOverrideMixin, OffPolicyAlgorithm):
         if self.ef is not None:
             assert sequence.ef_steps is not None and sequence.ef_target is not None
             losses["ef_loss"] = self.ef.loss(
-                rollout[0], batch.future_actions, sequence.ef_steps, sequence.ef_target, sequence.ef_valid
+                first_latent, batch.future_actions, sequence.ef_steps, sequence.ef_target, sequence.ef_valid
             )
         first_valid = th.ones_like(sequence.valid[:1])
         return losses, rollout, th.cat([first_valid, sequence.valid])
