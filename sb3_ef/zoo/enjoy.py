@@ -19,8 +19,9 @@ import sb3_ef  # noqa: F401  (registers the environments)
 from sb3_ef.zoo.registration import algorithm_classes, register_algorithms
 from sb3_ef.zoo.train import run_with_argv, with_gym_package
 
-#: Replay-buffer capacity of a model loaded to act: room for the longest sampling window, nothing more.
-INFERENCE_BUFFER_SIZE = 64
+#: Replay-buffer capacity (frames) of a model loaded to act: more than any sampling window needs
+#: (horizon + frame stack), a few MB at 84x84 instead of the training capacity.
+INFERENCE_BUFFER_SIZE = 256
 
 
 class InferenceLoader:

@@ -29,21 +29,21 @@ _EF_ALGO = {"ef_horizon": 3, "babbling_steps": 20}
 #: Per algorithm: hyperparameter overrides (buffer, batch, warm-up, network sizes).
 HYPERPARAMS: dict[str, dict[str, Any]] = {
     "drqv2_ef": {
-        "buffer_size": 2000,
+        "buffer_size": 4000,
         "batch_size": 8,
         "learning_starts": 40,
         **_EF_ALGO,
         "policy_kwargs": {**_DRQV2_POLICY, "features_dim": 64, **_EF_POLICY},
     },
-    "drqv2": {"buffer_size": 2000, "batch_size": 8, "learning_starts": 40, "policy_kwargs": _DRQV2_POLICY},
+    "drqv2": {"buffer_size": 4000, "batch_size": 8, "learning_starts": 40, "policy_kwargs": _DRQV2_POLICY},
     "tdmpc2_ef": {
-        "buffer_size": 2000,
+        "buffer_size": 4000,
         "batch_size": 8,
         "learning_starts": 40,
         **_EF_ALGO,
         "policy_kwargs": {**_TDMPC2_POLICY, **_EF_POLICY},
     },
-    "tdmpc2": {"buffer_size": 2000, "batch_size": 8, "learning_starts": 40, "policy_kwargs": _TDMPC2_POLICY},
+    "tdmpc2": {"buffer_size": 4000, "batch_size": 8, "learning_starts": 40, "policy_kwargs": _TDMPC2_POLICY},
 }
 
 
