@@ -1,19 +1,22 @@
 """Gymnasium registration of the pixel environments (cheap: entry-point strings, no MuJoCo import).
 
 Every name of :data:`sb3_ef.envs.tasks.ENV_NAMES` is registered as ``<name>-v0``, so
-``gym.make("dmc/cartpole-swingup-v0", size=64)`` works after ``import sb3_ef``.
+``gym.make("dmc/cartpole-swingup-v0", size=64)`` works after ``import sb3_ef``; the MuJoCo-free test world
+:class:`sb3_ef.envs.toy.ToyAgentEnv` is ``toy/agent-v0``.
 """
 
 import gymnasium as gym
 
 from sb3_ef.envs.tasks import ENV_NAMES
 
-_ENTRY_POINT = "sb3_ef.envs.factory:make_env"
+_ENTRY_POINTS: dict[str, tuple[str, dict[str, str]]] = {
+    **{f"{name}-v0": ("sb3_ef.envs.factory:make_env", {"name": name}) for name in ENV_NAMES},
+    "toy/agent-v0": ("sb3_ef.envs.toy:ToyAgentEnv", {}),
+}
 
 
 def register_envs() -> None:
     """Register every pixel environment with gymnasium; calling it again changes nothing."""
-    for name in ENV_NAMES:
-        env_id = f"{name}-v0"
+    for env_id, (entry_point, kwargs) in _ENTRY_POINTS.items():
         if env_id not in gym.registry:
-            gym.register(id=env_id, entry_point=_ENTRY_POINT, kwargs={"name": name})
+            gym.register(id=env_id, entry_point=entry_point, kwargs=kwargs)

@@ -1,0 +1,57 @@
+"""Renderer: camera resolution errors and a clean interpreter exit (no EGL tracebacks)."""
+
+import os
+import subprocess
+import sys
+
+import mujoco
+import pytest
+
+from sb3_ef.envs.renderer import camera_id
+
+TWO_CAMERAS = """
+<mujoco><worldbody>
+  <camera name="front" pos="0 -1 0" xyaxes="1 0 0 0 0 1"/>
+  <camera name="top" pos="0 0 1"/>
+  <geom type="sphere" size="0.1"/>
+</worldbody></mujoco>
+"""
+
+EXIT_CHILD = """
+import numpy as np
+from sb3_ef.envs import make_env
+closed = make_env("dmc/cartpole-swingup", size=32)
+left_open = make_env("metaworld/door-open", size=32)
+for env in (closed, left_open):
+    env.reset(seed=0)
+    env.step(np.zeros(env.action_space.shape, np.float32))
+    env.agent_mask()
+closed.close()
+print("ok")
+"""
+
+
+def test_camera_by_index_or_name():
+    model = mujoco.MjModel.from_xml_string(TWO_CAMERAS)
+    assert camera_id(model, "top") == 1
+    assert camera_id(model, 0) == 0
+
+
+@pytest.mark.parametrize("camera", [2, -1, "side", True, 1.0])
+def test_unknown_camera_lists_valid_ones(camera):
+    model = mujoco.MjModel.from_xml_string(TWO_CAMERAS)
+    with pytest.raises(ValueError, match=r"cameras are 0 \('front'\), 1 \('top'\)"):
+        camera_id(model, camera)
+
+
+def test_interpreter_exit_prints_no_egl_traceback():
+    result = subprocess.run(
+        [sys.executable, "-c", EXIT_CHILD],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "MUJOCO_GL": "egl"},
+    )
+    assert result.returncode == 0 and result.stdout.strip() == "ok", result.stderr
+    assert "EGLError" not in result.stderr
+    assert "Traceback" not in result.stderr

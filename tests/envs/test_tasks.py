@@ -1,0 +1,52 @@
+"""Task names: in sync with the installed suites, parsed with an optional -v0, unknown names rejected."""
+
+import pytest
+from dm_control import suite
+from metaworld.env_dict import ALL_V3_ENVIRONMENTS
+
+from sb3_ef.envs.tasks import (
+    DMC_PAPER_TASKS,
+    DMC_TASKS,
+    ENV_NAMES,
+    METAWORLD_PAPER_TASKS,
+    METAWORLD_TASKS,
+    TaskName,
+    parse_env_name,
+)
+
+
+def test_names_cover_the_installed_suites():
+    assert sorted(DMC_TASKS.values()) == sorted(suite.ALL_TASKS)
+    assert sorted(f"{task}-v3" for task in METAWORLD_TASKS) == sorted(ALL_V3_ENVIRONMENTS)
+    assert set(DMC_PAPER_TASKS) <= set(DMC_TASKS) and len(DMC_PAPER_TASKS) == 12
+    assert set(METAWORLD_PAPER_TASKS) <= set(METAWORLD_TASKS) and len(METAWORLD_PAPER_TASKS) == 16
+    assert len(ENV_NAMES) == len(set(ENV_NAMES)) == len(DMC_TASKS) + len(METAWORLD_TASKS)
+
+
+@pytest.mark.parametrize(
+    "name, parsed",
+    [
+        ("dmc/cartpole-swingup-sparse", TaskName("dmc", "cartpole-swingup-sparse")),
+        ("dmc/ball-in-cup-catch-v0", TaskName("dmc", "ball-in-cup-catch")),
+        ("metaworld/button-press-topdown-wall", TaskName("metaworld", "button-press-topdown-wall")),
+        ("metaworld/hammer-v0", TaskName("metaworld", "hammer")),
+    ],
+)
+def test_parse_env_name(name, parsed):
+    assert parse_env_name(name) == parsed
+
+
+def test_dmc_names_map_to_suite_domain_and_task():
+    assert DMC_TASKS["cartpole-swingup-sparse"] == ("cartpole", "swingup_sparse")
+    assert DMC_TASKS["ball-in-cup-catch"] == ("ball_in_cup", "catch")
+
+
+@pytest.mark.parametrize("name", ["dmc/cartpole", "dmc/cartpole_swingup", "gym/reacher-easy", "metaworld/hammer-v2"])
+def test_unknown_names_list_the_valid_ones(name):
+    with pytest.raises(ValueError, match=f"Unknown env name '{name}'.*metaworld/stick-push"):
+        parse_env_name(name)
+
+
+def test_non_string_name_is_a_type_error():
+    with pytest.raises(TypeError, match="got int"):
+        parse_env_name(3)
