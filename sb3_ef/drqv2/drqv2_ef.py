@@ -468,12 +468,18 @@ def _check_spaces(observation_space: spaces.Space, action_space: spaces.Space) -
 
 
 def _episode_limit(env: VecEnv) -> int | None:
-    """The env's episode length in agent steps when it is known (from its spec or a TimeLimit wrapper)."""
+    """The env's episode length in agent steps when it is known: from its spec, a TimeLimit wrapper or, for
+    ``sb3_ef.envs`` pixel envs, ``episode_length`` simulator steps at ``action_repeat``."""
     spec = env.get_attr("spec", indices=[0])[0]
     if spec is not None and spec.max_episode_steps is not None:
         return int(spec.max_episode_steps)
     if env.env_is_wrapped(TimeLimit, indices=[0])[0]:
         return int(env.get_attr("_max_episode_steps", indices=[0])[0])
+    if env.has_attr("episode_length") and env.has_attr("action_repeat"):
+        episode_length, action_repeat = (
+            env.get_attr(name, indices=[0])[0] for name in ("episode_length", "action_repeat")
+        )
+        return -(-int(episode_length) // int(action_repeat))
     return None
 
 

@@ -1,0 +1,43 @@
+"""DrQv2EF on a real pixel env (DMC cartpole through sb3_ef.envs), kept tiny."""
+
+import numpy as np
+import pytest
+from drqv2_fakes import TINY_POLICY
+
+from sb3_ef.drqv2 import DrQv2EF
+from sb3_ef.envs import make_env
+
+
+@pytest.fixture
+def cartpole():
+    env = make_env("dmc/cartpole-swingup", size=64, fast_render=True, seed=0)
+    yield env
+    env.close()
+
+
+def test_trains_on_dmc_cartpole_at_64(cartpole):
+    model = DrQv2EF(
+        "CnnPolicy",
+        cartpole,
+        buffer_size=500,
+        batch_size=8,
+        learning_starts=20,
+        babbling_steps=10,
+        ef_horizon=3,
+        policy_kwargs=TINY_POLICY,
+        seed=0,
+    )
+    assert model.frame_shape == (3, 64, 64) and model.ef.decoder.frame_shape == (3, 64, 64)
+    model.learn(30)
+    logged = model.logger.name_to_value
+    # 10 steps after learning_starts, one update every train_freq=2 steps.
+    assert model._n_updates == 5 and np.isfinite(logged["train/ef_loss"]) and np.isfinite(logged["train/critic_loss"])
+
+
+def test_horizon_is_checked_against_the_dmc_episode_length():
+    env = make_env("dmc/cartpole-swingup", size=64, fast_render=True, episode_length=10)  # 5 agent steps
+    try:
+        with pytest.raises(ValueError, match="expected ef_horizon <= 5, got 6"):
+            DrQv2EF("CnnPolicy", env, buffer_size=100, ef_horizon=6, policy_kwargs=TINY_POLICY)
+    finally:
+        env.close()
