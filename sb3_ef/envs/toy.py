@@ -89,6 +89,16 @@ class ToyAgentEnv(gym.Env):
         """The newest frame, (size, size, 3) uint8."""
         return self._frames[-1].transpose(1, 2, 0).copy()
 
+    @property
+    def agent_position(self) -> np.ndarray:
+        """(row, col) of the agent square's top-left corner, in pixels."""
+        return self._agent.copy()
+
+    @property
+    def distractor_position(self) -> np.ndarray:
+        """(row, col) of the distractor square's top-left corner, in pixels."""
+        return self._distractor.copy()
+
     def agent_mask(self) -> np.ndarray:
         """(size, size) bool: the pixels showing the agent in the newest frame."""
         return self._square_mask(self._agent)
