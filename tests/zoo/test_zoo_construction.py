@@ -1,0 +1,70 @@
+"""Every zoo_configs entry builds its env and model through rl-zoo3's ExperimentManager (one per suite and
+algorithm by default, all of them in the slow test)."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+import pytest
+from rl_zoo3.exp_manager import ExperimentManager
+from zoo_tiny import ENV_KWARGS, HYPERPARAMS
+
+from sb3_ef.zoo.config import ZOO_ALGORITHMS, default_config_path, load_config, select_entry
+from sb3_ef.zoo.registration import algorithm_classes, register_algorithms
+
+SAMPLE_IDS = ("dmc/walker-walk-v0", "metaworld/hammer-v0")
+
+
+def build(algo: str, env_id: str, log_folder: str, hyperparams: dict[str, Any], env_kwargs: dict[str, Any]):
+    """rl-zoo3's own path from YAML entry to model, as `train` takes it (without learning)."""
+    register_algorithms()
+    manager = ExperimentManager(
+        argparse.Namespace(),
+        algo,
+        env_id,
+        log_folder,
+        eval_freq=-1,
+        hyperparams=hyperparams,
+        env_kwargs=env_kwargs,
+        seed=0,
+        verbose=0,
+        device="cpu",
+        config=str(default_config_path(algo)),
+    )
+    model, _ = manager.setup_experiment()
+    return model
+
+
+def check_entry(algo: str, env_id: str, model, overrides: dict[str, Any], size: int) -> None:
+    entry = {**select_entry(load_config(default_config_path(algo)), env_id), **overrides}
+    try:
+        assert type(model) is algorithm_classes()[algo]
+        assert model.observation_space.shape == (9, size, size)
+        assert model.env.envs[0].unwrapped.spec.id == env_id
+        for key in ("buffer_size", "batch_size", "learning_starts", "tau", "n_steps", "horizon", "beta", "ef_horizon"):
+            if key in entry:
+                assert getattr(model, key) == entry[key], key
+        assert model.replay_buffer is not None
+    finally:
+        model.env.close()
+
+
+@pytest.mark.parametrize("env_id", SAMPLE_IDS)
+@pytest.mark.parametrize("algo", ZOO_ALGORITHMS)
+def test_sample_entries_build_env_and_model(algo, env_id, tmp_path):
+    model = build(algo, env_id, str(tmp_path), HYPERPARAMS[algo], ENV_KWARGS[algo])
+    check_entry(algo, env_id, model, HYPERPARAMS[algo], ENV_KWARGS[algo]["size"])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("algo", ZOO_ALGORITHMS)
+def test_all_entries_build_env_and_model_at_paper_sizes(algo, tmp_path):
+    """Paper networks and frame sizes; only the replay buffer is shrunk (1M frames would be ~21 GB at 84x84)."""
+    overrides = {"buffer_size": 1000}
+    for env_id in load_config(default_config_path(algo)):
+        if env_id == "default":
+            continue
+        size = 64 if algo.startswith("tdmpc2") else 84
+        model = build(algo, env_id, str(tmp_path), overrides, {"size": size, "fast_render": True})
+        check_entry(algo, env_id, model, overrides, size)
