@@ -112,9 +112,9 @@ class EgoForesight(nn.Module):
                 f"Expected future_actions of shape ({batch}, steps, {self.action_dim}), "
                 f"got {tuple(future_actions.shape)}"
             )
-        max_step = int(steps.max())
-        if int(steps.min()) < 1 or max_step > future_actions.shape[1]:
-            raise ValueError(f"steps must lie in [1, {future_actions.shape[1]}], got [{int(steps.min())}, {max_step}]")
+        min_step, max_step = th.stack(th.aminmax(steps)).tolist()  # one device sync for both bounds
+        if min_step < 1 or max_step > future_actions.shape[1]:
+            raise ValueError(f"steps must lie in [1, {future_actions.shape[1]}], got [{min_step}, {max_step}]")
         target = self._target_to_float(target, batch)
         agent_states = self.rollout(h_agent, future_actions[:, :max_step])
         predicted_agent = agent_states[th.arange(batch, device=h.device), steps.long() - 1]
@@ -148,8 +148,7 @@ class EgoForesight(nn.Module):
             return target.float() / 255.0
         if not target.is_floating_point():
             raise ValueError(f"Expected a uint8 or float target frame, got {target.dtype}")
-        if float(target.min()) < 0.0 or float(target.max()) > 1.0:
-            raise ValueError(
-                f"A float target frame must lie in [0, 1], got values in [{float(target.min())}, {float(target.max())}]"
-            )
+        low, high = th.stack(th.aminmax(target)).tolist()
+        if low < 0.0 or high > 1.0:
+            raise ValueError(f"A float target frame must lie in [0, 1], got values in [{low}, {high}]")
         return target
