@@ -129,7 +129,6 @@ class TDMPC2EF(ActionOverrideMixin, OffPolicyAlgorithm):
         _check_arguments(horizon, replay_buffer_class, policy_kwargs)
         if self.uses_ef:
             _check_ef_arguments(beta, ef_horizon, babbling_steps)
-        episode_steps = None
         if env is not None:
             env = maybe_make_env(env, verbose)
             check_pixel_space(env.observation_space)
@@ -143,7 +142,7 @@ class TDMPC2EF(ActionOverrideMixin, OffPolicyAlgorithm):
             learning_starts,
             batch_size,
             tau,
-            0.99 if gamma is None else gamma,
+            gamma,  # type: ignore[arg-type]  # None is resolved in _setup_model
             train_freq=1,
             gradient_steps=-1,
             replay_buffer_class=replay_buffer_class,
@@ -158,15 +157,6 @@ class TDMPC2EF(ActionOverrideMixin, OffPolicyAlgorithm):
             supported_action_spaces=(spaces.Box,),
             support_multi_env=True,
         )
-        if self.env is not None:
-            episode_steps = _episode_steps(self.env)
-            if gamma is None:
-                if episode_steps is None:
-                    raise ValueError(
-                        "gamma=None derives the discount from the episode length, which this env does not expose "
-                        "(no spec.max_episode_steps, TimeLimit, episode_length or max_episode_steps): pass gamma"
-                    )
-                self.gamma = discount_from_episode_length(episode_steps)
         self.horizon = horizon
         self.consistency_coef = consistency_coef
         self.reward_coef = reward_coef
@@ -178,11 +168,6 @@ class TDMPC2EF(ActionOverrideMixin, OffPolicyAlgorithm):
         self.ef_horizon = ef_horizon if self.uses_ef else None
         self.babbling_steps = babbling_steps
         self.babbling_mode = babbling_mode
-        if episode_steps is not None and self.ef_horizon is not None and self.ef_horizon > episode_steps:
-            raise ValueError(
-                f"ef_horizon must not exceed the episode length: expected ef_horizon <= {episode_steps}, "
-                f"got {self.ef_horizon}"
-            )
         self._rollout_plan: th.Tensor | None = None
         self._ef_generator: th.Generator | None = None
 
@@ -192,6 +177,7 @@ class TDMPC2EF(ActionOverrideMixin, OffPolicyAlgorithm):
     def _setup_model(self) -> None:
         """Build the sequence replay buffer (window ``max(horizon, ef_horizon)``) and the policy; the planner's
         horizon and discount and EF's horizon are passed to the policy from the algorithm's arguments."""
+        self._check_episode_length()
         self._setup_lr_schedule()
         self.set_random_seed(self.seed)
         if self.replay_buffer_class is None:
@@ -216,6 +202,23 @@ class TDMPC2EF(ActionOverrideMixin, OffPolicyAlgorithm):
         # EF's rollout lengths come from their own generator, so that EF leaves the host's random draws unchanged.
         self._ef_generator = th.Generator(device=self.device)
         self._ef_generator.manual_seed(int(np.random.randint(2**31)) if self.seed is None else self.seed)
+
+    def _check_episode_length(self) -> None:
+        """Derive ``gamma`` from the episode length when it is ``None``, and check that EF's window fits in an
+        episode (done here, not in ``__init__``, so that ``load`` checks the saved values)."""
+        episode_steps = None if self.env is None else _episode_steps(self.env)
+        if self.gamma is None:
+            if episode_steps is None:
+                raise ValueError(
+                    "gamma=None derives the discount from the episode length, which this env does not expose "
+                    "(no spec.max_episode_steps, TimeLimit, episode_length or max_episode_steps): pass gamma"
+                )
+            self.gamma = discount_from_episode_length(episode_steps)
+        if episode_steps is not None and self.ef_horizon is not None and self.ef_horizon > episode_steps:
+            raise ValueError(
+                f"ef_horizon must not exceed the episode length: expected ef_horizon <= {episode_steps}, "
+                f"got {self.ef_horizon}"
+            )
 
     @property
     def window(self) -> int:

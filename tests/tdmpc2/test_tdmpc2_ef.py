@@ -144,10 +144,11 @@ def test_babbling_comes_first_then_seed_actions_then_planning():
 
 
 def test_save_load_gives_equal_predictions(tmp_path):
-    model = make()
+    # Episodes of 8 steps: shorter than the default ef_horizon (10), so load must check the saved one (5).
+    model = make(env=toy_env(max_episode_steps=8))
     model.learn(16)
     model.save(tmp_path / "model.zip")
-    loaded = TDMPC2EF.load(tmp_path / "model.zip", env=toy_env())
+    loaded = TDMPC2EF.load(tmp_path / "model.zip", env=toy_env(max_episode_steps=8))
     for a, b in zip(model.policy.state_dict().values(), loaded.policy.state_dict().values(), strict=True):
         th.testing.assert_close(a, b, rtol=0, atol=0)
     assert loaded.gamma == model.gamma and loaded.policy.planner == model.policy.planner
