@@ -1,0 +1,53 @@
+"""The ``sb3-ef`` console script: help, dispatch of each subcommand with its arguments, unknown commands."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from sb3_ef import cli
+
+
+def test_console_script_help_lists_the_subcommands():
+    result = subprocess.run(["sb3-ef", "--help"], capture_output=True, text=True, check=True)
+    for command in ("train", "enjoy", "optimize", "analyze"):
+        assert command in result.stdout
+
+
+@pytest.mark.parametrize(
+    ("argv", "module", "expected"),
+    [
+        (["train", "--algo", "drqv2_ef", "-n", "10"], "sb3_ef.zoo.train", ["--algo", "drqv2_ef", "-n", "10"]),
+        (["optimize", "--algo", "tdmpc2"], "sb3_ef.zoo.train", ["-optimize", "--algo", "tdmpc2"]),
+        (["enjoy", "--algo", "drqv2", "--no-render"], "sb3_ef.zoo.enjoy", ["--algo", "drqv2", "--no-render"]),
+    ],
+)
+def test_subcommands_forward_their_arguments(argv, module, expected, monkeypatch):
+    received = []
+    __import__(module)
+    monkeypatch.setattr(sys.modules[module], "main", received.append)
+    cli.main(argv)
+    assert received == [expected]
+
+
+def test_analyze_forwards_to_the_analysis_cli(monkeypatch):
+    analysis_cli = pytest.importorskip("sb3_ef.analysis.cli", reason="sb3_ef.analysis.cli not available")
+    received = []
+    monkeypatch.setattr(analysis_cli, "main", received.append)
+    cli.main(["analyze", "ens", "--results", "runs/"])
+    assert received == [["ens", "--results", "runs/"]]
+
+
+def test_train_errors_reach_the_user(tmp_path):
+    with pytest.raises(ValueError, match="Unknown algorithm 'sac_ef'"):
+        cli.main(["train", "--algo", "sac_ef", "--env", "dmc/cheetah-run-v0", "-f", str(tmp_path)])
+
+
+@pytest.mark.parametrize("argv", [[], ["tune"]])
+def test_missing_or_unknown_command_is_an_error_naming_the_commands(argv, capsys):
+    with pytest.raises(SystemExit) as raised:
+        cli.main(argv)
+    assert raised.value.code == 2
+    assert "{train,enjoy,optimize,analyze}" in capsys.readouterr().err
