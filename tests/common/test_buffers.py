@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
+import torch as th
 from gymnasium import spaces
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -24,9 +25,9 @@ STEP_OFFSET = 8  # pixel value of step s is s + STEP_OFFSET, so pre-reset frames
 
 
 def encode(env: int, episode: int, step: int) -> np.ndarray:
-    """A frame whose channels hold env, episode and step."""
+    """A frame whose channels hold env, episode and step (mod 256: the reference checks stay below that)."""
     frame = np.empty(FRAME, dtype=np.uint8)
-    frame[0], frame[1], frame[2] = env + 1, episode + 1, step + STEP_OFFSET
+    frame[0], frame[1], frame[2] = env + 1, (episode + 1) % 256, (step + STEP_OFFSET) % 256
     return frame
 
 
@@ -297,3 +298,41 @@ def test_storage_is_about_one_frame_per_transition():
     per_transition = buffer.nbytes / buffer.size()
     assert frame_bytes < per_transition <= 1.1 * frame_bytes
     assert buffer.nbytes < 2000 * frame_bytes * 1.01
+
+
+def test_samples_follow_the_contract():
+    buffer = make_buffer(2, 3, 30, n_steps=3, horizon=5)
+    streams = Streams(2, 3, 9, "repeat", True, seed=0)
+    for _ in range(20):
+        streams.step(buffer)
+    batch = buffer.sample(7)
+    expected = {
+        "observations": ((7, 9, 4, 4), th.uint8),
+        "actions": ((7, ACTION_DIM), th.float32),
+        "next_observations": ((7, 9, 4, 4), th.uint8),
+        "dones": ((7, 1), th.float32),
+        "rewards": ((7, 1), th.float32),
+        "discounts": ((7, 1), th.float32),
+        "future_actions": ((7, 5, ACTION_DIM), th.float32),
+        "future_frames": ((7, 5, *FRAME), th.uint8),
+        "future_rewards": ((7, 5), th.float32),
+        "future_mask": ((7, 5), th.bool),
+    }
+    assert set(batch._fields) == set(expected)
+    for name, (shape, dtype) in expected.items():
+        tensor = getattr(batch, name)
+        assert (tuple(tensor.shape), tensor.dtype, tensor.device) == (shape, dtype, th.device("cpu")), name
+
+
+def test_transitions_are_drawn_uniformly_across_envs():
+    """Env 0 runs one-step episodes (3 frames of context each), env 1 long ones: each transition is equally likely."""
+    buffer = make_buffer(2, 3, 400, horizon=2)
+    streams = Streams(2, 3, 1, "distinct", True, seed=0)
+    for _ in range(300):
+        streams.length[1] = (1000, "term")  # env 1 never ends its episode
+        streams.step(buffer)
+    share = buffer._has_step[0].sum() / buffer.size()  # env 0 holds 100 of the 400 transitions
+    np.random.seed(0)
+    drawn = buffer.sample(20000).observations[:, -3, 0, 0].numpy() == 1  # env index 0 is encoded as 1
+    assert abs(drawn.mean() - share) < 4 * np.sqrt(share * (1 - share) / 20000)
+    assert 0.2 < share < 0.3
