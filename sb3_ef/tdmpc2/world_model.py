@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import math
 from typing import NamedTuple
 
 import torch as th
@@ -120,7 +121,7 @@ class WorldModel(nn.Module):
         log_std = self.log_std_min + 0.5 * (self.log_std_max - self.log_std_min) * (th.tanh(log_std) + 1)
         noise = th.randn_like(mean)
         action = mean + noise * log_std.exp()
-        gaussian_log_prob = (-0.5 * noise.pow(2) - log_std - 0.5 * th.log(th.tensor(2 * th.pi))).sum(-1)
+        gaussian_log_prob = (-0.5 * noise.pow(2) - log_std - 0.5 * math.log(2 * math.pi)).sum(-1)
         action = th.tanh(action)
         log_prob = gaussian_log_prob - th.log(F.relu(1 - action.pow(2)) + 1e-6).sum(-1)
         return PolicyOutput(action, th.tanh(mean), log_prob)
