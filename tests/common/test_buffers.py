@@ -220,6 +220,8 @@ def test_pickle_round_trip(tmp_path, use_memmap):
         streams.step(buffer)
     loaded = pickle.loads(pickle.dumps(buffer, protocol=pickle.HIGHEST_PROTOCOL))
     assert isinstance(loaded._frames, np.memmap) == use_memmap
+    if use_memmap:
+        assert memmap_dir.is_dir() and not any(memmap_dir.iterdir())  # unnamed files: nothing left behind
     assert_same_samples(buffer, loaded)
     for _ in range(25):  # both keep working identically, wrapping around, after the round trip
         streams.step(buffer, loaded)
@@ -336,3 +338,30 @@ def test_transitions_are_drawn_uniformly_across_envs():
     drawn = buffer.sample(20000).observations[:, -3, 0, 0].numpy() == 1  # env index 0 is encoded as 1
     assert abs(drawn.mean() - share) < 4 * np.sqrt(share * (1 - share) / 20000)
     assert 0.2 < share < 0.3
+
+
+class RewardScaler:
+    """Stands in for a VecNormalize: SB3 buffers call ``normalize_reward`` on sampled rewards."""
+
+    def __init__(self, norm_obs: bool):
+        self.norm_obs = norm_obs
+
+    def normalize_reward(self, reward: np.ndarray) -> np.ndarray:
+        return 2 * reward
+
+
+def test_sample_normalises_rewards_and_refuses_normalised_images():
+    buffer = make_buffer(1, 2, 30, n_steps=3, gamma=GAMMA, horizon=4)
+    streams = Streams(1, 2, 8, "repeat", True, seed=2)
+    for _ in range(25):
+        streams.step(buffer)
+    np.random.seed(0)
+    plain = buffer.sample(32)
+    np.random.seed(0)
+    scaled = buffer.sample(32, env=RewardScaler(norm_obs=False))
+    assert th.allclose(scaled.rewards, 2 * plain.rewards) and th.allclose(
+        scaled.future_rewards, 2 * plain.future_rewards
+    )
+    assert th.equal(scaled.observations, plain.observations)
+    with pytest.raises(ValueError, match="norm_obs=False"):
+        buffer.sample(4, env=RewardScaler(norm_obs=True))
