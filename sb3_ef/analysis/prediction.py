@@ -35,9 +35,14 @@ def resolve_foresight(
             raise ValueError("Pass either a model or encoder + ef, not both")
         if getattr(model, "ef", None) is None:
             raise ValueError(f"{type(model).__name__} has no Ego-Foresight module (model.ef is None): EF is off")
-        return model.encode, model.ef
-    if encoder is None or ef is None:
+        encoder, ef = model.encode, model.ef
+    elif encoder is None or ef is None:
         raise ValueError("Need a model with .ef and .encode, or both encoder and ef")
+    if getattr(ef, "skip_channels", 0):
+        raise ValueError(
+            f"Analysis needs an EgoForesight without U-Net skips (skip_channels=0), got {ef.skip_channels}: "
+            "model.encode returns features only, not the skip feature maps"
+        )
     return encoder, ef
 
 

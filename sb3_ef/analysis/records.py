@@ -1,0 +1,103 @@
+"""One CSV format for every algorithm's evaluations: ``algo, task, seed, step, frame, return, success``."""
+
+from __future__ import annotations
+
+import csv
+import os
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
+
+RECORD_COLUMNS = ("algo", "task", "seed", "step", "frame", "return", "success")
+
+
+def append_records(path: str | os.PathLike, rows: list[dict[str, object]]) -> None:
+    """Append rows to an evaluation CSV, writing the header only when the file is new or empty.
+
+    An existing file with a different header is refused, never overwritten.
+    """
+    for row in rows:
+        if set(row) != set(RECORD_COLUMNS):
+            raise ValueError(f"Expected record columns {RECORD_COLUMNS}, got {tuple(row)}")
+    path = os.fspath(path)
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    new_file = not os.path.exists(path) or os.path.getsize(path) == 0
+    if not new_file:
+        with open(path, newline="") as file:
+            header = tuple(next(csv.reader(file), ()))
+        if header != RECORD_COLUMNS:
+            raise ValueError(f"{path} has header {header}, expected {RECORD_COLUMNS}: refusing to append to it")
+    with open(path, "a", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=RECORD_COLUMNS)
+        if new_file:
+            writer.writeheader()
+        writer.writerows(rows)
+
+
+class EvalRecorderCallback(BaseCallback):
+    """Append each evaluation of an :class:`~stable_baselines3.common.callbacks.EvalCallback` to a CSV.
+
+    Use it as the EvalCallback's ``callback_after_eval``, so SB3 keeps doing the evaluation and this only records::
+
+        recorder = EvalRecorderCallback("results/drqv2_ef/reacher-easy_0.csv", task="dmc/reacher-easy", action_repeat=2)
+        model.learn(50_000, callback=EvalCallback(eval_env, eval_freq=5_000, callback_after_eval=recorder))
+
+    One row per evaluation: ``return`` is the mean episode return, ``success`` the fraction of episodes whose
+    final ``info["is_success"]`` was true (empty when the env reports none), ``step`` the agent steps
+    (``model.num_timesteps``) and ``frame = step * action_repeat``.
+
+    :param path: CSV file; created with a header, or appended to if it already holds records.
+    :param algo: algorithm name; default the model's class name.
+    :param task: task name; default the eval env's gymnasium id.
+    :param seed: run seed; default ``model.seed``.
+    :param action_repeat: env frames per agent step.
+    """
+
+    parent: EvalCallback | None
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        algo: str | None = None,
+        task: str | None = None,
+        seed: int | None = None,
+        action_repeat: int = 1,
+        verbose: int = 0,
+    ):
+        super().__init__(verbose=verbose)
+        if action_repeat < 1:
+            raise ValueError(f"action_repeat must be >= 1, got {action_repeat}")
+        self.path = os.fspath(path)
+        self.algo, self.task, self.seed, self.action_repeat = algo, task, seed, action_repeat
+
+    def _init_callback(self) -> None:
+        if not isinstance(self.parent, EvalCallback):
+            raise TypeError(
+                "EvalRecorderCallback must be passed as EvalCallback(..., callback_after_eval=recorder), "
+                f"got parent {type(self.parent).__name__}"
+            )
+        if self.algo is None:
+            self.algo = type(self.model).__name__
+        if self.task is None:
+            spec = self.parent.eval_env.get_attr("spec", indices=[0])[0]
+            self.task = spec.id if spec is not None else "unknown"
+        if self.seed is None:
+            self.seed = self.model.seed
+
+    def _on_step(self) -> bool:
+        assert self.parent is not None
+        # EvalCallback keeps this buffer of final info["is_success"] values until its next evaluation.
+        successes = self.parent._is_success_buffer
+        row = {
+            "algo": self.algo,
+            "task": self.task,
+            "seed": "" if self.seed is None else self.seed,
+            "step": self.num_timesteps,
+            "frame": self.num_timesteps * self.action_repeat,
+            "return": self.parent.last_mean_reward,
+            "success": float(np.mean(successes)) if successes else "",
+        }
+        append_records(self.path, [row])
+        if self.verbose >= 1:
+            print(f"Recorded evaluation at step {self.num_timesteps} to {self.path}")
+        return True
