@@ -34,7 +34,8 @@ ENS_THRESHOLDS = (0.95, 0.90, 0.85)
 RLIABLE_METRICS = ("Median", "IQM", "Mean", "Optimality Gap")
 
 
-def _check_columns(df: pd.DataFrame, columns: tuple[str, ...]) -> None:
+def check_columns(df: pd.DataFrame, columns: tuple[str, ...]) -> None:
+    """Raise a ValueError naming the missing columns, or if the table is empty."""
     missing = [column for column in columns if column not in df.columns]
     if missing:
         raise ValueError(f"Expected columns {columns}, missing {missing} (got {tuple(df.columns)})")
@@ -60,7 +61,7 @@ def load_records(directory: str | os.PathLike) -> pd.DataFrame:
 def records_to_scores(records: pd.DataFrame, return_scale: float = 1000.0) -> pd.DataFrame:
     """Score table from evaluation records: per task, the success rate when every record of that task has one
     (Meta-World), otherwise ``return / return_scale`` (DMC returns lie in [0, 1000])."""
-    _check_columns(records, RECORD_COLUMNS)
+    check_columns(records, RECORD_COLUMNS)
     if return_scale <= 0:
         raise ValueError(f"return_scale must be positive, got {return_scale}")
     has_success = records.groupby("task")["success"].transform(lambda column: column.notna().all())
@@ -71,7 +72,7 @@ def records_to_scores(records: pd.DataFrame, return_scale: float = 1000.0) -> pd
 
 def performance_curves(scores: pd.DataFrame) -> pd.DataFrame:
     """Mean score over seeds per ``(algo, task, step)``, sorted by step."""
-    _check_columns(scores, SCORE_COLUMNS)
+    check_columns(scores, SCORE_COLUMNS)
     return (
         scores.groupby(["algo", "task", "step"], as_index=False)["score"].mean().sort_values(["algo", "task", "step"])
     )
@@ -126,7 +127,7 @@ def efficiency_normalized_score(scores: pd.DataFrame, thresholds: tuple[float, .
 def best_scores(scores: pd.DataFrame) -> dict[str, np.ndarray]:
     """Best evaluation score of every run as rliable wants it: ``{algo: (runs, tasks) array}``, tasks sorted by
     name and runs by seed. Every algorithm needs the same number of seeds on every task."""
-    _check_columns(scores, SCORE_COLUMNS)
+    check_columns(scores, SCORE_COLUMNS)
     best = scores.groupby(["algo", "task", "seed"], as_index=False)["score"].max()
     tasks = sorted(best["task"].unique())
     matrices = {}

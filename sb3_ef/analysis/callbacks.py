@@ -1,0 +1,111 @@
+"""TensorBoard view of what Ego-Foresight learned, logged during training through SB3's logger."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import Image
+from stable_baselines3.common.vec_env import VecEnv
+
+from sb3_ef.analysis.masks import mask_scores, threshold_saliency
+from sb3_ef.analysis.prediction import FRAME_CHANNELS, context_frames, frame_grid, predict_open_loop
+from sb3_ef.analysis.saliency import compute_saliency, saliency_overlay
+
+_NOT_TEXT = ("stdout", "log", "json", "csv")
+
+
+class ForesightLoggerCallback(BaseCallback):
+    """Every ``log_freq`` calls, play the model on ``eval_env`` and log what EF predicts for those actions.
+
+    Works with any model that follows the EF contract (``model.ef``, ``model.encode``, ``model.frame_shape``),
+    i.e. DrQv2EF and TDMPC2EF. From the reset observation, the model acts (``model.predict``) for ``steps`` steps
+    (fewer if the episode ends); EF then predicts those frames open loop from the reset observation. Logged:
+
+    - ``foresight/prediction`` (image): rows = context frames, predicted frames, true frames;
+    - ``foresight/saliency`` (image): last predicted frame, its h_a saliency overlay (red), its h_s overlay (blue);
+    - ``foresight/prediction_mse``: mean squared pixel error in [0, 1] units, predicted vs true;
+    - ``foresight/mask_precision``, ``mask_recall``, ``mask_iou`` of the thresholded h_a map against
+      ``eval_env.unwrapped.agent_mask()`` after the last step, when the env provides agent masks.
+
+    :param eval_env: a single gymnasium env with the training env's observations (e.g. ``make_env(...)``).
+    :param log_freq: log every this many callback calls (environment steps of one env).
+    :param steps: prediction length; default the EF horizon.
+    :param seed: reset seed, so every log starts from the same state (None: a fresh state each time).
+    :param threshold_rule, num_std, fraction: passed to :func:`~sb3_ef.analysis.masks.threshold_saliency`.
+    :param patch_size: saliency patch size in pixels.
+    """
+
+    def __init__(
+        self,
+        eval_env: gym.Env,
+        log_freq: int = 10_000,
+        steps: int | None = None,
+        seed: int | None = 0,
+        deterministic: bool = True,
+        threshold_rule: str = "mean_std",
+        num_std: float = 1.0,
+        fraction: float = 0.1,
+        patch_size: int = 4,
+        verbose: int = 0,
+    ):
+        super().__init__(verbose=verbose)
+        if isinstance(eval_env, VecEnv) or not isinstance(eval_env, gym.Env):
+            raise TypeError(
+                f"Expected a single gymnasium.Env (e.g. sb3_ef.make_env(...)), got {type(eval_env).__name__}"
+            )
+        if log_freq < 1 or (steps is not None and steps < 1):
+            raise ValueError(f"log_freq and steps must be >= 1, got log_freq={log_freq}, steps={steps}")
+        self.eval_env, self.log_freq, self.steps, self.seed = eval_env, log_freq, steps, seed
+        self.deterministic, self.patch_size = deterministic, patch_size
+        self.threshold_kwargs = {"rule": threshold_rule, "num_std": num_std, "fraction": fraction}
+
+    def _init_callback(self) -> None:
+        if getattr(self.model, "ef", None) is None:
+            raise ValueError(
+                f"ForesightLoggerCallback needs a model with Ego-Foresight; {type(self.model).__name__}.ef is None"
+            )
+        expected = tuple(self.model.frame_shape[1:])
+        received = tuple(self.eval_env.observation_space.shape[1:])
+        if expected != received:
+            raise ValueError(f"eval_env frames are {received}, the model predicts {expected} frames")
+
+    def _on_step(self) -> bool:
+        if self.n_calls % self.log_freq == 0:
+            self.log_foresight()
+        return True
+
+    def log_foresight(self) -> dict[str, float]:
+        """Play, predict, compute saliency, log images and scores now; return the logged scalars."""
+        first_observation, _ = self.eval_env.reset(seed=self.seed)
+        observation, actions, true_frames, agent_mask = first_observation, [], [], None
+        for _ in range(self.steps or self.model.ef.horizon):
+            action, _ = self.model.predict(observation, deterministic=self.deterministic)
+            observation, _, terminated, truncated, _ = self.eval_env.step(action)
+            actions.append(np.asarray(action, dtype=np.float32).reshape(-1))
+            true_frames.append(observation[-FRAME_CHANNELS:].transpose(1, 2, 0))
+            if terminated or truncated:
+                break
+        agent_mask_fn = getattr(self.eval_env.unwrapped, "agent_mask", None)
+        if agent_mask_fn is not None:
+            agent_mask = np.asarray(agent_mask_fn(), dtype=bool)
+        actions_array, true_array = np.stack(actions), np.stack(true_frames)
+        predicted = predict_open_loop(first_observation, actions_array, model=self.model)
+        saliency = compute_saliency(first_observation, actions_array, model=self.model, patch_size=self.patch_size)
+
+        rows = [context_frames(first_observation), predicted, true_array]
+        panels = [
+            saliency.frame,
+            saliency_overlay(saliency.frame, saliency.agent, color=(255, 0, 0)),
+            saliency_overlay(saliency.frame, saliency.scene, color=(0, 0, 255)),
+        ]
+        self.logger.record("foresight/prediction", Image(frame_grid(rows), "HWC"), exclude=_NOT_TEXT)
+        self.logger.record("foresight/saliency", Image(frame_grid([np.stack(panels)]), "HWC"), exclude=_NOT_TEXT)
+        scalars = {"foresight/prediction_mse": float(np.mean((predicted / 255.0 - true_array / 255.0) ** 2))}
+        if agent_mask is not None:
+            scores = mask_scores(threshold_saliency(saliency.agent, **self.threshold_kwargs), agent_mask)
+            scalars.update({f"foresight/mask_{name}": value for name, value in scores.as_dict().items()})
+        for key, value in scalars.items():
+            self.logger.record(key, value)
+        self.logger.dump(self.num_timesteps)
+        return scalars

@@ -1,0 +1,77 @@
+"""Figures written to files (matplotlib, Agg backend): learning curves, ENS bars, rliable interval plots."""
+
+from __future__ import annotations
+
+import os
+import re
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from sb3_ef.analysis._optional import pyplot
+from sb3_ef.analysis.metrics import SCORE_COLUMNS, check_columns
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+
+def _safe_name(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
+
+
+def _save(figure, path: str | os.PathLike) -> str:
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    figure.tight_layout()
+    figure.savefig(path, dpi=100)
+    pyplot().close(figure)
+    return os.fspath(path)
+
+
+def plot_learning_curves(scores: pd.DataFrame, out_dir: str | os.PathLike, xlabel: str = "step") -> list[str]:
+    """One PNG per task: each algorithm's mean score over seeds against step, with a 95% confidence band
+    (mean +- 1.96 standard errors over seeds; no band for a single seed).
+
+    :return: the written paths, ``<out_dir>/curve_<task>.png``.
+    """
+    check_columns(scores, SCORE_COLUMNS)
+    plt = pyplot()
+    paths = []
+    for task, task_scores in scores.groupby("task"):
+        figure, axis = plt.subplots(figsize=(5, 3.5))
+        for algo, group in task_scores.groupby("algo"):
+            stats = group.groupby("step")["score"].agg(["mean", "std", "count"]).sort_index()
+            axis.plot(stats.index, stats["mean"], label=str(algo))
+            half_width = 1.96 * stats["std"].fillna(0.0) / np.sqrt(stats["count"])
+            axis.fill_between(stats.index, stats["mean"] - half_width, stats["mean"] + half_width, alpha=0.25)
+        axis.set(title=str(task), xlabel=xlabel, ylabel="score")
+        axis.legend()
+        paths.append(_save(figure, os.path.join(os.fspath(out_dir), f"curve_{_safe_name(str(task))}.png")))
+    return paths
+
+
+def plot_ens(ens: pd.Series, path: str | os.PathLike) -> str:
+    """Bar chart of the Efficiency Normalised Score per algorithm."""
+    plt = pyplot()
+    figure, axis = plt.subplots(figsize=(max(3.0, 1.2 * len(ens)), 3.5))
+    axis.bar([str(algo) for algo in ens.index], ens.to_numpy())
+    axis.set(ylim=(0, 1), ylabel="ENS", title="Efficiency Normalised Score")
+    return _save(figure, path)
+
+
+def plot_intervals(table: pd.DataFrame, path: str | os.PathLike) -> str:
+    """rliable-style interval plot: one panel per metric, a bar from lower to upper CI and a tick at the estimate
+    for each algorithm (``table`` from :func:`sb3_ef.analysis.metrics.rliable_metrics`)."""
+    check_columns(table, ("algo", "metric", "estimate", "lower", "upper"))
+    plt = pyplot()
+    metrics = list(dict.fromkeys(table["metric"]))
+    algos = list(dict.fromkeys(table["algo"]))
+    figure, axes = plt.subplots(1, len(metrics), figsize=(3 * len(metrics), 0.6 * len(algos) + 1.2), squeeze=False)
+    for axis, metric in zip(axes[0], metrics, strict=True):
+        rows = table[table["metric"] == metric].set_index("algo").reindex(algos)
+        positions = np.arange(len(algos))
+        axis.barh(positions, rows["upper"] - rows["lower"], left=rows["lower"], height=0.6, alpha=0.5)
+        axis.vlines(rows["estimate"], positions - 0.3, positions + 0.3, color="black")
+        axis.set_yticks(positions, algos if axis is axes[0][0] else [""] * len(algos))
+        axis.set_title(metric)
+        axis.set_xlabel("normalised score")
+    return _save(figure, path)

@@ -1,0 +1,56 @@
+import numpy as np
+import pytest
+from analysis_fakes import SIZE, DotEnv, FakeModel
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.logger import configure
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from sb3_ef.analysis.callbacks import ForesightLoggerCallback
+
+
+def test_callback_logs_images_and_mask_scores_to_tensorboard(tmp_path):
+    model = FakeModel(logger=configure(str(tmp_path), ["tensorboard"]))
+    callback = ForesightLoggerCallback(DotEnv(), log_freq=2, steps=4)
+    callback.init_callback(model)
+    assert callback.on_step()  # first call: nothing logged yet
+    model.num_timesteps = 2
+    callback.on_step()  # second call: logs
+    accumulator = EventAccumulator(str(tmp_path)).Reload()
+    images = accumulator.Tags()["images"]
+    assert {"foresight/prediction", "foresight/saliency"} <= set(images)
+    prediction = accumulator.Images("foresight/prediction")[0]
+    # rows: 3 context frames, 4 predicted, 4 true -> 3 rows x 4 columns of 16-pixel frames, 2-pixel spacing
+    assert (prediction.height, prediction.width) == (3 * SIZE + 4, 4 * SIZE + 6)
+    assert prediction.step == 2
+    scalars = set(accumulator.Tags()["scalars"])
+    expected = {"foresight/prediction_mse", "foresight/mask_precision", "foresight/mask_recall", "foresight/mask_iou"}
+    assert expected <= scalars
+
+
+def test_scores_compare_the_thresholded_h_a_map_with_the_agent_mask(tmp_path):
+    model = FakeModel(logger=configure(str(tmp_path), []))
+    callback = ForesightLoggerCallback(DotEnv(), steps=2, threshold_rule="top_fraction", fraction=0.25)
+    callback.init_callback(model)
+    scalars = callback.log_foresight()
+    # FakeForesight's h_a drives exactly the top-left 8x8 quarter, so the top quarter of the h_a map is that region:
+    # the scores are those of that region against the dot's 3x3 mask after the 2 steps
+    env = DotEnv()
+    env.reset(seed=0)
+    for _ in range(2):
+        env.step(np.array([0.5, -0.5]))
+    mask = env.agent_mask()
+    inside = mask[:8, :8].sum()
+    assert scalars["foresight/mask_precision"] == pytest.approx(inside / 64)
+    assert scalars["foresight/mask_recall"] == pytest.approx(inside / mask.sum())
+    assert 0.0 <= scalars["foresight/prediction_mse"] <= 1.0
+
+
+def test_bad_setups_are_refused():
+    with pytest.raises(TypeError, match=r"single gymnasium\.Env"):
+        ForesightLoggerCallback(make_vec_env("CartPole-v1"))
+    model = FakeModel()
+    model.ef = None
+    with pytest.raises(ValueError, match=r"FakeModel\.ef is None"):
+        ForesightLoggerCallback(DotEnv()).init_callback(model)
+    with pytest.raises(ValueError, match=r"eval_env frames are \(8, 8\)"):
+        ForesightLoggerCallback(DotEnv(size=8)).init_callback(FakeModel())
