@@ -43,7 +43,7 @@ class DMCPixelEnv(PixelEnv):
     :param frame_stack: frames stacked along channels, oldest first.
     :param action_repeat: simulator steps per agent step.
     :param camera: camera index or name (default: 0, 2 for quadruped).
-    :param fast_render: shadows, reflections and multisampling off (frames stay correct on DMC scenes).
+    :param fast_render: shadows, reflections and multisampling off (several times faster on CPU).
     :param seed: seed of the task's random initial states.
     :param episode_length: simulator steps before truncation (1000 as in the suite).
     :param render_mode: ``None`` or ``"rgb_array"`` (``render()`` returns the newest frame).
@@ -77,7 +77,6 @@ class DMCPixelEnv(PixelEnv):
                 episode_length=episode_length,
                 camera=DEFAULT_CAMERAS.get(domain, 0) if camera is None else camera,
                 fast_render=fast_render,
-                multisample=not fast_render,
                 flip=False,
                 render_mode=render_mode,
             )

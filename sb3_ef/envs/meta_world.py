@@ -28,7 +28,7 @@ class MetaWorldPixelEnv(PixelEnv):
     :param frame_stack: frames stacked along channels, oldest first.
     :param action_repeat: simulator steps per agent step.
     :param camera: camera index or name (default ``"corner"``; also corner2, corner3, corner4, topview, ...).
-    :param fast_render: shadows and reflections off (multisampling stays on: without it frames come out wrong).
+    :param fast_render: shadows, reflections and multisampling off (several times faster on CPU).
     :param seed: seed of the task variant and of the env's randomness.
     :param episode_length: simulator steps before truncation (500 as in the paper).
     :param resample_task: draw a new task variant at every reset instead of keeping the seed's one.
@@ -69,7 +69,6 @@ class MetaWorldPixelEnv(PixelEnv):
                 episode_length=episode_length,
                 camera=camera_index,
                 fast_render=fast_render,
-                multisample=True,
                 flip=model.camera(camera_index).name in FLIPPED_CAMERAS,
                 render_mode=render_mode,
             )

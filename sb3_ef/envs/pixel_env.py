@@ -41,7 +41,6 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
         episode_length: int,
         camera: int | str,
         fast_render: bool,
-        multisample: bool,
         flip: bool,
         render_mode: str | None,
     ) -> None:
@@ -59,9 +58,7 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
         self.render_mode = render_mode
         self.observation_space = spaces.Box(0, 255, (3 * frame_stack, size, size), np.uint8)
         self.action_space = spaces.Box(-1.0, 1.0, (action_dim,), np.float32)
-        self._renderer = FrameRenderer(
-            model, size, camera, fast=fast_render, multisample=multisample, flip=flip, agent_geoms=agent_geoms(model)
-        )
+        self._renderer = FrameRenderer(model, size, camera, fast=fast_render, flip=flip, agent_geoms=agent_geoms(model))
         self._frames: deque[np.ndarray] = deque(maxlen=frame_stack)
         self._sim_steps = 0
         self._episode_over = True

@@ -30,8 +30,8 @@ class FrameRenderer:
     :param model: the MuJoCo model (its offscreen buffer is enlarged to ``size`` if needed).
     :param size: frame height and width in pixels.
     :param camera: camera index or name.
-    :param fast: turn shadows and reflections off (several times faster on a CPU renderer).
-    :param multisample: keep multisampling (anti-aliasing); turning it off is faster but breaks some scenes.
+    :param fast: turn shadows, reflections and multisampling off (5-15x faster on a CPU renderer; frames stay
+        correct on this render path, for Meta-World too: see docs/envs.md).
     :param flip: flip frames vertically (for cameras that render upside down).
     :param agent_geoms: boolean array over the model's geoms marking the agent's body, for :meth:`agent_mask`.
     """
@@ -42,7 +42,6 @@ class FrameRenderer:
         size: int,
         camera: int | str,
         fast: bool = False,
-        multisample: bool = True,
         flip: bool = False,
         agent_geoms: np.ndarray | None = None,
     ) -> None:
@@ -52,7 +51,6 @@ class FrameRenderer:
         model.vis.global_.offheight = max(model.vis.global_.offheight, size)
         if fast:
             model.vis.quality.shadowsize = 0
-        if not multisample:
             model.vis.quality.offsamples = 0
         self._renderer = mujoco.Renderer(model, size, size)
         if fast:

@@ -135,11 +135,16 @@ def test_agent_mask_is_aligned_with_the_frame_and_moves(env):
 
 
 def test_fast_render_frames_stay_close_to_default():
+    # Shadows, reflections and multisampling off change shading a little; a broken framebuffer would not.
     for name in ("dmc/cartpole-swingup", "metaworld/door-open"):
         default = make_env(name, size=32, seed=4)
         fast = make_env(name, size=32, seed=4, fast_render=True)
         try:
-            difference = np.abs(default.reset()[0].astype(int) - fast.reset()[0].astype(int)).mean()
+            default.reset()
+            fast.reset()
+            action = np.ones(default.action_space.shape, np.float32)
+            frames = [environment.step(action)[0].astype(int) for environment in (default, fast)]
+            difference = np.abs(frames[0] - frames[1]).mean()
             assert difference < 10, f"{name}: fast frames differ by {difference:.1f} grey levels on average"
         finally:
             default.close()
