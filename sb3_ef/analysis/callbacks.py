@@ -3,14 +3,11 @@
 from __future__ import annotations
 
 import gymnasium as gym
-import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import Image
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_ef.analysis.masks import mask_scores, threshold_saliency
-from sb3_ef.analysis.prediction import FRAME_CHANNELS, context_frames, frame_grid, predict_open_loop
-from sb3_ef.analysis.saliency import compute_saliency, saliency_overlay
+from sb3_ef.analysis.report import foresight_report, record_rollout
 
 _NOT_TEXT = ("stdout", "log", "json", "csv")
 
@@ -58,7 +55,7 @@ class ForesightLoggerCallback(BaseCallback):
             raise ValueError(f"log_freq and steps must be >= 1, got log_freq={log_freq}, steps={steps}")
         self.eval_env, self.log_freq, self.steps, self.seed = eval_env, log_freq, steps, seed
         self.deterministic, self.patch_size = deterministic, patch_size
-        self.threshold_kwargs = {"rule": threshold_rule, "num_std": num_std, "fraction": fraction}
+        self.threshold_kwargs = {"threshold_rule": threshold_rule, "num_std": num_std, "fraction": fraction}
 
     def _init_callback(self) -> None:
         if getattr(self.model, "ef", None) is None:
@@ -77,34 +74,16 @@ class ForesightLoggerCallback(BaseCallback):
 
     def log_foresight(self) -> dict[str, float]:
         """Play, predict, compute saliency, log images and scores now; return the logged scalars."""
-        first_observation, _ = self.eval_env.reset(seed=self.seed)
-        observation, actions, true_frames, agent_mask = first_observation, [], [], None
-        for _ in range(self.steps or self.model.ef.horizon):
-            action, _ = self.model.predict(observation, deterministic=self.deterministic)
-            observation, _, terminated, truncated, _ = self.eval_env.step(action)
-            actions.append(np.asarray(action, dtype=np.float32).reshape(-1))
-            true_frames.append(observation[-FRAME_CHANNELS:].transpose(1, 2, 0))
-            if terminated or truncated:
-                break
-        agent_mask_fn = getattr(self.eval_env.unwrapped, "agent_mask", None)
-        if agent_mask_fn is not None:
-            agent_mask = np.asarray(agent_mask_fn(), dtype=bool)
-        actions_array, true_array = np.stack(actions), np.stack(true_frames)
-        predicted = predict_open_loop(first_observation, actions_array, model=self.model)
-        saliency = compute_saliency(first_observation, actions_array, model=self.model, patch_size=self.patch_size)
-
-        rows = [context_frames(first_observation), predicted, true_array]
-        panels = [
-            saliency.frame,
-            saliency_overlay(saliency.frame, saliency.agent, color=(255, 0, 0)),
-            saliency_overlay(saliency.frame, saliency.scene, color=(0, 0, 255)),
-        ]
-        self.logger.record("foresight/prediction", Image(frame_grid(rows), "HWC"), exclude=_NOT_TEXT)
-        self.logger.record("foresight/saliency", Image(frame_grid([np.stack(panels)]), "HWC"), exclude=_NOT_TEXT)
-        scalars = {"foresight/prediction_mse": float(np.mean((predicted / 255.0 - true_array / 255.0) ** 2))}
-        if agent_mask is not None:
-            scores = mask_scores(threshold_saliency(saliency.agent, **self.threshold_kwargs), agent_mask)
-            scalars.update({f"foresight/mask_{name}": value for name, value in scores.as_dict().items()})
+        rollout = record_rollout(
+            self.eval_env,
+            lambda observation, _: self.model.predict(observation, deterministic=self.deterministic)[0],
+            steps=self.steps or self.model.ef.horizon,
+            seed=self.seed,
+        )
+        report = foresight_report(self.model, rollout, patch_size=self.patch_size, **self.threshold_kwargs)
+        self.logger.record("foresight/prediction", Image(report.prediction_image(), "HWC"), exclude=_NOT_TEXT)
+        self.logger.record("foresight/saliency", Image(report.saliency_image(), "HWC"), exclude=_NOT_TEXT)
+        scalars = {f"foresight/{name}": value for name, value in report.scalars().items()}
         for key, value in scalars.items():
             self.logger.record(key, value)
         self.logger.dump(self.num_timesteps)

@@ -54,3 +54,33 @@ def test_bad_setups_are_refused():
         ForesightLoggerCallback(DotEnv()).init_callback(model)
     with pytest.raises(ValueError, match=r"eval_env frames are \(8, 8\)"):
         ForesightLoggerCallback(DotEnv(size=8)).init_callback(FakeModel())
+
+
+TINY_TDMPC2 = {
+    "num_channels": 4,
+    "mlp_dim": 32,
+    "num_q": 2,
+    "agent_dim": 16,
+    "planner_kwargs": {"iterations": 1, "num_samples": 8, "num_elites": 2, "num_pi_trajs": 1},
+    "ef_kwargs": {"rollout_hidden_dims": (16,), "decoder_channels": 8},
+}
+
+
+@pytest.mark.parametrize("algorithm", ["DrQv2EF", "TDMPC2EF"])
+def test_callback_during_training_of_both_hosts(tmp_path, algorithm):
+    from test_analysis_cli import TINY_DRQV2
+
+    import sb3_ef
+    from sb3_ef.analysis.callbacks import ForesightLoggerCallback
+    from sb3_ef.envs.toy import ToyAgentEnv
+
+    size, policy_kwargs = (32, TINY_DRQV2) if algorithm == "DrQv2EF" else (64, TINY_TDMPC2)
+    model = getattr(sb3_ef, algorithm)(
+        "CnnPolicy", ToyAgentEnv(size=size), buffer_size=100, batch_size=4, learning_starts=6, ef_horizon=3,
+        babbling_steps=0, policy_kwargs=policy_kwargs, tensorboard_log=str(tmp_path), device="cpu",
+    )  # fmt: skip
+    model.learn(8, callback=ForesightLoggerCallback(ToyAgentEnv(size=size), log_freq=4, steps=4))
+    accumulator = EventAccumulator(str(next(tmp_path.iterdir()))).Reload()
+    assert [event.step for event in accumulator.Images("foresight/saliency")] == [4, 8]
+    precision = [event.value for event in accumulator.Scalars("foresight/mask_precision")]
+    assert len(precision) == 2 and all(np.isnan(value) or 0 <= value <= 1 for value in precision)

@@ -1,0 +1,165 @@
+"""``sb3-ef analyze``: tables and plots from evaluation CSVs, or predictions and saliency of a saved model.
+
+sb3-ef analyze results DIR [--out DIR] [--return-scale 1000] [--reps 2000]
+sb3-ef analyze model PATH --env NAME [--algo drqv2_ef|tdmpc2_ef] [--steps T] [--actions policy|figure8]
+                                     [--action-repeat 2] [--seed 0] [--out DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+#: Algorithms ``analyze model`` can load, by the keys of the rl-zoo plug-in, and their public class names.
+EF_ALGORITHMS = {"drqv2_ef": "DrQv2EF", "tdmpc2_ef": "TDMPC2EF"}
+#: Replay-buffer capacity (frames) given to a model loaded for analysis: it never trains.
+ANALYSIS_BUFFER_SIZE = 256
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="sb3-ef analyze", description=__doc__.split("\n")[0])
+    commands = parser.add_subparsers(dest="command", required=True)
+
+    results = commands.add_parser("results", help="ENS, rliable metrics and plots from every eval CSV under DIR")
+    results.add_argument("directory", help="directory searched recursively for evaluation CSVs")
+    results.add_argument("--out", help="output directory (default: DIR/analysis)")
+    results.add_argument("--return-scale", type=float, default=1000.0, help="returns are divided by this (DMC: 1000)")
+    results.add_argument("--reps", type=int, default=2000, help="bootstrap resamples for the confidence intervals")
+
+    model = commands.add_parser("model", help="open-loop prediction, saliency and mask scores of a saved model")
+    model.add_argument("path", help="saved model (.zip)")
+    model.add_argument("--env", required=True, help="env name, e.g. dmc/reacher-easy, metaworld/hammer, toy/agent-v0")
+    model.add_argument("--algo", choices=sorted(EF_ALGORITHMS), help="algorithm (default: tried in turn)")
+    model.add_argument("--steps", type=int, help="prediction length T (default: the EF horizon)")
+    model.add_argument("--actions", choices=("policy", "figure8"), default="policy", help="actions played")
+    model.add_argument("--action-repeat", type=int, default=2, help="action repeat of dmc/ and metaworld/ envs")
+    model.add_argument("--seed", type=int, default=0, help="env reset seed")
+    model.add_argument("--out", help="output directory (default: next to the model, <name>_analysis)")
+    return parser
+
+
+def analyze_results(directory: str, out: str, return_scale: float = 1000.0, reps: int = 2000) -> dict[str, Any]:
+    """Write ``scores.csv``, ``ens.csv``, ``ens_details.csv``, ``rliable.csv`` and the plots to ``out``."""
+    from sb3_ef.analysis.metrics import (
+        efficiency_normalized_score,
+        ens_table,
+        load_records,
+        records_to_scores,
+        rliable_metrics,
+    )
+    from sb3_ef.analysis.plots import plot_ens, plot_intervals, plot_learning_curves
+
+    os.makedirs(out, exist_ok=True)
+    scores = records_to_scores(load_records(directory), return_scale=return_scale)
+    scores.to_csv(os.path.join(out, "scores.csv"), index=False)
+    written = {"curves": plot_learning_curves(scores, out)}
+    ens = None
+    if scores["algo"].nunique() > 1:
+        ens_table(scores).to_csv(os.path.join(out, "ens_details.csv"), index=False)
+        ens = efficiency_normalized_score(scores)
+        ens.to_csv(os.path.join(out, "ens.csv"))
+        written["ens"] = plot_ens(ens, os.path.join(out, "ens.png"))
+    table = rliable_metrics(scores, reps=reps)
+    table.to_csv(os.path.join(out, "rliable.csv"), index=False)
+    written["rliable"] = plot_intervals(table, os.path.join(out, "rliable.png"))
+    print(f"Scores of {scores['algo'].nunique()} algorithm(s) on {scores['task'].nunique()} task(s) -> {out}")
+    if ens is not None:
+        print(ens.to_string())
+    else:
+        print("ENS compares algorithms: skipped with a single algorithm")
+    print(table.to_string(index=False))
+    return written
+
+
+def make_analysis_env(name: str, frame_shape: tuple[int, ...], frame_stack: int, action_repeat: int) -> gym.Env:
+    """The model's env at its frame size: ``make_env`` for dmc/ and metaworld/ names, ``gym.make`` otherwise."""
+    size = frame_shape[-1]
+    if name.startswith(("dmc/", "metaworld/")):
+        from sb3_ef.envs import make_env
+
+        return make_env(name, size=size, frame_stack=frame_stack, action_repeat=action_repeat)
+    return gym.make(name, size=size, frame_stack=frame_stack)
+
+
+def load_ef_model(path: str, algo: str | None) -> Any:
+    """Load a saved DrQv2EF / TDMPC2EF (``algo`` given, or each tried in turn) with a tiny replay buffer."""
+    import sb3_ef
+
+    errors = []
+    for key in [algo] if algo else list(EF_ALGORITHMS):
+        algo_class = getattr(sb3_ef, EF_ALGORITHMS[key])
+        try:
+            return algo_class.load(path, buffer_size=ANALYSIS_BUFFER_SIZE, device="auto")
+        except Exception as error:  # report why every candidate failed, not just the last
+            errors.append(f"{key}: {type(error).__name__}: {error}")
+    raise ValueError(f"Could not load {path} as {' or '.join(EF_ALGORITHMS)}:\n" + "\n".join(errors))
+
+
+def analyze_model(
+    path: str,
+    env_name: str,
+    out: str,
+    algo: str | None = None,
+    steps: int | None = None,
+    actions: str = "policy",
+    action_repeat: int = 2,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """Write ``prediction.png`` (context / predicted / true rows), ``prediction.gif`` (predicted | true),
+    ``saliency.png`` and ``scores.json`` for one rollout of a saved model on ``env_name``."""
+    from sb3_ef.analysis.prediction import figure_eight_actions, save_image, save_video
+    from sb3_ef.analysis.report import foresight_report, record_rollout
+
+    model = load_ef_model(path, algo)
+    if model.ef is None:
+        raise ValueError(f"{path} is a {type(model).__name__} without Ego-Foresight: nothing to analyze")
+    frame_stack = model.observation_space.shape[0] // 3
+    env = make_analysis_env(env_name, model.frame_shape, frame_stack, action_repeat)
+    steps = steps or model.ef.horizon
+    if actions == "figure8":
+        sequence = figure_eight_actions(steps, model.action_space.shape[0])
+        act = lambda _observation, step: sequence[step]  # noqa: E731
+    else:
+        act = lambda observation, _step: model.predict(observation, deterministic=True)[0]  # noqa: E731
+    try:
+        report = foresight_report(model, record_rollout(env, act, steps, seed=seed))
+    finally:
+        env.close()
+    os.makedirs(out, exist_ok=True)
+    written = {
+        "prediction": save_image(os.path.join(out, "prediction.png"), report.prediction_image()),
+        "video": save_video(os.path.join(out, "prediction.gif"), report.predicted, report.rollout.true_frames),
+        "saliency": save_image(os.path.join(out, "saliency.png"), report.saliency_image()),
+    }
+    scores = {"env": env_name, "steps": len(report.predicted), "actions": actions, **report.scalars()}
+    written["scores"] = os.path.join(out, "scores.json")
+    with open(written["scores"], "w") as file:
+        json.dump(
+            {key: None if isinstance(value, float) and np.isnan(value) else value for key, value in scores.items()},
+            file,
+            indent=2,
+        )
+    print(json.dumps(scores, indent=2))
+    return written
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``sb3-ef analyze``; returns the exit status."""
+    args = build_parser().parse_args(argv)
+    if args.command == "results":
+        analyze_results(
+            args.directory, args.out or os.path.join(args.directory, "analysis"), args.return_scale, args.reps
+        )
+    else:
+        out = args.out or os.path.splitext(args.path)[0] + "_analysis"
+        analyze_model(args.path, args.env, out, args.algo, args.steps, args.actions, args.action_repeat, args.seed)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

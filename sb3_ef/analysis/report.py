@@ -1,0 +1,95 @@
+"""One look at what EF learned on one rollout: play actions in an env, predict the same frames open loop,
+take the saliency of the last prediction and score it against the env's agent mask."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import gymnasium as gym
+import numpy as np
+
+from sb3_ef.analysis.masks import MaskScores, mask_scores, threshold_saliency
+from sb3_ef.analysis.prediction import FRAME_CHANNELS, ForesightModel, context_frames, frame_grid, predict_open_loop
+from sb3_ef.analysis.saliency import Saliency, compute_saliency, saliency_overlay
+
+
+@dataclass(frozen=True)
+class Rollout:
+    """What happened in the env: the first stacked observation, the T actions taken, the T newest frames seen
+    after them (uint8 (T, h, w, 3)) and the agent mask after the last step (None if the env has no masks)."""
+
+    first_observation: np.ndarray
+    actions: np.ndarray
+    true_frames: np.ndarray
+    agent_mask: np.ndarray | None
+
+
+def record_rollout(
+    env: gym.Env, act: Callable[[np.ndarray, int], np.ndarray], steps: int, seed: int | None = None
+) -> Rollout:
+    """Reset ``env`` and take up to ``steps`` actions ``act(observation, t)`` (fewer if the episode ends)."""
+    first_observation, _ = env.reset(seed=seed)
+    observation, actions, frames = first_observation, [], []
+    for step in range(steps):
+        action = np.asarray(act(observation, step), dtype=np.float32).reshape(-1)
+        observation, _, terminated, truncated, _ = env.step(action)
+        actions.append(action)
+        frames.append(observation[-FRAME_CHANNELS:].transpose(1, 2, 0))
+        if terminated or truncated:
+            break
+    mask_fn = getattr(env.unwrapped, "agent_mask", None)
+    agent_mask = None if mask_fn is None else np.asarray(mask_fn(), dtype=bool)
+    return Rollout(first_observation, np.stack(actions), np.stack(frames), agent_mask)
+
+
+@dataclass(frozen=True)
+class ForesightReport:
+    """EF's open-loop prediction of a rollout, the saliency of its last frame and the scores."""
+
+    rollout: Rollout
+    predicted: np.ndarray
+    saliency: Saliency
+    prediction_mse: float
+    mask: MaskScores | None
+
+    def prediction_image(self) -> np.ndarray:
+        """Rows: context frames, predicted frames, true frames."""
+        return frame_grid([context_frames(self.rollout.first_observation), self.predicted, self.rollout.true_frames])
+
+    def saliency_image(self) -> np.ndarray:
+        """Last predicted frame, with its h_a saliency in red, with its h_s saliency in blue."""
+        frame = self.saliency.frame
+        panels = [
+            frame,
+            saliency_overlay(frame, self.saliency.agent, color=(255, 0, 0)),
+            saliency_overlay(frame, self.saliency.scene, color=(0, 0, 255)),
+        ]
+        return frame_grid([np.stack(panels)])
+
+    def scalars(self) -> dict[str, float]:
+        """``prediction_mse`` (pixels in [0, 1]) and ``mask_precision`` / ``mask_recall`` / ``mask_iou`` if scored."""
+        values = {"prediction_mse": self.prediction_mse}
+        if self.mask is not None:
+            values.update({f"mask_{name}": value for name, value in self.mask.as_dict().items()})
+        return values
+
+
+def foresight_report(
+    model: ForesightModel,
+    rollout: Rollout,
+    patch_size: int = 4,
+    threshold_rule: str = "mean_std",
+    num_std: float = 1.0,
+    fraction: float = 0.1,
+) -> ForesightReport:
+    """Predict ``rollout`` open loop from its first observation, saliency of the last predicted frame, and
+    precision / recall / IoU of the thresholded h_a map (:func:`threshold_saliency`) against the agent mask."""
+    predicted = predict_open_loop(rollout.first_observation, rollout.actions, model=model)
+    saliency = compute_saliency(rollout.first_observation, rollout.actions, model=model, patch_size=patch_size)
+    mse = float(np.mean((predicted / 255.0 - rollout.true_frames / 255.0) ** 2))
+    scores = None
+    if rollout.agent_mask is not None:
+        predicted_mask = threshold_saliency(saliency.agent, rule=threshold_rule, num_std=num_std, fraction=fraction)
+        scores = mask_scores(predicted_mask, rollout.agent_mask)
+    return ForesightReport(rollout, predicted, saliency, mse, scores)
