@@ -33,11 +33,12 @@ def test_subcommands_forward_their_arguments(argv, module, expected, monkeypatch
 
 
 def test_analyze_forwards_to_the_analysis_cli(monkeypatch):
-    analysis_cli = pytest.importorskip("sb3_ef.analysis.cli", reason="sb3_ef.analysis.cli not available")
+    from sb3_ef.analysis import cli as analysis_cli
+
     received = []
     monkeypatch.setattr(analysis_cli, "main", received.append)
-    cli.main(["analyze", "ens", "--results", "runs/"])
-    assert received == [["ens", "--results", "runs/"]]
+    cli.main(["analyze", "results", "runs/", "--reps", "10"])
+    assert received == [["results", "runs/", "--reps", "10"]]
 
 
 def test_train_errors_reach_the_user(tmp_path):
