@@ -71,6 +71,7 @@ class DMCPixelEnv(PixelEnv):
             self._setup(
                 self._physics()[0],
                 action_dim=spec.shape[0],
+                sim_timestep=dm_env.control_timestep(),
                 size=size,
                 frame_stack=frame_stack,
                 action_repeat=action_repeat,

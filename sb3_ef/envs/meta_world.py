@@ -63,6 +63,7 @@ class MetaWorldPixelEnv(PixelEnv):
             self._setup(
                 model,
                 action_dim=self._env.action_space.shape[0],
+                sim_timestep=self._env.dt,
                 size=size,
                 frame_stack=frame_stack,
                 action_repeat=action_repeat,

@@ -35,6 +35,7 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
         self,
         model: mujoco.MjModel,
         action_dim: int,
+        sim_timestep: float,
         size: int,
         frame_stack: int,
         action_repeat: int,
@@ -56,6 +57,7 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
         self.action_repeat = action_repeat
         self.episode_length = episode_length
         self.render_mode = render_mode
+        self.metadata = {**self.metadata, "render_fps": round(1.0 / (sim_timestep * action_repeat))}
         self.observation_space = spaces.Box(0, 255, (3 * frame_stack, size, size), np.uint8)
         self.action_space = spaces.Box(-1.0, 1.0, (action_dim,), np.float32)
         self._renderer = FrameRenderer(model, size, camera, fast=fast_render, flip=flip, agent_geoms=agent_geoms(model))

@@ -168,6 +168,7 @@ def test_render_returns_newest_frame():
         environment.reset()
         obs, *_ = environment.step(np.ones(1, np.float32))
         assert np.array_equal(environment.render(), obs[-3:].transpose(1, 2, 0))
+        assert environment.metadata["render_fps"] == 50, "cartpole: 0.01 s per simulator step, 2 per agent step"
     finally:
         environment.close()
 
