@@ -2,6 +2,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from stable_baselines3 import TD3
+from stable_baselines3.common.callbacks import CheckpointCallback
 from stable_baselines3.common.logger import KVWriter, Logger
 
 from sb3_ef.common.callbacks import ActionOverrideMixin, MotorBabblingCallback
@@ -126,7 +127,10 @@ def test_hook_checks_what_the_override_returns():
     assert model._override_actions(1) is None
 
 
-def test_hook_is_not_saved_with_the_model():
+def test_models_saved_while_babbling_load_without_the_hook(tmp_path):
     model = make_model()
-    assert "action_override" in model._excluded_save_params()
-    assert "policy" in model._excluded_save_params()
+    checkpoint = CheckpointCallback(save_freq=5, save_path=str(tmp_path), name_prefix="babbling")
+    model.learn(5, callback=[MotorBabblingCallback(10), checkpoint])
+    assert "action_override" in model._excluded_save_params() and "policy" in model._excluded_save_params()
+    loaded = BabblingTD3.load(tmp_path / "babbling_5_steps.zip", env=ActionRecordingEnv())
+    assert loaded.action_override is None and loaded._override_actions(1) is None
