@@ -142,7 +142,10 @@ class DrQv2Policy(BasePolicy):
     :param ef_horizon: Ego-Foresight prediction horizon; ``None`` builds no EF module (plain DrQ-v2).
     :param ef_kwargs: extra arguments for :class:`sb3_ef.ef.EgoForesight` (decoder / rollout options).
     :param optimizer_class: optimiser class.
-    :param optimizer_kwargs: optimiser arguments other than the learning rate.
+    :param optimizer_kwargs: optimiser arguments other than the learning rate; ``None`` gives Adam's fused kernel
+        (``fused=True``: the same update, several times faster on CPU for these multi-million-parameter nets).
+    :param channels_last: keep the conv weights of the encoder and the EF decoder in channels-last memory format
+        (the same maths, faster convolutions with oneDNN on CPU and tensor cores on GPU).
     """
 
     def __init__(
@@ -159,7 +162,10 @@ class DrQv2Policy(BasePolicy):
         ef_kwargs: dict[str, Any] | None = None,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
+        channels_last: bool = True,
     ):
+        if optimizer_kwargs is None and optimizer_class is th.optim.Adam:
+            optimizer_kwargs = {"fused": True}
         super().__init__(
             observation_space,
             action_space,
@@ -177,6 +183,7 @@ class DrQv2Policy(BasePolicy):
         self.agent_dim = agent_dim
         self.ef_horizon = ef_horizon
         self.ef_kwargs = ef_kwargs or {}
+        self.channels_last = channels_last
         self._build(lr_schedule)
 
     def _build(self, lr_schedule: Schedule) -> None:
@@ -208,6 +215,11 @@ class DrQv2Policy(BasePolicy):
                 **self.ef_kwargs,
             )
 
+        if self.channels_last:
+            for module in (self.encoder, self.ef):
+                if module is not None:
+                    module.to(memory_format=th.channels_last)
+
         representation_params = [*self.encoder.parameters(), *self.critic.parameters()]
         if self.ef is not None:
             representation_params += list(self.ef.parameters())
@@ -234,6 +246,7 @@ class DrQv2Policy(BasePolicy):
             lr_schedule=self._dummy_schedule,
             optimizer_class=self.optimizer_class,
             optimizer_kwargs=self.optimizer_kwargs,
+            channels_last=self.channels_last,
         )
         return data
 
