@@ -32,8 +32,9 @@ class ActionOverrideMixin:
         expected = (n_envs, *action_space.shape) if action_space is not None else (n_envs, *actions.shape[1:])
         if actions.shape != expected:
             raise ValueError(f"action_override must return actions of shape {expected}, got {actions.shape}")
-        if np.abs(actions).max(initial=0.0) > 1.0:
-            raise ValueError("action_override must return actions in [-1, 1]")
+        largest = float(np.abs(actions).max(initial=0.0))
+        if largest > 1.0:
+            raise ValueError(f"action_override must return actions in [-1, 1], got a magnitude of {largest}")
         return actions
 
     def _excluded_save_params(self) -> list[str]:
