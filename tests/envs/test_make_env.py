@@ -90,6 +90,19 @@ def test_time_limit_is_truncation_after_episode_length_sim_steps(cartpole, episo
         cartpole.episode_length = 1000
 
 
+@pytest.mark.parametrize("name, agent_steps", [("dmc/cartpole-swingup", 500), ("metaworld/door-open", 250)])
+def test_full_episode_is_truncated_at_the_suite_length(name, agent_steps):
+    environment = make_env(name, size=32, fast_render=True, seed=0)
+    try:
+        environment.reset()
+        action = np.zeros(environment.action_space.shape, np.float32)
+        ends = [environment.step(action)[2:4] for _ in range(agent_steps)]
+        assert ends[-1] == (False, True)
+        assert not any(terminated or truncated for terminated, truncated in ends[:-1])
+    finally:
+        environment.close()
+
+
 def test_default_episode_lengths_follow_the_suites(env):
     assert env.episode_length == (1000 if isinstance(env, DMCPixelEnv) else 500)
     assert env.action_repeat == 2
