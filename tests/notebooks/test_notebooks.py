@@ -9,8 +9,8 @@ import pytest
 from nbclient import NotebookClient
 
 NOTEBOOKS = sorted((Path(__file__).resolve().parents[2] / "notebooks").glob("*.ipynb"))
-# Run by default: the quickstart. The others train their own small models too and take longer on 2 cores.
-DEFAULT = {"01_quickstart.ipynb"}
+# Run by default: about 8-15 s each on 2 busy cores. 04 trains four small runs (~25 s): slow.
+DEFAULT = {"01_quickstart.ipynb", "02_predictions.ipynb", "03_disentanglement.ipynb"}
 
 
 def test_notebooks_are_stored_without_outputs():
