@@ -60,7 +60,7 @@ def prepare(argv: Sequence[str]) -> list[str]:
     """Register the algorithms, check the config and return the argv to hand to rl-zoo3."""
     argv = list(argv)
     known, _ = _pre_parser().parse_known_args(argv)
-    register_algorithms()
+    register_algorithms()  # our keys and config names exist from here on (the overrides may use them)
     if known.algo not in config.ZOO_ALGORITHMS:
         if known.algo not in utils.ALGOS:
             raise ValueError(f"Unknown algorithm {known.algo!r}: expected one of {sorted(utils.ALGOS)}")
@@ -84,7 +84,7 @@ def prepare(argv: Sequence[str]) -> list[str]:
     policy_kwargs = entry.get("policy_kwargs") or {}
     if isinstance(policy_kwargs, str):
         policy_kwargs = eval(policy_kwargs, vars(exp_manager))
-    register_algorithms(base_policy_kwargs=policy_kwargs)
+    register_algorithms(base_policy_kwargs=policy_kwargs)  # samplers merge agent_dim into the entry's kwargs
     return with_gym_package(argv)
 
 
