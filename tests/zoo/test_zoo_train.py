@@ -8,8 +8,10 @@ import pytest
 from rl_zoo3 import utils
 from zoo_tiny import ENV_KWARGS, HYPERPARAMS, train_args
 
+from sb3_ef.analysis.metrics import load_records
 from sb3_ef.zoo import enjoy, train
 from sb3_ef.zoo.config import ZOO_ALGORITHMS
+from sb3_ef.zoo.records import export_records
 from sb3_ef.zoo.registration import algorithm_classes
 
 ENV_ID = "dmc/cartpole-swingup-v0"
@@ -22,10 +24,12 @@ def saved_model(log_folder: Path, algo: str, run: int = 1) -> Path:
 
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory) -> Path:
-    """One short run per algorithm key, from its YAML file (the 'default' entry) with small-size overrides."""
+    """One short run per algorithm key, from its YAML file (the 'default' entry) with small-size overrides;
+    the drqv2 run is evaluated every 60 steps."""
     log_folder = tmp_path_factory.mktemp("logs")
     for algo in ZOO_ALGORITHMS:
-        train.main(train_args(algo, ENV_ID, str(log_folder), n_timesteps=120))
+        evaluation = ["--eval-freq", "60", "--eval-episodes", "1"] if algo == "drqv2" else []
+        train.main([*train_args(algo, ENV_ID, str(log_folder), n_timesteps=120), *evaluation])
     return log_folder
 
 
@@ -64,6 +68,15 @@ def test_enjoy_loads_without_the_training_buffer(trained, capsys, monkeypatch):
     assert sizes["bytes"] * 4 < plain.replay_buffer.nbytes
     # The loader is only in place during enjoy.
     assert utils.ALGOS["drqv2_ef"] is algorithm_classes()["drqv2_ef"]
+
+
+def test_evaluations_of_a_zoo_run_export_to_analysis_records(trained, tmp_path):
+    [path] = export_records(str(trained), str(tmp_path))
+    records = load_records(tmp_path)
+    assert path.endswith(f"drqv2/{LOG_NAME}_1.csv")
+    assert records["step"].tolist() == [60, 120]
+    assert records["frame"].tolist() == [120, 240]
+    assert set(records["task"]) == {ENV_ID} and set(records["seed"]) == {0}
 
 
 def test_unknown_algorithm_is_named(tmp_path):

@@ -1,0 +1,77 @@
+"""Turn rl-zoo3 runs into the evaluation CSVs that ``sb3-ef analyze results`` reads.
+
+rl-zoo3's EvalCallback writes ``evaluations.npz`` (steps, per-episode returns, successes when the env reports
+them) in each run folder ``<logs>/<algo>/<env>_<run>/``; the run's ``<env>/args.yml`` holds the env id and seed.
+Each run becomes one CSV ``<out>/<algo>/<env>_<run>.csv`` in the format of :mod:`sb3_ef.analysis.records`.
+
+    python -m sb3_ef.zoo.records logs results
+    sb3-ef analyze results results
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import os
+from collections.abc import Sequence
+
+import numpy as np
+import yaml
+
+from sb3_ef.analysis.records import append_records
+
+
+def run_records(run_folder: str, algo: str, action_repeat: int = 2) -> list[dict[str, object]]:
+    """Rows ``algo, task, seed, step, frame, return, success`` of one rl-zoo3 run folder (mean over episodes)."""
+    evaluations = np.load(os.path.join(run_folder, "evaluations.npz"))
+    args_files = glob.glob(os.path.join(run_folder, "*", "args.yml"))
+    if len(args_files) != 1:
+        raise ValueError(f"Expected one <env>/args.yml in {run_folder}, found {len(args_files)}")
+    with open(args_files[0]) as file:
+        args = yaml.load(file, Loader=yaml.UnsafeLoader)  # rl-zoo3 writes an OrderedDict (Python tags)
+    successes = evaluations["successes"] if "successes" in evaluations.files else None
+    return [
+        {
+            "algo": algo,
+            "task": args["env"],
+            "seed": args["seed"],
+            "step": int(step),
+            "frame": int(step) * action_repeat,
+            "return": float(np.mean(returns)),
+            "success": "" if successes is None else float(np.mean(successes[index])),
+        }
+        for index, (step, returns) in enumerate(zip(evaluations["timesteps"], evaluations["results"], strict=True))
+    ]
+
+
+def export_records(log_folder: str, out: str, action_repeat: int = 2) -> list[str]:
+    """Write one evaluation CSV per rl-zoo3 run under ``log_folder`` that has evaluations; return their paths.
+
+    Existing CSVs are replaced, so exporting twice gives the same files.
+    """
+    written = []
+    for npz in sorted(glob.glob(os.path.join(log_folder, "*", "*", "evaluations.npz"))):
+        run_folder = os.path.dirname(npz)
+        algo = os.path.basename(os.path.dirname(run_folder))
+        path = os.path.join(out, algo, f"{os.path.basename(run_folder)}.csv")
+        if os.path.exists(path):
+            os.remove(path)
+        append_records(path, run_records(run_folder, algo, action_repeat))
+        written.append(path)
+    if not written:
+        raise FileNotFoundError(f"No rl-zoo3 run with evaluations.npz under {log_folder} (train with --eval-freq > 0)")
+    return written
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m sb3_ef.zoo.records", description=__doc__.split("\n")[0])
+    parser.add_argument("log_folder", help="rl-zoo3 log folder (train's -f, default 'logs')")
+    parser.add_argument("out", help="folder for the evaluation CSVs")
+    parser.add_argument("--action-repeat", type=int, default=2, help="env frames per agent step (frame column)")
+    args = parser.parse_args(argv)
+    paths = export_records(args.log_folder, args.out, args.action_repeat)
+    print(f"{len(paths)} run(s) -> {args.out}")
+
+
+if __name__ == "__main__":
+    main()
