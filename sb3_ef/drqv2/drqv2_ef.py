@@ -156,15 +156,16 @@ class DrQv2EF(ActionOverrideMixin, OffPolicyAlgorithm):
         self.babbling_steps = babbling_steps
         self.babbling_mode = babbling_mode
         self.policy_kwargs["ef_horizon"] = self.ef_horizon
-        if self.env is not None and self.ef_horizon is not None:
-            _check_horizon_fits_episodes(self.env, self.ef_horizon)
 
         if _init_setup_model:
             self._setup_model()
 
     def _setup_model(self) -> None:
         """Build the schedules, the sequence replay buffer (it computes the n-step returns itself, so SB3's
-        n-step buffer selection is not used) and the policy."""
+        n-step buffer selection is not used) and the policy. Runs after the saved attributes are restored on load,
+        so the horizon is checked against the env with the model's own ``ef_horizon``."""
+        if self.env is not None and self.ef_horizon is not None:
+            _check_horizon_fits_episodes(self.env, self.ef_horizon)
         self._setup_lr_schedule()
         self.exploration_schedule = get_step_schedule(self.exploration_std)
         self.set_random_seed(self.seed)

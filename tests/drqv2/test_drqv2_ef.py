@@ -146,6 +146,13 @@ def test_save_load_is_exact(tmp_path):
     loaded.learn(5, reset_num_timesteps=False)
 
 
+def test_load_checks_the_horizon_of_the_saved_model(tmp_path):
+    make_model().save(tmp_path / "model")  # ef_horizon 3
+    assert DrQv2EF.load(tmp_path / "model", env=make_cue_env(episode_steps=5)).ef_horizon == 3
+    with pytest.raises(ValueError, match="expected ef_horizon <= 2, got 3"):
+        DrQv2EF.load(tmp_path / "model", env=make_cue_env(episode_steps=2))
+
+
 def test_deterministic_predict_is_the_actor_mean():
     model = make_model()
     observation = make_cue_env().observation_space.sample()
