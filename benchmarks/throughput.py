@@ -18,6 +18,7 @@ To add a pair, append ``(name, plain class, EF class, algorithm kwargs)`` to ``P
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import statistics
 import time
@@ -29,13 +30,17 @@ import torch as th
 
 from sb3_ef.drqv2 import DrQv2, DrQv2EF
 from sb3_ef.envs import make_env
+from sb3_ef.tdmpc2 import TDMPC2, TDMPC2EF
 
 ENV_NAME = "dmc/cartpole-swingup"
 
 # (name, plain class, EF class, algorithm kwargs shared by both).
 PAIRS: list[tuple[str, type, type, dict[str, Any]]] = [
     ("DrQ-v2", DrQv2, DrQv2EF, {}),
+    ("TD-MPC2", TDMPC2, TDMPC2EF, {}),
 ]
+# Pairs whose encoder takes another frame size than the setting's (TD-MPC2's conv stack is built for 64x64).
+FRAME_SIZES = {"TD-MPC2": 64}
 
 
 @dataclass(frozen=True)
@@ -137,10 +142,11 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|---|---|")
     for setting_name, setting in settings.items():
         for name, plain, ef, kwargs in pairs:
-            rates = measure_pair(plain, ef, setting, kwargs, args.repeats)
+            pair_setting = dataclasses.replace(setting, size=FRAME_SIZES.get(name, setting.size))
+            rates = measure_pair(plain, ef, pair_setting, kwargs, args.repeats)
             p, e = rates["plain"], rates["ef"]
             print(
-                f"| {setting_name} ({setting.size}x{setting.size}, batch {setting.batch_size}) | {name} "
+                f"| {setting_name} ({pair_setting.size}x{pair_setting.size}, batch {setting.batch_size}) | {name} "
                 f"| {p.steps_per_s:.2f} | {e.steps_per_s:.2f} | {e.steps_per_s / p.steps_per_s:.2f} "
                 f"| {p.updates_per_s:.2f} | {e.updates_per_s:.2f} | {e.updates_per_s / p.updates_per_s:.2f} "
                 f"| {e.steps_per_cpu_s / p.steps_per_cpu_s:.2f}, {e.updates_per_cpu_s / p.updates_per_cpu_s:.2f} |",
