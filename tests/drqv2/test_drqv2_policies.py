@@ -105,7 +105,7 @@ def test_plain_policy_has_no_ef():
 
 
 def test_features_must_exceed_agent_dim():
-    with pytest.raises(ValueError, match="features_dim > agent_dim.*got features_dim=8, agent_dim=8"):
+    with pytest.raises(ValueError, match=r"features_dim > agent_dim.*got features_dim=8, agent_dim=8"):
         make_policy(features_dim=8, agent_dim=8)
 
 
@@ -115,3 +115,13 @@ def test_policy_rebuilds_from_constructor_parameters():
     rebuilt.load_state_dict(policy.state_dict())
     observations = th.randint(0, 256, (3, 9, 32, 32), dtype=th.uint8)
     assert th.equal(rebuilt(observations), policy(observations))
+
+
+def test_speed_options_keep_the_maths():
+    fast = make_policy()
+    plain = make_policy(channels_last=False, optimizer_kwargs={})
+    plain.load_state_dict(fast.state_dict())
+    assert fast.critic.optimizer.defaults["fused"] and not plain.critic.optimizer.defaults["fused"]
+    assert fast.encoder.convnet[0].weight.is_contiguous(memory_format=th.channels_last)
+    observations = th.randint(0, 256, (4, 9, 32, 32), dtype=th.uint8)
+    assert th.allclose(fast(observations), plain(observations), atol=1e-6)
