@@ -65,7 +65,10 @@ class TDMPC2Policy(BasePolicy):
     :param agent_dim: size of the agent part of the latent (a multiple of ``simnorm_dim``).
     :param ef_kwargs: extra arguments of :class:`EgoForesight` (decoder and rollout options).
     :param optimizer_class: optimiser of both parameter sets.
-    :param optimizer_kwargs: extra optimiser arguments.
+    :param optimizer_kwargs: extra optimiser arguments; ``None`` with Adam gives its fused kernel (``fused=True``:
+        the same update, faster on CPU and GPU).
+    :param channels_last: keep the conv weights of the encoder and the EF decoder in channels-last memory format
+        (the same maths, faster convolutions with oneDNN on CPU and tensor cores on GPU).
     """
 
     def __init__(
@@ -90,7 +93,10 @@ class TDMPC2Policy(BasePolicy):
         ef_kwargs: dict[str, Any] | None = None,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
+        channels_last: bool = True,
     ):
+        if optimizer_kwargs is None and optimizer_class is th.optim.Adam:
+            optimizer_kwargs = {"fused": True}
         super().__init__(
             observation_space,
             action_space,
@@ -116,6 +122,7 @@ class TDMPC2Policy(BasePolicy):
             "ef_horizon": ef_horizon,
             "agent_dim": agent_dim,
             "ef_kwargs": ef_kwargs,
+            "channels_last": channels_last,
         }
         action_dim = int(np.prod(action_space.shape))
         # The world model is built before EF so that TDMPC2 and TDMPC2EF with one seed start from the same weights.
@@ -143,6 +150,10 @@ class TDMPC2Policy(BasePolicy):
                 horizon=ef_horizon,
                 **(ef_kwargs or {}),
             )
+        if channels_last:
+            for module in (self.world_model.encoder, self.ef):
+                if module is not None:
+                    module.to(memory_format=th.channels_last)  # type: ignore[call-overload]
         self.planner = MPPIPlanner(horizon=horizon, gamma=gamma, **(planner_kwargs or {}))
         self.register_buffer("q_scale", th.ones(()))
         self._plan_mean: th.Tensor | None = None
