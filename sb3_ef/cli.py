@@ -29,13 +29,13 @@ def _enjoy(argv: list[str]) -> None:
     main(argv)
 
 
-def _analyze(argv: list[str]) -> None:
+def _analyze(argv: list[str]) -> int:
     from sb3_ef.analysis.cli import main
 
-    main(argv)
+    return main(argv)
 
 
-COMMANDS: dict[str, tuple[Callable[[list[str]], None], str]] = {
+COMMANDS: dict[str, tuple[Callable[[list[str]], int | None], str]] = {
     "train": (_train, "train an agent from a zoo config (rl-zoo3 train arguments)"),
     "enjoy": (_enjoy, "run a trained agent (rl-zoo3 enjoy arguments)"),
     "optimize": (_optimize, "tune hyperparameters with Optuna (rl-zoo3 train arguments, -optimize implied)"),
@@ -53,14 +53,14 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> None:
-    """Dispatch ``sb3-ef <command> ...``; ``argv`` defaults to the command line."""
+def main(argv: Sequence[str] | None = None) -> int:
+    """Dispatch ``sb3-ef <command> ...``; ``argv`` defaults to the command line. Returns the exit status."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] in COMMANDS:
-        COMMANDS[argv[0]][0](argv[1:])
-        return
+        return COMMANDS[argv[0]][0](argv[1:]) or 0
     _parser().parse_args(argv)  # prints help, or exits with an error naming the valid commands
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -37,8 +37,15 @@ def test_analyze_forwards_to_the_analysis_cli(monkeypatch):
 
     received = []
     monkeypatch.setattr(analysis_cli, "main", received.append)
-    cli.main(["analyze", "results", "runs/", "--reps", "10"])
+    assert cli.main(["analyze", "results", "runs/", "--reps", "10"]) == 0
     assert received == [["results", "runs/", "--reps", "10"]]
+
+
+def test_analyze_exit_status_reaches_the_shell(monkeypatch):
+    from sb3_ef.analysis import cli as analysis_cli
+
+    monkeypatch.setattr(analysis_cli, "main", lambda argv: 3)
+    assert cli.main(["analyze", "results", "missing/"]) == 3
 
 
 def test_train_errors_reach_the_user(tmp_path):
