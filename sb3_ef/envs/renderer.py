@@ -7,6 +7,8 @@ Import this module only after :func:`sb3_ef.envs.backend.ensure_gl_backend`.
 
 from __future__ import annotations
 
+import atexit
+import functools
 import weakref
 
 import mujoco
@@ -22,6 +24,25 @@ def camera_id(model: mujoco.MjModel, camera: int | str) -> int:
         return int(camera)
     valid = ", ".join(f"{index} ({name!r})" for index, name in enumerate(names))
     raise ValueError(f"Unknown camera {camera!r}: this model's cameras are {valid}")
+
+
+_LIVE_RENDERERS: weakref.WeakSet[FrameRenderer] = weakref.WeakSet()
+
+
+def _close_live_renderers() -> None:
+    for renderer in list(_LIVE_RENDERERS):
+        renderer.close()
+
+
+@functools.cache
+def _close_renderers_at_exit() -> None:
+    """Register the exit hook once, *after* MuJoCo's EGL module registered its own ``eglTerminate``.
+
+    ``atexit`` runs hooks last-in first-out, so ours then frees the contexts while the display still exists.
+    ``weakref.finalize``'s own exit hook cannot be relied on for this: it is registered by whichever library
+    first creates a finalizer (``tempfile`` and many others), often before MuJoCo, and then runs too late.
+    """
+    atexit.register(_close_live_renderers)
 
 
 class FrameRenderer:
@@ -59,8 +80,12 @@ class FrameRenderer:
         # Index 0 stands for "no geom" (segmentation id -1), so geom g is looked up at g + 1.
         geoms = np.zeros(model.ngeom, bool) if agent_geoms is None else np.asarray(agent_geoms, bool)
         self._agent_lookup = np.concatenate([[False], geoms])
-        # Frees the GL context at close() or, at the latest, at interpreter exit while EGL is still alive.
+        # Frees the GL context at close(), when the renderer is collected, or at interpreter exit (see
+        # _close_renderers_at_exit: weakref's own exit pass may come after EGL is gone, so it is turned off).
         self._finalizer = weakref.finalize(self, self._renderer.close)
+        self._finalizer.atexit = False
+        _LIVE_RENDERERS.add(self)
+        _close_renderers_at_exit()
 
     def _orient(self, image: np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(image[::-1]) if self.flip else image

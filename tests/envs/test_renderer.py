@@ -18,7 +18,10 @@ TWO_CAMERAS = """
 """
 
 EXIT_CHILD = """
+import weakref
 import numpy as np
+# Like many libraries (tempfile, multiprocessing), register weakref's exit hook before MuJoCo registers EGL's.
+weakref.finalize(weakref.WeakSet(), print)
 from sb3_ef.envs import make_env
 closed = make_env("dmc/cartpole-swingup", size=32)
 left_open = make_env("metaworld/door-open", size=32)
