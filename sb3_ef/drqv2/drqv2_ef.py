@@ -2,31 +2,32 @@
 
 from __future__ import annotations
 
-from typing import Any, ClassVar, NamedTuple, TypeVar
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 import torch as th
 from gymnasium import spaces
-from gymnasium.wrappers import TimeLimit
 from stable_baselines3.common.base_class import maybe_make_env
 from stable_baselines3.common.buffers import ReplayBuffer
-from stable_baselines3.common.callbacks import BaseCallback, CallbackList, ConvertCallback
-from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import polyak_update
-from stable_baselines3.common.vec_env import VecEnv
 from torch.nn import functional as F
 
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
-from sb3_ef.common.callbacks import ActionOverrideMixin, MotorBabblingCallback
+from sb3_ef.common.ef_host import (
+    EFHostMixin,
+    check_box_actions,
+    check_ef_arguments,
+    check_horizon_fits_episodes,
+    check_sequence_buffer,
+    check_stacked_frames,
+    episode_steps,
+)
 from sb3_ef.common.schedules import StepSchedule, get_step_schedule
-from sb3_ef.drqv2.policies import DrQv2Actor, DrQv2Critic, DrQv2Policy, check_image_space
-from sb3_ef.ef import EgoForesight
-
-SelfDrQv2EF = TypeVar("SelfDrQv2EF", bound="DrQv2EF")
+from sb3_ef.drqv2.policies import DrQv2Actor, DrQv2Critic, DrQv2Policy
 
 SHIFT_PAD = 4
 # Keeps sampled actions strictly inside the action bounds, as DrQ-v2's truncated normal does.
@@ -41,7 +42,7 @@ class EFWindow(NamedTuple):
     valid: th.Tensor
 
 
-class DrQv2EF(ActionOverrideMixin, OffPolicyAlgorithm):
+class DrQv2EF(EFHostMixin, OffPolicyAlgorithm):
     """DrQv2-EF (Ego-Foresight on DrQ-v2): the encoder is trained by ``critic_loss + beta * ef_loss``.
 
     DrQ-v2: random-shift augmentation, a shared conv encoder trained by the critic only, a deterministic actor on
@@ -84,8 +85,6 @@ class DrQv2EF(ActionOverrideMixin, OffPolicyAlgorithm):
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"CnnPolicy": DrQv2Policy}
-    # Whether this class trains Ego-Foresight; the plain DrQv2 subclass turns it off.
-    uses_ef: ClassVar[bool] = True
     policy: DrQv2Policy
     actor: DrQv2Actor
     critic: DrQv2Critic
@@ -121,10 +120,12 @@ class DrQv2EF(ActionOverrideMixin, OffPolicyAlgorithm):
         _init_setup_model: bool = True,
     ):
         if self.uses_ef:
-            _check_ef_arguments(beta, ef_horizon, babbling_steps, replay_buffer_class)
+            check_ef_arguments(beta, ef_horizon, babbling_steps, plain_variant="DrQv2")
+            check_sequence_buffer(replay_buffer_class, "DrQv2EF samples Ego-Foresight windows")
         if env is not None:
             env = maybe_make_env(env, verbose)
-            _check_spaces(env.observation_space, env.action_space)
+            check_stacked_frames(env.observation_space, "DrQ-v2")
+            check_box_actions(env.action_space, "DrQ-v2")
         super().__init__(
             policy,
             env,
@@ -164,8 +165,8 @@ class DrQv2EF(ActionOverrideMixin, OffPolicyAlgorithm):
         """Build the schedules, the sequence replay buffer (it computes the n-step returns itself, so SB3's
         n-step buffer selection is not used) and the policy. Runs after the saved attributes are restored on load,
         so the horizon is checked against the env with the model's own ``ef_horizon``."""
-        if self.env is not None and self.ef_horizon is not None:
-            _check_horizon_fits_episodes(self.env, self.ef_horizon)
+        if self.env is not None:
+            check_horizon_fits_episodes(self.ef_horizon, episode_steps(self.env))
         self._setup_lr_schedule()
         self.exploration_schedule = get_step_schedule(self.exploration_std)
         self.set_random_seed(self.seed)
@@ -198,20 +199,6 @@ class DrQv2EF(ActionOverrideMixin, OffPolicyAlgorithm):
         self.actor = self.policy.actor
         self.critic = self.policy.critic
         self.critic_target = self.policy.critic_target
-
-    @property
-    def ef(self) -> EgoForesight | None:
-        """The Ego-Foresight module, or ``None`` when EF is off."""
-        return self.policy.ef
-
-    @property
-    def frame_shape(self) -> tuple[int, int, int]:
-        """Shape ``(3, height, width)`` of one RGB frame."""
-        return self.policy.frame_shape
-
-    def encode(self, observations: th.Tensor) -> th.Tensor:
-        """Features h of uint8 stacked observations (no augmentation; gradients flow if the caller wants them)."""
-        return self.policy.encoder(observations.to(self.device))
 
     def train(self, gradient_steps: int, batch_size: int = 256) -> None:
         """DrQ-v2's update, plus the EF loss on the same encoder output:
@@ -308,45 +295,13 @@ class DrQv2EF(ActionOverrideMixin, OffPolicyAlgorithm):
             self.critic.requires_grad_(True)
         return -q_values.min(dim=1).values.mean()
 
-    def _sample_action(
-        self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Babbling override, else uniform warm-up actions, else the actor mean plus scheduled Gaussian noise
-        (``action_noise`` is not used: the noise comes from ``exploration_std``)."""
-        override = self._override_actions(n_envs)
-        if override is not None:
-            buffer_action = override
-        elif self.num_timesteps < learning_starts:
-            buffer_action = self.policy.scale_action(np.array([self.action_space.sample() for _ in range(n_envs)]))
-        else:
-            assert self._last_obs is not None, "self._last_obs was not set"
-            mean, _ = self.predict(self._last_obs, deterministic=True)
-            std = self.exploration_schedule(self.num_timesteps)
-            noisy = self.policy.scale_action(mean) + std * np.random.standard_normal(mean.shape)
-            buffer_action = np.clip(noisy, -1.0 + _ACTION_EPS, 1.0 - _ACTION_EPS).astype(np.float32)
-        return self.policy.unscale_action(buffer_action), buffer_action
-
-    def learn(
-        self: SelfDrQv2EF,
-        total_timesteps: int,
-        callback: MaybeCallback = None,
-        log_interval: int = 4,
-        tb_log_name: str = "DrQv2EF",
-        reset_num_timesteps: bool = True,
-        progress_bar: bool = False,
-    ) -> SelfDrQv2EF:
-        if self.babbling_steps > 0:
-            callback = CallbackList(
-                [MotorBabblingCallback(self.babbling_steps, mode=self.babbling_mode), *_callbacks(callback)]
-            )
-        return super().learn(
-            total_timesteps=total_timesteps,
-            callback=callback,
-            log_interval=log_interval,
-            tb_log_name=tb_log_name,
-            reset_num_timesteps=reset_num_timesteps,
-            progress_bar=progress_bar,
-        )
+    def _exploration_action(self, n_envs: int) -> np.ndarray:
+        """The actor mean plus Gaussian noise with the scheduled std, kept inside the action bounds."""
+        assert self._last_obs is not None, "self._last_obs was not set"
+        mean, _ = self.predict(self._last_obs, deterministic=True)
+        std = self.exploration_schedule(self.num_timesteps)
+        noisy = self.policy.scale_action(mean) + std * np.random.standard_normal(mean.shape)
+        return np.clip(noisy, -1.0 + _ACTION_EPS, 1.0 - _ACTION_EPS).astype(np.float32)
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "actor", "critic", "critic_target", "exploration_schedule"]
@@ -414,79 +369,4 @@ class DrQv2(DrQv2EF):
             seed=seed,
             device=device,
             _init_setup_model=_init_setup_model,
-        )
-
-    def learn(
-        self: SelfDrQv2EF,
-        total_timesteps: int,
-        callback: MaybeCallback = None,
-        log_interval: int = 4,
-        tb_log_name: str = "DrQv2",
-        reset_num_timesteps: bool = True,
-        progress_bar: bool = False,
-    ) -> SelfDrQv2EF:
-        return super().learn(
-            total_timesteps=total_timesteps,
-            callback=callback,
-            log_interval=log_interval,
-            tb_log_name=tb_log_name,
-            reset_num_timesteps=reset_num_timesteps,
-            progress_bar=progress_bar,
-        )
-
-
-def _callbacks(callback: MaybeCallback) -> list[BaseCallback]:
-    """The user's callback(s) as a list, so the babbling callback can be put in front."""
-    if callback is None:
-        return []
-    if isinstance(callback, list):
-        return callback
-    if isinstance(callback, BaseCallback):
-        return [callback]
-    return [ConvertCallback(callback)]
-
-
-def _check_ef_arguments(
-    beta: float, ef_horizon: int, babbling_steps: int, replay_buffer_class: type[ReplayBuffer] | None
-) -> None:
-    if beta is None or not beta > 0:
-        raise ValueError(f"beta must be a positive number (use DrQv2 for DrQ-v2 without Ego-Foresight), got {beta!r}")
-    if not isinstance(ef_horizon, int) or ef_horizon < 1:
-        raise ValueError(f"ef_horizon must be a positive integer, got {ef_horizon!r}")
-    if babbling_steps < 0:
-        raise ValueError(f"babbling_steps must be >= 0, got {babbling_steps}")
-    if replay_buffer_class is not None and not issubclass(replay_buffer_class, SequenceReplayBuffer):
-        raise ValueError(
-            "DrQv2EF samples Ego-Foresight windows: replay_buffer_class must be a SequenceReplayBuffer (sub)class, "
-            f"got {replay_buffer_class.__name__}"
-        )
-
-
-def _check_spaces(observation_space: spaces.Space, action_space: spaces.Space) -> None:
-    check_image_space(observation_space)
-    if not isinstance(action_space, spaces.Box):
-        raise ValueError(f"DrQ-v2 needs a continuous (Box) action space, got {action_space}")
-
-
-def _episode_limit(env: VecEnv) -> int | None:
-    """The env's episode length in agent steps when it is known: from its spec, a TimeLimit wrapper or, for
-    ``sb3_ef.envs`` pixel envs, ``episode_length`` simulator steps at ``action_repeat``."""
-    spec = env.get_attr("spec", indices=[0])[0]
-    if spec is not None and spec.max_episode_steps is not None:
-        return int(spec.max_episode_steps)
-    if env.env_is_wrapped(TimeLimit, indices=[0])[0]:
-        return int(env.get_attr("_max_episode_steps", indices=[0])[0])
-    if env.has_attr("episode_length") and env.has_attr("action_repeat"):
-        episode_length, action_repeat = (
-            env.get_attr(name, indices=[0])[0] for name in ("episode_length", "action_repeat")
-        )
-        return -(-int(episode_length) // int(action_repeat))
-    return None
-
-
-def _check_horizon_fits_episodes(env: VecEnv, ef_horizon: int) -> None:
-    limit = _episode_limit(env)
-    if limit is not None and ef_horizon > limit:
-        raise ValueError(
-            f"ef_horizon must not exceed the episode length: expected ef_horizon <= {limit}, got {ef_horizon}"
         )

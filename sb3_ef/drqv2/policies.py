@@ -12,28 +12,12 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_
 from stable_baselines3.common.type_aliases import Schedule
 from torch import nn
 
+from sb3_ef.common.ef_host import FRAME_CHANNELS, check_stacked_frames
 from sb3_ef.ef import EgoForesight
 
-FRAME_CHANNELS = 3
 # Conv stack of DrQ-v2: (kernel, stride) per layer, 32 filters each.
 _CONV_LAYERS = ((3, 2), (3, 1), (3, 1), (3, 1))
 _POOL = 4
-
-
-def check_image_space(observation_space: spaces.Space) -> tuple[int, int, int]:
-    """Check for stacked uint8 RGB frames, channels-first, and return their ``(channels, height, width)``."""
-    if (
-        not isinstance(observation_space, spaces.Box)
-        or observation_space.dtype != np.uint8
-        or len(observation_space.shape) != 3
-        or observation_space.shape[0] % FRAME_CHANNELS != 0
-    ):
-        raise ValueError(
-            "DrQ-v2 expects stacked RGB frames: a uint8 Box of shape (3 * frame_stack, height, width), "
-            f"got {observation_space}"
-        )
-    channels, height, width = observation_space.shape
-    return channels, height, width
 
 
 def _conv_output_size(size: int) -> int:
@@ -57,7 +41,7 @@ class DrQv2Encoder(BaseFeaturesExtractor):
     """
 
     def __init__(self, observation_space: spaces.Box, features_dim: int | None = 2048, n_filters: int = 32):
-        channels, height, width = check_image_space(observation_space)
+        channels, height, width = check_stacked_frames(observation_space, "DrQ-v2")
         conv_height, conv_width = _conv_output_size(height), _conv_output_size(width)
         divisor = _POOL if features_dim is not None else 1
         if conv_height // divisor < 1 or conv_width // divisor < 1:
@@ -232,6 +216,10 @@ class DrQv2Policy(BasePolicy):
         _, height, width = self.observation_space.shape
         return (FRAME_CHANNELS, height, width)
 
+    def encode(self, observations: th.Tensor) -> th.Tensor:
+        """Features h of uint8 stacked observations (the encoder's output, before the actor and critic trunks)."""
+        return self.encoder(observations)
+
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
         del data["normalize_images"]  # fixed: the encoder scales images itself
@@ -256,7 +244,7 @@ class DrQv2Policy(BasePolicy):
     def _predict(self, observation: th.Tensor, deterministic: bool = True) -> th.Tensor:
         """The mean action (tanh-squashed). Exploration noise is added by the algorithm during rollouts, so
         ``deterministic`` is ignored, as in TD3."""
-        return self.actor(self.encoder(observation))
+        return self.actor(self.encode(observation))
 
     def set_training_mode(self, mode: bool) -> None:
         self.encoder.train(mode)

@@ -10,27 +10,16 @@ from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 
+from sb3_ef.common.ef_host import FRAME_CHANNELS, check_stacked_frames
 from sb3_ef.ef import EgoForesight
 from sb3_ef.tdmpc2.math import TwoHot
 from sb3_ef.tdmpc2.planner import MPPIPlanner
 from sb3_ef.tdmpc2.world_model import FRAME_SIZE, WorldModel
 
-FRAME_CHANNELS = 3
-
 
 def check_pixel_space(observation_space: spaces.Space) -> tuple[int, int, int]:
     """Check for stacked 64x64 uint8 RGB frames, channels-first, and return ``(channels, height, width)``."""
-    if (
-        not isinstance(observation_space, spaces.Box)
-        or observation_space.dtype != np.uint8
-        or len(observation_space.shape) != 3
-        or observation_space.shape[0] % FRAME_CHANNELS != 0
-    ):
-        raise ValueError(
-            "TD-MPC2 expects stacked RGB frames: a uint8 Box of shape (3 * frame_stack, 64, 64), "
-            f"got {observation_space}"
-        )
-    channels, height, width = observation_space.shape
+    channels, height, width = check_stacked_frames(observation_space, "TD-MPC2")
     if (height, width) != (FRAME_SIZE, FRAME_SIZE):
         raise ValueError(
             f"TD-MPC2's encoder expects {FRAME_SIZE}x{FRAME_SIZE} frames (make_env(..., size=64)), got {height}x{width}"

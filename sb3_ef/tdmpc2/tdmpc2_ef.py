@@ -2,31 +2,31 @@
 
 from __future__ import annotations
 
-import math
-from typing import Any, ClassVar, NamedTuple, TypeVar
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 import torch as th
 from gymnasium import spaces
-from gymnasium.wrappers import TimeLimit
 from stable_baselines3.common.base_class import maybe_make_env
 from stable_baselines3.common.buffers import ReplayBuffer
-from stable_baselines3.common.callbacks import BaseCallback, CallbackList, ConvertCallback
-from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
-from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
-from sb3_ef.common.callbacks import ActionOverrideMixin, MotorBabblingCallback
-from sb3_ef.ef import EgoForesight
+from sb3_ef.common.ef_host import (
+    FRAME_CHANNELS,
+    EFHostMixin,
+    check_box_actions,
+    check_ef_arguments,
+    check_horizon_fits_episodes,
+    check_sequence_buffer,
+    episode_steps,
+)
 from sb3_ef.tdmpc2.math import discount_from_episode_length
-from sb3_ef.tdmpc2.policies import FRAME_CHANNELS, TDMPC2Policy, check_pixel_space
+from sb3_ef.tdmpc2.policies import TDMPC2Policy, check_pixel_space
 from sb3_ef.tdmpc2.world_model import WorldModel
-
-SelfTDMPC2EF = TypeVar("SelfTDMPC2EF", bound="TDMPC2EF")
 
 SHIFT_PAD = 3
 # Set by the algorithm itself, so they cannot come through policy_kwargs.
@@ -46,7 +46,7 @@ class Sequence(NamedTuple):
     ef_valid: th.Tensor | None  # (B,) whether frame t+k exists
 
 
-class TDMPC2EF(ActionOverrideMixin, OffPolicyAlgorithm):
+class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
     """TDMPC2-EF (Ego-Foresight on TD-MPC2): the world model is trained by ``L_TDMPC + beta * L_ef``.
 
     TD-MPC2 learns an implicit world model (SimNorm latent, latent dynamics, two-hot reward and Q-ensemble heads)
@@ -91,8 +91,6 @@ class TDMPC2EF(ActionOverrideMixin, OffPolicyAlgorithm):
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"CnnPolicy": TDMPC2Policy}
-    # Whether this class trains Ego-Foresight; the plain TDMPC2 subclass turns it off.
-    uses_ef: ClassVar[bool] = True
     policy: TDMPC2Policy
 
     def __init__(
@@ -128,12 +126,11 @@ class TDMPC2EF(ActionOverrideMixin, OffPolicyAlgorithm):
     ):
         _check_arguments(horizon, replay_buffer_class, policy_kwargs)
         if self.uses_ef:
-            _check_ef_arguments(beta, ef_horizon, babbling_steps)
+            check_ef_arguments(beta, ef_horizon, babbling_steps, plain_variant="TDMPC2")
         if env is not None:
             env = maybe_make_env(env, verbose)
             check_pixel_space(env.observation_space)
-            if not isinstance(env.action_space, spaces.Box):
-                raise ValueError(f"TD-MPC2 needs a continuous (Box) action space, got {env.action_space}")
+            check_box_actions(env.action_space, "TD-MPC2")
         super().__init__(
             policy,
             env,
@@ -206,19 +203,15 @@ class TDMPC2EF(ActionOverrideMixin, OffPolicyAlgorithm):
     def _check_episode_length(self) -> None:
         """Derive ``gamma`` from the episode length when it is ``None``, and check that EF's window fits in an
         episode (done here, not in ``__init__``, so that ``load`` checks the saved values)."""
-        episode_steps = None if self.env is None else _episode_steps(self.env)
+        steps = None if self.env is None else episode_steps(self.env)
         if self.gamma is None:
-            if episode_steps is None:
+            if steps is None:
                 raise ValueError(
                     "gamma=None derives the discount from the episode length, which this env does not expose "
                     "(no spec.max_episode_steps, TimeLimit, episode_length or max_episode_steps): pass gamma"
                 )
-            self.gamma = discount_from_episode_length(episode_steps)
-        if episode_steps is not None and self.ef_horizon is not None and self.ef_horizon > episode_steps:
-            raise ValueError(
-                f"ef_horizon must not exceed the episode length: expected ef_horizon <= {episode_steps}, "
-                f"got {self.ef_horizon}"
-            )
+            self.gamma = discount_from_episode_length(steps)
+        check_horizon_fits_episodes(self.ef_horizon, steps)
 
     @property
     def window(self) -> int:
@@ -229,20 +222,6 @@ class TDMPC2EF(ActionOverrideMixin, OffPolicyAlgorithm):
     def world_model(self) -> WorldModel:
         """The TD-MPC2 world model (encoder, dynamics, reward, policy prior, Q-ensemble)."""
         return self.policy.world_model
-
-    @property
-    def ef(self) -> EgoForesight | None:
-        """The Ego-Foresight module, or ``None`` when EF is off."""
-        return self.policy.ef
-
-    @property
-    def frame_shape(self) -> tuple[int, int, int]:
-        """Shape ``(3, height, width)`` of one RGB frame."""
-        return self.policy.frame_shape
-
-    def encode(self, observations: th.Tensor) -> th.Tensor:
-        """Latent features h of uint8 stacked observations (no augmentation; gradients flow if the caller wants)."""
-        return self.policy.encode(observations.to(self.device))
 
     def train(self, gradient_steps: int, batch_size: int = 256) -> None:
         """TD-MPC2's update, EF added to the world-model loss: world-model step (encoder, dynamics, reward, Q and
@@ -389,24 +368,14 @@ class TDMPC2EF(ActionOverrideMixin, OffPolicyAlgorithm):
             for group in optimizer.param_groups:
                 group["lr"] = learning_rate * group.get("lr_scale", 1.0)
 
-    def _sample_action(
-        self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Babbling override, else uniform seed actions, else MPPI planning with exploration noise and a warm
-        start per env (``action_noise`` is not used)."""
-        override = self._override_actions(n_envs)
-        if override is not None:
-            buffer_action = override
-        elif self.num_timesteps < learning_starts:
-            buffer_action = self.policy.scale_action(np.array([self.action_space.sample() for _ in range(n_envs)]))
-        else:
-            assert self._last_obs is not None, "self._last_obs was not set"
-            observations = th.as_tensor(self._last_obs, device=self.device)
-            if self._rollout_plan is not None and self._rollout_plan.shape[0] != n_envs:
-                self._rollout_plan = None
-            actions, self._rollout_plan = self.policy.plan(observations, self._rollout_plan, deterministic=False)
-            buffer_action = actions.cpu().numpy().astype(np.float32)
-        return self.policy.unscale_action(buffer_action), buffer_action
+    def _exploration_action(self, n_envs: int) -> np.ndarray:
+        """MPPI planning with exploration noise, warm-started from each env's previous plan."""
+        assert self._last_obs is not None, "self._last_obs was not set"
+        observations = th.as_tensor(self._last_obs, device=self.device)
+        if self._rollout_plan is not None and self._rollout_plan.shape[0] != n_envs:
+            self._rollout_plan = None
+        actions, self._rollout_plan = self.policy.plan(observations, self._rollout_plan, deterministic=False)
+        return actions.cpu().numpy().astype(np.float32)
 
     def _store_transition(
         self,
@@ -425,28 +394,6 @@ class TDMPC2EF(ActionOverrideMixin, OffPolicyAlgorithm):
     def _setup_learn(self, total_timesteps: int, callback: MaybeCallback = None, *args: Any, **kwargs: Any):
         self._rollout_plan = None
         return super()._setup_learn(total_timesteps, callback, *args, **kwargs)
-
-    def learn(
-        self: SelfTDMPC2EF,
-        total_timesteps: int,
-        callback: MaybeCallback = None,
-        log_interval: int = 4,
-        tb_log_name: str = "TDMPC2EF",
-        reset_num_timesteps: bool = True,
-        progress_bar: bool = False,
-    ) -> SelfTDMPC2EF:
-        if self.babbling_steps > 0:
-            callback = CallbackList(
-                [MotorBabblingCallback(self.babbling_steps, mode=self.babbling_mode), *_callbacks(callback)]
-            )
-        return super().learn(
-            total_timesteps=total_timesteps,
-            callback=callback,
-            log_interval=log_interval,
-            tb_log_name=tb_log_name,
-            reset_num_timesteps=reset_num_timesteps,
-            progress_bar=progress_bar,
-        )
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "_rollout_plan", "_ef_generator"]
@@ -518,55 +465,10 @@ class TDMPC2(TDMPC2EF):
             _init_setup_model=_init_setup_model,
         )
 
-    def learn(
-        self: SelfTDMPC2EF,
-        total_timesteps: int,
-        callback: MaybeCallback = None,
-        log_interval: int = 4,
-        tb_log_name: str = "TDMPC2",
-        reset_num_timesteps: bool = True,
-        progress_bar: bool = False,
-    ) -> SelfTDMPC2EF:
-        return super().learn(
-            total_timesteps=total_timesteps,
-            callback=callback,
-            log_interval=log_interval,
-            tb_log_name=tb_log_name,
-            reset_num_timesteps=reset_num_timesteps,
-            progress_bar=progress_bar,
-        )
-
 
 def _masked_mean(values: th.Tensor, valid: th.Tensor) -> th.Tensor:
     """Mean over the batch (last axis) of the valid entries, per leading index: ``(T, B) -> (T,)``."""
     return (values * valid).sum(-1) / valid.sum(-1).clamp(min=1.0)
-
-
-def _callbacks(callback: MaybeCallback) -> list[BaseCallback]:
-    """The user's callback(s) as a list, so the babbling callback can be put in front."""
-    if callback is None:
-        return []
-    if isinstance(callback, list):
-        return callback
-    if isinstance(callback, BaseCallback):
-        return [callback]
-    return [ConvertCallback(callback)]
-
-
-def _episode_steps(env: VecEnv) -> int | None:
-    """Episode length in agent steps when the env tells it: its spec, a TimeLimit, or the attributes of
-    sb3-ef's pixel envs (``episode_length`` simulator steps with ``action_repeat``) or ``max_episode_steps``."""
-    spec = env.get_attr("spec", indices=[0])[0]
-    if spec is not None and spec.max_episode_steps is not None:
-        return int(spec.max_episode_steps)
-    if env.env_is_wrapped(TimeLimit, indices=[0])[0]:
-        return int(env.get_attr("_max_episode_steps", indices=[0])[0])
-    if env.has_attr("episode_length") and env.has_attr("action_repeat"):
-        episode_length = env.get_attr("episode_length", indices=[0])[0]
-        return math.ceil(episode_length / env.get_attr("action_repeat", indices=[0])[0])
-    if env.has_attr("max_episode_steps"):
-        return int(env.get_attr("max_episode_steps", indices=[0])[0])
-    return None
 
 
 def _check_arguments(
@@ -574,20 +476,7 @@ def _check_arguments(
 ) -> None:
     if not isinstance(horizon, int) or horizon < 1:
         raise ValueError(f"horizon must be a positive integer, got {horizon!r}")
-    if replay_buffer_class is not None and not issubclass(replay_buffer_class, SequenceReplayBuffer):
-        raise ValueError(
-            "TD-MPC2 trains on consecutive steps: replay_buffer_class must be a SequenceReplayBuffer (sub)class, "
-            f"got {replay_buffer_class.__name__}"
-        )
+    check_sequence_buffer(replay_buffer_class, "TD-MPC2 trains on consecutive steps")
     reserved = sorted(set(policy_kwargs or {}) & set(_ALGORITHM_POLICY_KWARGS))
     if reserved:
         raise ValueError(f"Pass {reserved} to the algorithm, not in policy_kwargs (they are set from its arguments)")
-
-
-def _check_ef_arguments(beta: float, ef_horizon: int, babbling_steps: int) -> None:
-    if beta is None or not beta > 0:
-        raise ValueError(f"beta must be a positive number (use TDMPC2 for TD-MPC2 without Ego-Foresight), got {beta!r}")
-    if not isinstance(ef_horizon, int) or ef_horizon < 1:
-        raise ValueError(f"ef_horizon must be a positive integer, got {ef_horizon!r}")
-    if babbling_steps < 0:
-        raise ValueError(f"babbling_steps must be >= 0, got {babbling_steps}")

@@ -3,7 +3,8 @@ import pytest
 import torch as th
 from gymnasium import spaces
 
-from sb3_ef.drqv2.policies import DrQv2Encoder, DrQv2Policy, check_image_space
+from sb3_ef.common.ef_host import check_stacked_frames
+from sb3_ef.drqv2.policies import DrQv2Encoder, DrQv2Policy
 
 
 def image_space(size: int, channels: int = 9) -> spaces.Box:
@@ -49,7 +50,7 @@ def test_encoder_rejects_too_small_images(size, features_dim, smallest):
 )
 def test_non_image_spaces_are_rejected(space):
     with pytest.raises(ValueError, match=r"uint8 Box of shape \(3 \* frame_stack, height, width\), got"):
-        check_image_space(space)
+        check_stacked_frames(space, "DrQ-v2")
 
 
 def test_encoder_centres_pixels():
