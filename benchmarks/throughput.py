@@ -77,10 +77,9 @@ def timed(function: Callable[[], object]) -> tuple[float, float]:
     return time.perf_counter() - wall, time.process_time() - cpu
 
 
-def build(algorithm: type, setting: Setting, kwargs: dict[str, Any], is_ef: bool):
+def build(algorithm: type, setting: Setting, kwargs: dict[str, Any]):
     """A model on a fast-rendering cartpole, its buffer filled with warm-up steps and its first updates done."""
     env = make_env(ENV_NAME, size=setting.size, fast_render=True, seed=0)
-    ef_only = {"babbling_steps": 0} if is_ef else {}  # babbling skips the actor: not the steady state
     model = algorithm(
         "CnnPolicy",
         env,
@@ -88,16 +87,21 @@ def build(algorithm: type, setting: Setting, kwargs: dict[str, Any], is_ef: bool
         buffer_size=10 * setting.warmup_steps,
         learning_starts=setting.warmup_steps,
         seed=0,
-        **ef_only,
         **kwargs,
     )
     model.learn(setting.warmup_steps + 4)  # warm-up actions, then a couple of updates (allocator, oneDNN caches)
     return model
 
 
-def measure_pair(plain: type, ef: type, setting: Setting, kwargs: dict[str, Any], repeats: int) -> dict[str, Rates]:
-    """Interleaved plain / EF measurements; returns the median rates of each."""
-    models = {"plain": build(plain, setting, kwargs, False), "ef": build(ef, setting, kwargs, True)}
+def measure_pair(
+    plain: type, ef: type, setting: Setting, kwargs: dict[str, Any], ef_kwargs: dict[str, Any], repeats: int
+) -> dict[str, Rates]:
+    """Interleaved plain / EF measurements; returns the median rates of each. Babbling is off in the EF model:
+    it skips the actor, which is not the steady state."""
+    models = {
+        "plain": build(plain, setting, kwargs),
+        "ef": build(ef, setting, {**kwargs, "babbling_steps": 0, **ef_kwargs}),
+    }
     samples: dict[str, list[tuple[float, float, float, float]]] = {name: [] for name in models}
     try:
         for _ in range(repeats):
@@ -128,13 +132,23 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     # One thread by default: on a shared, loaded 2-core machine two threads wait on each other at every barrier.
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
+    parser.add_argument(
+        "--decode-batch-size",
+        type=int,
+        default=None,
+        help="EgoForesight's decode_batch_size for the EF model (changes the method; default: decode the whole batch)",
+    )
     args = parser.parse_args()
+    ef_kwargs = {}
+    if args.decode_batch_size is not None:
+        ef_kwargs = {"policy_kwargs": {"ef_kwargs": {"decode_batch_size": args.decode_batch_size}}}
     th.set_num_threads(args.threads)
 
     settings = SETTINGS if args.setting == "all" else {args.setting: SETTINGS[args.setting]}
     pairs = [pair for pair in PAIRS if args.pair in ("all", pair[0])]
     device = "CUDA " + th.cuda.get_device_name() if th.cuda.is_available() else f"CPU, {args.threads} torch threads"
-    print(f"{ENV_NAME}, fast_render, {device}; load average before: {os.getloadavg()[0]:.1f}")
+    decoded = "whole batch" if args.decode_batch_size is None else f"{args.decode_batch_size} samples"
+    print(f"{ENV_NAME}, fast_render, {device}; EF decodes {decoded}; load average before: {os.getloadavg()[0]:.1f}")
     print(
         "| setting | pair | env steps/s plain | env steps/s EF | EF/plain | updates/s plain | updates/s EF | EF/plain "
         "| EF/plain per CPU-s (steps, updates) |"
@@ -143,7 +157,7 @@ def main() -> None:
     for setting_name, setting in settings.items():
         for name, plain, ef, kwargs in pairs:
             pair_setting = dataclasses.replace(setting, size=FRAME_SIZES.get(name, setting.size))
-            rates = measure_pair(plain, ef, pair_setting, kwargs, args.repeats)
+            rates = measure_pair(plain, ef, pair_setting, kwargs, ef_kwargs, args.repeats)
             p, e = rates["plain"], rates["ef"]
             print(
                 f"| {setting_name} ({pair_setting.size}x{pair_setting.size}, batch {setting.batch_size}) | {name} "

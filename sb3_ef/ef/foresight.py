@@ -26,6 +26,9 @@ class EgoForesight(nn.Module):
     :param decoder_channels: width of the decoder's hidden layers.
     :param skip_channels: channels of the encoder feature map passed as U-Net skip, 0 for none.
     :param step_sampling: ``"batch"`` (one k per batch) or ``"sample"`` (one k per sample), see ``draw_steps``.
+    :param decode_batch_size: decode only the first this-many samples of each batch in :meth:`loss` (a random subset,
+        since replay batches are drawn at random); ``None`` decodes all, as the paper does. **Changes the method**:
+        fewer reconstructions per update, so a noisier EF gradient at a lower cost (the decoder dominates it).
     """
 
     def __init__(
@@ -39,6 +42,7 @@ class EgoForesight(nn.Module):
         decoder_channels: int = 64,
         skip_channels: int = 0,
         step_sampling: str = "batch",
+        decode_batch_size: int | None = None,
     ):
         super().__init__()
         if not 1 <= agent_dim < feature_dim:
@@ -49,6 +53,8 @@ class EgoForesight(nn.Module):
             raise ValueError(f"horizon must be >= 1, got {horizon}")
         if step_sampling not in STEP_SAMPLINGS:
             raise ValueError(f"step_sampling must be one of {STEP_SAMPLINGS}, got {step_sampling!r}")
+        if decode_batch_size is not None and decode_batch_size < 1:
+            raise ValueError(f"decode_batch_size must be None or >= 1, got {decode_batch_size}")
         self.feature_dim = feature_dim
         self.action_dim = action_dim
         self.frame_shape = tuple(frame_shape)
@@ -56,6 +62,7 @@ class EgoForesight(nn.Module):
         self.horizon = horizon
         self.skip_channels = skip_channels
         self.step_sampling = step_sampling
+        self.decode_batch_size = decode_batch_size
         self.rollout_block = RolloutBlock(agent_dim, action_dim, rollout_hidden_dims)
         self.decoder = FrameDecoder(feature_dim, self.frame_shape, decoder_channels, skip_channels)
 
@@ -115,15 +122,22 @@ class EgoForesight(nn.Module):
         min_step, max_step = th.stack(th.aminmax(steps)).tolist()  # one device sync for both bounds
         if min_step < 1 or max_step > future_actions.shape[1]:
             raise ValueError(f"steps must lie in [1, {future_actions.shape[1]}], got [{min_step}, {max_step}]")
+        if valid is not None and valid.shape != (batch,):
+            raise ValueError(f"Expected valid of shape ({batch},), got {tuple(valid.shape)}")
         target = self._target_to_float(target, batch)
+        if self.decode_batch_size is not None and batch > self.decode_batch_size:
+            batch = self.decode_batch_size
+            h_scene, h_agent, future_actions, steps, target = (
+                x[:batch] for x in (h_scene, h_agent, future_actions, steps, target)
+            )
+            valid = None if valid is None else valid[:batch]
+            skip = None if skip is None else skip[:batch]
         agent_states = self.rollout(h_agent, future_actions[:, :max_step])
         predicted_agent = agent_states[th.arange(batch, device=h.device), steps.long() - 1]
         prediction = self.decode(h_scene, predicted_agent, skip)
         per_sample = (prediction - target).pow(2).flatten(1).sum(dim=1)
         if valid is None:
             return per_sample.mean()
-        if valid.shape != (batch,):
-            raise ValueError(f"Expected valid of shape ({batch},), got {tuple(valid.shape)}")
         weights = valid.to(per_sample.dtype)
         return (per_sample * weights).sum() / weights.sum().clamp(min=1.0)
 

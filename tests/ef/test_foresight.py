@@ -136,3 +136,18 @@ def test_bad_loss_inputs_are_rejected():
         ef.loss(h, actions, steps.float(), target)
     with pytest.raises(ValueError, match="valid"):
         ef.loss(h, actions, steps, target, th.ones(B, 1, dtype=th.bool))
+
+
+def test_decode_batch_size_decodes_only_the_first_samples():
+    subset = make_ef(decode_batch_size=2).eval()
+    full = make_ef().eval()
+    full.load_state_dict(subset.state_dict())
+    h = th.randn(B, FEATURES, requires_grad=True)
+    actions, steps, target, valid = th.randn(B, H, ACTIONS), th.tensor([1, 3, 5, 2]), frames(), th.ones(B)
+    loss = subset.loss(h, actions, steps, target, valid)
+    expected = full.loss(h[:2], actions[:2], steps[:2], target[:2], valid[:2])
+    assert th.allclose(loss, expected)
+    loss.backward()
+    assert h.grad[:2].abs().sum() > 0 and h.grad[2:].abs().sum() == 0
+    with pytest.raises(ValueError, match="decode_batch_size must be None or >= 1, got 0"):
+        make_ef(decode_batch_size=0)
