@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 
 from sb3_ef.envs.backend import ensure_gl_backend
@@ -45,8 +47,7 @@ def make_env(
         from sb3_ef.envs.dmc import DMCPixelEnv as env_class
     else:
         from sb3_ef.envs.meta_world import MetaWorldPixelEnv as env_class
-    return env_class(
-        task.task,
+    options = dict(
         size=int(size),
         frame_stack=frame_stack,
         action_repeat=action_repeat,
@@ -55,3 +56,8 @@ def make_env(
         seed=seed,
         **kwargs,
     )
+    env = env_class(task.task, **options)
+    # The spec gym.make would give, so env.spec.id names the task (eval records, rl-zoo3, SB3) for envs made here too.
+    registered = gym.spec(f"{task.suite}/{task.task}-v0")
+    env.spec = dataclasses.replace(registered, kwargs={**registered.kwargs, **options})
+    return env

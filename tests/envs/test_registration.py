@@ -31,3 +31,15 @@ def test_import_sb3_ef_does_not_import_mujoco():
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == "[]"
+
+
+def test_make_env_gives_the_spec_gym_make_would():
+    from sb3_ef.envs import make_env
+
+    env = make_env("dmc/cartpole-swingup", size=32, fast_render=True)
+    assert env.spec.id == "dmc/cartpole-swingup-v0"
+    assert env.spec.kwargs["size"] == 32 and env.spec.kwargs["fast_render"] is True
+    again = gym.make(env.spec)  # the spec rebuilds the same env
+    assert again.observation_space == env.observation_space
+    again.close()
+    env.close()
