@@ -11,6 +11,27 @@ from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 RECORD_COLUMNS = ("algo", "task", "seed", "step", "frame", "return", "success")
 
 
+def record_row(
+    algo: str,
+    task: str,
+    seed: int | None,
+    step: int,
+    action_repeat: int,
+    mean_return: float,
+    success: float | None,
+) -> dict[str, object]:
+    """One evaluation in the CSV format: ``frame = step * action_repeat``; an unknown seed or success is empty."""
+    return {
+        "algo": algo,
+        "task": task,
+        "seed": "" if seed is None else seed,
+        "step": int(step),
+        "frame": int(step) * action_repeat,
+        "return": float(mean_return),
+        "success": "" if success is None else float(success),
+    }
+
+
 def append_records(path: str | os.PathLike, rows: list[dict[str, object]]) -> None:
     """Append rows to an evaluation CSV, writing the header only when the file is new or empty.
 
@@ -88,15 +109,15 @@ class EvalRecorderCallback(BaseCallback):
         assert self.parent is not None
         # EvalCallback keeps this buffer of final info["is_success"] values until its next evaluation.
         successes = self.parent._is_success_buffer
-        row = {
-            "algo": self.algo,
-            "task": self.task,
-            "seed": "" if self.seed is None else self.seed,
-            "step": self.num_timesteps,
-            "frame": self.num_timesteps * self.action_repeat,
-            "return": self.parent.last_mean_reward,
-            "success": float(np.mean(successes)) if successes else "",
-        }
+        row = record_row(
+            self.algo,
+            self.task,
+            self.seed,
+            self.num_timesteps,
+            self.action_repeat,
+            self.parent.last_mean_reward,
+            float(np.mean(successes)) if successes else None,
+        )
         append_records(self.path, [row])
         if self.verbose >= 1:
             print(f"Recorded evaluation at step {self.num_timesteps} to {self.path}")

@@ -18,7 +18,7 @@ from collections.abc import Sequence
 import numpy as np
 import yaml
 
-from sb3_ef.analysis.records import append_records
+from sb3_ef.analysis.records import append_records, record_row
 
 
 def run_records(run_folder: str, algo: str, action_repeat: int = 2) -> list[dict[str, object]]:
@@ -31,15 +31,15 @@ def run_records(run_folder: str, algo: str, action_repeat: int = 2) -> list[dict
         args = yaml.load(file, Loader=yaml.UnsafeLoader)  # rl-zoo3 writes an OrderedDict (Python tags)
     successes = evaluations["successes"] if "successes" in evaluations.files else None
     return [
-        {
-            "algo": algo,
-            "task": args["env"],
-            "seed": args["seed"],
-            "step": int(step),
-            "frame": int(step) * action_repeat,
-            "return": float(np.mean(returns)),
-            "success": "" if successes is None else float(np.mean(successes[index])),
-        }
+        record_row(
+            algo,
+            args["env"],
+            args["seed"],
+            step,
+            action_repeat,
+            np.mean(returns),
+            None if successes is None else np.mean(successes[index]),
+        )
         for index, (step, returns) in enumerate(zip(evaluations["timesteps"], evaluations["results"], strict=True))
     ]
 
