@@ -12,7 +12,7 @@ import numpy as np
 import torch as th
 from torch import nn
 
-FRAME_CHANNELS = 3
+from sb3_ef.common.ef_host import FRAME_CHANNELS
 
 
 class ForesightModel(Protocol):
