@@ -21,7 +21,6 @@ _PUBLIC = {
     "TDMPC2EF": "sb3_ef.tdmpc2",
     "TDMPC2": "sb3_ef.tdmpc2",
     "SequenceReplayBuffer": "sb3_ef.common.buffers",
-    "MotorBabblingCallback": "sb3_ef.common.callbacks",
     "make_env": "sb3_ef.envs",
 }
 

@@ -12,7 +12,7 @@ import numpy as np
 import torch as th
 from torch import nn
 
-from sb3_ef.common.ef_host import FRAME_CHANNELS
+from sb3_ef.common.env_checks import FRAME_CHANNELS
 
 
 class ForesightModel(Protocol):

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any, ClassVar, NamedTuple
+from typing import Any, ClassVar
 
 import numpy as np
 import torch as th
@@ -16,33 +16,25 @@ from stable_baselines3.common.utils import polyak_update
 from torch.nn import functional as F
 
 from sb3_ef.common.augmentation import random_shift
-from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
-from sb3_ef.common.ef_host import (
-    EFHostMixin,
-    check_box_actions,
-    check_ef_arguments,
-    check_horizon_fits_episodes,
-    check_sequence_buffer,
-    check_stacked_frames,
-    episode_steps,
-)
+from sb3_ef.common.buffers import SequenceReplayBufferSamples
+from sb3_ef.common.env_checks import check_box_actions, check_stacked_frames, episode_steps
+from sb3_ef.common.exploration import OwnExplorationMixin
 from sb3_ef.common.schedules import StepSchedule, get_step_schedule
 from sb3_ef.drqv2.policies import DrQv2Actor, DrQv2Critic, DrQv2Policy
+from sb3_ef.ef.host import (
+    EFHostMixin,
+    EFWindow,
+    check_horizon_fits_episodes,
+    plain_variant_kwargs,
+    plain_variant_signature,
+)
 
 SHIFT_PAD = 4
 # Keeps sampled actions strictly inside the action bounds, as DrQ-v2's truncated normal does.
 _ACTION_EPS = 1e-6
 
 
-class EFWindow(NamedTuple):
-    """What one update needs from the EF window: rollout lengths, their (shifted) target frames and validity."""
-
-    steps: th.Tensor
-    target: th.Tensor
-    valid: th.Tensor
-
-
-class DrQv2EF(EFHostMixin, OffPolicyAlgorithm):
+class DrQv2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     """DrQv2-EF (Ego-Foresight on DrQ-v2): the encoder is trained by ``critic_loss + beta * ef_loss``.
 
     DrQ-v2: random-shift augmentation, a shared conv encoder trained by the critic only, a deterministic actor on
@@ -72,6 +64,10 @@ class DrQv2EF(EFHostMixin, OffPolicyAlgorithm):
     :param ef_horizon: Ego-Foresight prediction horizon H (the rollout length k is drawn in [1, H]).
     :param babbling_steps: agent steps of motor babbling at the start (0: none).
     :param babbling_mode: ``"sign"`` (random +-1) or ``"clamped_uniform"`` (the authors' code).
+    :param babbling_in_eval: ``predict`` also babbles while ``num_timesteps < babbling_steps`` (the EF authors'
+        Meta-World evaluation protocol).
+    :param check_finite_losses: raise a ``ValueError`` naming the loss when one is NaN or infinite, before the
+        optimiser step (one device sync per loss: for debugging).
     :param replay_buffer_class: a :class:`SequenceReplayBuffer` (sub)class; ``None`` picks it.
     :param replay_buffer_kwargs: extra buffer arguments (``n_steps``, ``gamma`` and the horizon are filled in).
     :param stats_window_size: episodes averaged for the rollout logs.
@@ -109,6 +105,8 @@ class DrQv2EF(EFHostMixin, OffPolicyAlgorithm):
         ef_horizon: int = 10,
         babbling_steps: int = 12_500,
         babbling_mode: str = "sign",
+        babbling_in_eval: bool = False,
+        check_finite_losses: bool = False,
         replay_buffer_class: type[ReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
         stats_window_size: int = 100,
@@ -119,9 +117,6 @@ class DrQv2EF(EFHostMixin, OffPolicyAlgorithm):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ):
-        if self.uses_ef:
-            check_ef_arguments(beta, ef_horizon, babbling_steps, plain_variant="DrQv2")
-            check_sequence_buffer(replay_buffer_class, "DrQv2EF samples Ego-Foresight windows")
         if env is not None:
             env = maybe_make_env(env, verbose)
             check_stacked_frames(env.observation_space, "DrQ-v2")
@@ -138,9 +133,9 @@ class DrQv2EF(EFHostMixin, OffPolicyAlgorithm):
             train_freq,
             gradient_steps,
             replay_buffer_class=replay_buffer_class,
-            replay_buffer_kwargs=replay_buffer_kwargs,
+            replay_buffer_kwargs=dict(replay_buffer_kwargs or {}),
             n_steps=n_steps,
-            policy_kwargs=policy_kwargs,
+            policy_kwargs=dict(policy_kwargs or {}),
             stats_window_size=stats_window_size,
             tensorboard_log=tensorboard_log,
             verbose=verbose,
@@ -152,47 +147,27 @@ class DrQv2EF(EFHostMixin, OffPolicyAlgorithm):
         )
         self.exploration_std = exploration_std
         self.target_noise_clip = target_noise_clip
-        self.beta = beta if self.uses_ef else None
-        self.ef_horizon = ef_horizon if self.uses_ef else None
-        self.babbling_steps = babbling_steps
-        self.babbling_mode = babbling_mode
-        self.policy_kwargs["ef_horizon"] = self.ef_horizon
+        self._init_ef(beta, ef_horizon, babbling_steps, babbling_mode, babbling_in_eval, check_finite_losses, "DrQv2")
 
         if _init_setup_model:
             self._setup_model()
 
     def _setup_model(self) -> None:
-        """Build the schedules, the sequence replay buffer (it computes the n-step returns itself, so SB3's
-        n-step buffer selection is not used) and the policy. Runs after the saved attributes are restored on load,
-        so the horizon is checked against the env with the model's own ``ef_horizon``."""
+        """SB3's setup with a sequence replay buffer (it computes the n-step returns itself; plain DrQ-v2 reads no
+        EF window, the shortest one keeps sampling cheap), then the exploration schedule. Runs after the saved
+        attributes are restored on load, so the horizon is checked against the env with the model's own
+        ``ef_horizon``."""
         if self.env is not None:
             check_horizon_fits_episodes(self.ef_horizon, episode_steps(self.env))
-        self._setup_lr_schedule()
-        self.exploration_schedule = get_step_schedule(self.exploration_std)
-        self.set_random_seed(self.seed)
-        if self.replay_buffer_class is None:
-            self.replay_buffer_class = SequenceReplayBuffer
-        if self.replay_buffer is None:
-            buffer_kwargs = self.replay_buffer_kwargs.copy()
-            if issubclass(self.replay_buffer_class, SequenceReplayBuffer):
-                buffer_kwargs.setdefault("n_steps", self.n_steps)
-                buffer_kwargs.setdefault("gamma", self.gamma)
-                # Plain DrQ-v2 reads no EF window: the shortest one keeps sampling cheap.
-                buffer_kwargs["horizon"] = self.ef_horizon if self.ef_horizon is not None else 1
-            self.replay_buffer = self.replay_buffer_class(
-                self.buffer_size,
-                self.observation_space,
-                self.action_space,
-                device=self.device,
-                n_envs=self.n_envs,
-                optimize_memory_usage=self.optimize_memory_usage,
-                **buffer_kwargs,
-            )
-        self.policy = self.policy_class(
-            self.observation_space, self.action_space, self.lr_schedule, **self.policy_kwargs
+        self._use_sequence_buffer(
+            "DrQ-v2 samples n-step discounts and DrQv2-EF its windows",
+            horizon=self.ef_horizon or 1,
+            n_steps=self.n_steps,
+            gamma=self.gamma,
         )
-        self.policy = self.policy.to(self.device)
-        self._convert_train_freq()
+        self.policy_kwargs["ef_horizon"] = self.ef_horizon
+        super()._setup_model()
+        self.exploration_schedule = get_step_schedule(self.exploration_std)
         self._create_aliases()
 
     def _create_aliases(self) -> None:
@@ -201,61 +176,54 @@ class DrQv2EF(EFHostMixin, OffPolicyAlgorithm):
         self.critic_target = self.policy.critic_target
 
     def train(self, gradient_steps: int, batch_size: int = 256) -> None:
-        """DrQ-v2's update, plus the EF loss on the same encoder output:
-        augment -> encode -> critic (+ beta * EF) step on encoder, critic, EF -> actor step -> critic target."""
+        """``gradient_steps`` DrQ-v2(-EF) updates (:meth:`_update`), then their mean losses are logged."""
         self.policy.set_training_mode(True)
         self._update_learning_rate([self.actor.optimizer, self.critic.optimizer])
-        std = self.exploration_schedule(self.num_timesteps)
-        critic_losses, actor_losses, ef_losses, q_values = [], [], [], []
-
+        updates = []
         for _ in range(gradient_steps):
             self._n_updates += 1
-            batch = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
-            observations, next_observations, window = self._augment(batch)
+            updates.append(self._update(self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)))  # type: ignore[union-attr]
+        self._record_updates(updates)
+        self.logger.record("train/exploration_std", self.exploration_schedule(self.num_timesteps))
 
-            features = self.policy.encoder(observations)
-            with th.no_grad():
-                next_features = self.policy.encoder(next_observations)
+    def _update(self, batch: SequenceReplayBufferSamples) -> dict[str, th.Tensor]:
+        """One gradient update, EF's loss added to the critic's on the same encoder output: augment -> encode ->
+        critic (+ beta * EF) step on encoder, critic, EF -> actor step -> critic target. Returns the (detached)
+        scalars to log, without a device sync."""
+        std = self.exploration_schedule(self.num_timesteps)
+        observations, next_observations, window = self._augment(batch)
+        features = self.policy.encoder(observations)
+        with th.no_grad():
+            next_features = self.policy.encoder(next_observations)
 
-            critic_loss, q_mean = self._critic_loss(features, batch, next_features, std)
-            loss = critic_loss
-            if window is not None:
-                ef_loss = self._ef_loss(features, batch.future_actions, window)
-                loss = loss + self.beta * ef_loss
-                ef_losses.append(ef_loss.item())
-            self.critic.optimizer.zero_grad()
-            loss.backward()
-            self.critic.optimizer.step()
+        critic_loss, q_mean = self._critic_loss(features, batch, next_features, std)
+        logs = {"critic_loss": critic_loss.detach(), "q_values": q_mean}
+        self._check_finite(critic_loss=critic_loss)
+        loss = critic_loss
+        ef_loss = self._ef_loss(features, batch.future_actions, window)
+        if ef_loss is not None:
+            loss = loss + self.beta * ef_loss
+            logs["ef_loss"] = ef_loss.detach()
+            self._check_finite(ef_loss=ef_loss)
+        self.critic.optimizer.zero_grad()
+        loss.backward()
+        self.critic.optimizer.step()
 
-            actor_loss = self._actor_loss(features.detach(), std)
-            self.actor.optimizer.zero_grad()
-            actor_loss.backward()
-            self.actor.optimizer.step()
+        actor_loss = self._actor_loss(features.detach(), std)
+        self._check_finite(actor_loss=actor_loss)
+        self.actor.optimizer.zero_grad()
+        actor_loss.backward()
+        self.actor.optimizer.step()
 
-            polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
-            critic_losses.append(critic_loss.item())
-            actor_losses.append(actor_loss.item())
-            q_values.append(q_mean)
-
-        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
-        self.logger.record("train/critic_loss", np.mean(critic_losses))
-        self.logger.record("train/actor_loss", np.mean(actor_losses))
-        self.logger.record("train/q_values", np.mean(q_values))
-        self.logger.record("train/exploration_std", std)
-        if ef_losses:
-            self.logger.record("train/ef_loss", np.mean(ef_losses))
+        polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
+        logs["actor_loss"] = actor_loss.detach()
+        return logs
 
     def _augment(self, batch: SequenceReplayBufferSamples) -> tuple[th.Tensor, th.Tensor, EFWindow | None]:
-        """Random-shift the observations and next observations; with EF, draw the rollout length k and shift the
-        frame k steps ahead together with the observation it is predicted from."""
+        """Random-shift the next observations, and the observations with EF's window (see ``_ef_window``)."""
         (next_observations,) = random_shift(batch.next_observations, pad=SHIFT_PAD)
-        if self.ef is None:
-            (observations,) = random_shift(batch.observations, pad=SHIFT_PAD)
-            return observations, next_observations, None
-        steps = self.ef.draw_steps(batch.future_mask)
-        rows = th.arange(steps.shape[0], device=steps.device)
-        observations, target = random_shift(batch.observations, batch.future_frames[rows, steps - 1], pad=SHIFT_PAD)
-        return observations, next_observations, EFWindow(steps, target, batch.future_mask[rows, steps - 1])
+        observations, window = self._ef_window(batch, pad=SHIFT_PAD)
+        return observations, next_observations, window
 
     def _noisy_actions(self, features: th.Tensor, std: float) -> th.Tensor:
         """Actor mean plus clipped Gaussian noise, clamped to the action bounds with a straight-through gradient
@@ -268,8 +236,8 @@ class DrQv2EF(EFHostMixin, OffPolicyAlgorithm):
 
     def _critic_loss(
         self, features: th.Tensor, batch: SequenceReplayBufferSamples, next_features: th.Tensor, std: float
-    ) -> tuple[th.Tensor, float]:
-        """Clipped double-Q n-step TD loss against the critic target; returns the loss and the mean Q value."""
+    ) -> tuple[th.Tensor, th.Tensor]:
+        """Clipped double-Q n-step TD loss against the critic target; returns the loss and the (detached) mean Q."""
         with th.no_grad():
             next_actions = self._noisy_actions(next_features, std)
             next_q = th.cat(self.critic_target(next_features, next_actions), dim=1).min(dim=1, keepdim=True).values
@@ -277,12 +245,7 @@ class DrQv2EF(EFHostMixin, OffPolicyAlgorithm):
         current_q = self.critic(features, batch.actions)
         loss = sum(F.mse_loss(q, target_q) for q in current_q)
         assert isinstance(loss, th.Tensor)
-        return loss, th.cat(current_q, dim=1).mean().item()
-
-    def _ef_loss(self, features: th.Tensor, future_actions: th.Tensor, window: EFWindow) -> th.Tensor:
-        """Ego-Foresight loss: roll the agent features k actions ahead and reconstruct frame t+k."""
-        assert self.ef is not None
-        return self.ef.loss(features, future_actions, window.steps, window.target, window.valid)
+        return loss, th.cat(current_q, dim=1).mean().detach()
 
     def _actor_loss(self, features: th.Tensor, std: float) -> th.Tensor:
         """Deterministic policy gradient through the minimum of the Q heads, on detached features. The critic's
@@ -315,58 +278,12 @@ class DrQv2(DrQv2EF):
     encoder output (32 * 35 * 35 = 39200 features at 84x84) and no motor babbling.
 
     Same arguments as :class:`DrQv2EF` minus the EF ones (``beta``, ``ef_horizon``, ``babbling_steps``,
-    ``babbling_mode``); ``policy_kwargs["features_dim"]`` defaults to ``None`` (no projection).
+    ``babbling_mode``, ``babbling_in_eval``); ``policy_kwargs["features_dim"]`` defaults to ``None`` (no projection).
     """
 
-    uses_ef: ClassVar[bool] = False
+    def __init__(self, policy: str | type[DrQv2Policy], env: GymEnv | str, **kwargs: Any):
+        kwargs = plain_variant_kwargs(kwargs, "DrQv2", "DrQv2EF")
+        kwargs["policy_kwargs"] = {"features_dim": None, **(kwargs.get("policy_kwargs") or {})}
+        super().__init__(policy, env, **kwargs)
 
-    def __init__(
-        self,
-        policy: str | type[DrQv2Policy],
-        env: GymEnv | str,
-        learning_rate: float | Schedule = 1e-4,
-        buffer_size: int = 1_000_000,
-        learning_starts: int = 2000,
-        batch_size: int = 256,
-        tau: float = 0.01,
-        gamma: float = 0.99,
-        train_freq: int | tuple[int, str] = 2,
-        gradient_steps: int = 1,
-        n_steps: int = 3,
-        exploration_std: float | str | StepSchedule = "linear(1.0,0.1,500000)",
-        target_noise_clip: float = 0.3,
-        replay_buffer_class: type[ReplayBuffer] | None = None,
-        replay_buffer_kwargs: dict[str, Any] | None = None,
-        stats_window_size: int = 100,
-        tensorboard_log: str | None = None,
-        policy_kwargs: dict[str, Any] | None = None,
-        verbose: int = 0,
-        seed: int | None = None,
-        device: th.device | str = "auto",
-        _init_setup_model: bool = True,
-    ):
-        super().__init__(
-            policy,
-            env,
-            learning_rate=learning_rate,
-            buffer_size=buffer_size,
-            learning_starts=learning_starts,
-            batch_size=batch_size,
-            tau=tau,
-            gamma=gamma,
-            train_freq=train_freq,
-            gradient_steps=gradient_steps,
-            n_steps=n_steps,
-            exploration_std=exploration_std,
-            target_noise_clip=target_noise_clip,
-            babbling_steps=0,
-            replay_buffer_class=replay_buffer_class,
-            replay_buffer_kwargs=replay_buffer_kwargs,
-            stats_window_size=stats_window_size,
-            tensorboard_log=tensorboard_log,
-            policy_kwargs={"features_dim": None, **(policy_kwargs or {})},
-            verbose=verbose,
-            seed=seed,
-            device=device,
-            _init_setup_model=_init_setup_model,
-        )
+    __init__.__signature__ = plain_variant_signature(DrQv2EF.__init__)  # type: ignore[attr-defined]

@@ -12,8 +12,9 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_
 from stable_baselines3.common.type_aliases import Schedule
 from torch import nn
 
-from sb3_ef.common.ef_host import FRAME_CHANNELS, check_stacked_frames
+from sb3_ef.common.env_checks import FRAME_CHANNELS, check_stacked_frames
 from sb3_ef.ef import EgoForesight
+from sb3_ef.ef.host import build_ef
 
 # Conv stack of DrQ-v2: (kernel, stride) per layer, 32 filters each.
 _CONV_LAYERS = ((3, 2), (3, 1), (3, 1), (3, 1))
@@ -183,26 +184,11 @@ class DrQv2Policy(BasePolicy):
         self.critic_target.train(False)
         self.critic_target.requires_grad_(False)
 
-        self.ef: EgoForesight | None = None
-        if self.ef_horizon is not None:
-            if repr_dim <= self.agent_dim:
-                raise ValueError(
-                    f"Ego-Foresight needs features_dim > agent_dim (scene features must remain), "
-                    f"got features_dim={repr_dim}, agent_dim={self.agent_dim}"
-                )
-            self.ef = EgoForesight(
-                repr_dim,
-                action_dim,
-                frame_shape=self.frame_shape,
-                agent_dim=self.agent_dim,
-                horizon=self.ef_horizon,
-                **self.ef_kwargs,
-            )
-
+        self.ef: EgoForesight | None = build_ef(
+            repr_dim, action_dim, self.frame_shape, self.agent_dim, self.ef_horizon, self.ef_kwargs, self.channels_last
+        )
         if self.channels_last:
-            for module in (self.encoder, self.ef):
-                if module is not None:
-                    module.to(memory_format=th.channels_last)
+            self.encoder.to(memory_format=th.channels_last)
 
         representation_params = [*self.encoder.parameters(), *self.critic.parameters()]
         if self.ef is not None:

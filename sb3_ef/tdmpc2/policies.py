@@ -10,8 +10,9 @@ from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 
-from sb3_ef.common.ef_host import FRAME_CHANNELS, check_stacked_frames
+from sb3_ef.common.env_checks import FRAME_CHANNELS, check_stacked_frames
 from sb3_ef.ef import EgoForesight
+from sb3_ef.ef.host import build_ef
 from sb3_ef.tdmpc2.math import TwoHot
 from sb3_ef.tdmpc2.planner import MPPIPlanner
 from sb3_ef.tdmpc2.world_model import FRAME_SIZE, WorldModel
@@ -125,24 +126,15 @@ class TDMPC2Policy(BasePolicy):
             simnorm_dim=simnorm_dim,
             two_hot=TwoHot(num_bins, vmin, vmax),
         )
-        self.ef: EgoForesight | None = None
-        if ef_horizon is not None:
-            if agent_dim % simnorm_dim != 0:
-                raise ValueError(
-                    f"agent_dim must cover whole SimNorm groups: expected a multiple of {simnorm_dim}, got {agent_dim}"
-                )
-            self.ef = EgoForesight(
-                self.world_model.latent_dim,
-                action_dim,
-                frame_shape=self.frame_shape,
-                agent_dim=agent_dim,
-                horizon=ef_horizon,
-                **(ef_kwargs or {}),
+        if ef_horizon is not None and agent_dim % simnorm_dim != 0:
+            raise ValueError(
+                f"agent_dim must cover whole SimNorm groups: expected a multiple of {simnorm_dim}, got {agent_dim}"
             )
+        self.ef: EgoForesight | None = build_ef(
+            self.world_model.latent_dim, action_dim, self.frame_shape, agent_dim, ef_horizon, ef_kwargs, channels_last
+        )
         if channels_last:
-            for module in (self.world_model.encoder, self.ef):
-                if module is not None:
-                    module.to(memory_format=th.channels_last)  # type: ignore[call-overload]
+            self.world_model.encoder.to(memory_format=th.channels_last)  # type: ignore[call-overload]
         self.planner = MPPIPlanner(horizon=horizon, gamma=gamma, **(planner_kwargs or {}))
         self.register_buffer("q_scale", th.ones(()))
         self._plan_mean: th.Tensor | None = None

@@ -14,15 +14,15 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 
 from sb3_ef.common.augmentation import random_shift
-from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
-from sb3_ef.common.ef_host import (
-    FRAME_CHANNELS,
+from sb3_ef.common.buffers import SequenceReplayBufferSamples
+from sb3_ef.common.env_checks import FRAME_CHANNELS, check_box_actions, episode_steps
+from sb3_ef.common.exploration import OwnExplorationMixin
+from sb3_ef.ef.host import (
     EFHostMixin,
-    check_box_actions,
-    check_ef_arguments,
+    EFWindow,
     check_horizon_fits_episodes,
-    check_sequence_buffer,
-    episode_steps,
+    plain_variant_kwargs,
+    plain_variant_signature,
 )
 from sb3_ef.tdmpc2.math import discount_from_episode_length
 from sb3_ef.tdmpc2.policies import TDMPC2Policy, check_pixel_space
@@ -41,12 +41,10 @@ class Sequence(NamedTuple):
     actions: th.Tensor  # (H, B, A)
     rewards: th.Tensor  # (H, B)
     valid: th.Tensor  # (H, B) float: step t+i was taken inside the episode
-    ef_steps: th.Tensor | None  # (B,) EF rollout lengths k
-    ef_target: th.Tensor | None  # (B, 3, h, w) frame t+k, shifted with ``first``
-    ef_valid: th.Tensor | None  # (B,) whether frame t+k exists
+    ef_window: EFWindow | None  # EF's rollout lengths k and frames t+k (shifted with ``first``); None without EF
 
 
-class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
+class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     """TDMPC2-EF (Ego-Foresight on TD-MPC2): the world model is trained by ``L_TDMPC + beta * L_ef``.
 
     TD-MPC2 learns an implicit world model (SimNorm latent, latent dynamics, two-hot reward and Q-ensemble heads)
@@ -78,6 +76,10 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
     :param ef_horizon: Ego-Foresight prediction horizon H (the rollout length k is drawn in [1, H]).
     :param babbling_steps: steps of motor babbling at the start (0: none).
     :param babbling_mode: ``"sign"`` (random +-1) or ``"clamped_uniform"``.
+    :param babbling_in_eval: ``predict`` also babbles while ``num_timesteps < babbling_steps`` (the EF authors'
+        Meta-World evaluation protocol).
+    :param check_finite_losses: raise a ``ValueError`` naming the loss when one is NaN or infinite, before the
+        optimiser step (one device sync per loss: for debugging).
     :param replay_buffer_class: a :class:`SequenceReplayBuffer` (sub)class; ``None`` picks it.
     :param replay_buffer_kwargs: extra buffer arguments (``n_steps`` and the window horizon are filled in).
     :param stats_window_size: episodes averaged for the rollout logs.
@@ -114,6 +116,8 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
         ef_horizon: int = 10,
         babbling_steps: int = 1250,
         babbling_mode: str = "sign",
+        babbling_in_eval: bool = False,
+        check_finite_losses: bool = False,
         replay_buffer_class: type[ReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
         stats_window_size: int = 100,
@@ -124,9 +128,7 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ):
-        _check_arguments(horizon, replay_buffer_class, policy_kwargs)
-        if self.uses_ef:
-            check_ef_arguments(beta, ef_horizon, babbling_steps, plain_variant="TDMPC2")
+        _check_arguments(horizon, policy_kwargs)
         if env is not None:
             env = maybe_make_env(env, verbose)
             check_pixel_space(env.observation_space)
@@ -143,7 +145,7 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
             train_freq=1,
             gradient_steps=-1,
             replay_buffer_class=replay_buffer_class,
-            replay_buffer_kwargs=replay_buffer_kwargs,
+            replay_buffer_kwargs=dict(replay_buffer_kwargs or {}),
             policy_kwargs=dict(policy_kwargs or {}),
             stats_window_size=stats_window_size,
             tensorboard_log=tensorboard_log,
@@ -161,44 +163,19 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
         self.entropy_coef = entropy_coef
         self.rho = rho
         self.max_grad_norm = max_grad_norm
-        self.beta = beta if self.uses_ef else None
-        self.ef_horizon = ef_horizon if self.uses_ef else None
-        self.babbling_steps = babbling_steps
-        self.babbling_mode = babbling_mode
+        self._init_ef(beta, ef_horizon, babbling_steps, babbling_mode, babbling_in_eval, check_finite_losses, "TDMPC2")
         self._rollout_plan: th.Tensor | None = None
-        self._ef_generator: th.Generator | None = None
 
         if _init_setup_model:
             self._setup_model()
 
     def _setup_model(self) -> None:
-        """Build the sequence replay buffer (window ``max(horizon, ef_horizon)``) and the policy; the planner's
-        horizon and discount and EF's horizon are passed to the policy from the algorithm's arguments."""
+        """SB3's setup with a sequence replay buffer (window ``max(horizon, ef_horizon)``); the planner's horizon
+        and discount and EF's horizon are passed to the policy from the algorithm's arguments."""
         self._check_episode_length()
-        self._setup_lr_schedule()
-        self.set_random_seed(self.seed)
-        if self.replay_buffer_class is None:
-            self.replay_buffer_class = SequenceReplayBuffer
-        if self.replay_buffer is None:
-            buffer_kwargs = {**self.replay_buffer_kwargs, "n_steps": 1, "horizon": self.window}
-            self.replay_buffer = self.replay_buffer_class(
-                self.buffer_size,
-                self.observation_space,
-                self.action_space,
-                device=self.device,
-                n_envs=self.n_envs,
-                optimize_memory_usage=self.optimize_memory_usage,
-                **buffer_kwargs,
-            )
+        self._use_sequence_buffer("TD-MPC2 trains on consecutive steps", horizon=self.window, n_steps=1)
         self.policy_kwargs.update(horizon=self.horizon, gamma=self.gamma, ef_horizon=self.ef_horizon)
-        self.policy = self.policy_class(
-            self.observation_space, self.action_space, self.lr_schedule, **self.policy_kwargs
-        )
-        self.policy = self.policy.to(self.device)
-        self._convert_train_freq()
-        # EF's rollout lengths come from their own generator, so that EF leaves the host's random draws unchanged.
-        self._ef_generator = th.Generator(device=self.device)
-        self._ef_generator.manual_seed(int(np.random.randint(2**31)) if self.seed is None else self.seed)
+        super()._setup_model()
 
     def _check_episode_length(self) -> None:
         """Derive ``gamma`` from the episode length when it is ``None``, and check that EF's window fits in an
@@ -228,47 +205,46 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
         EF), policy-prior step on detached latents, then the target Q-ensemble."""
         self.policy.set_training_mode(True)
         self._update_learning_rates()
-        logs: dict[str, list[float]] = {}
+        updates = []
         for _ in range(gradient_steps):
             self._n_updates += 1
             batch = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
-            for key, value in self._update(batch).items():
-                logs.setdefault(key, []).append(value)
-        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
-        for key, values in logs.items():
-            self.logger.record(f"train/{key}", float(np.mean(values)))
+            updates.append(self._update(batch))
+        self._record_updates(updates)
 
-    def _update(self, batch: SequenceReplayBufferSamples) -> dict[str, float]:
-        """One gradient update from one batch; returns the scalars to log."""
+    def _update(self, batch: SequenceReplayBufferSamples) -> dict[str, th.Tensor]:
+        """One gradient update from one batch; returns the (detached) scalars to log, without a device sync."""
         losses, latents, valid = self.losses(batch)
+        self._check_finite(**losses)
         loss = (
             self.consistency_coef * losses["consistency_loss"]
             + self.reward_coef * losses["reward_loss"]
             + self.value_coef * losses["value_loss"]
         )
-        if "ef_loss" in losses:
+        if self.ef is not None:
             loss = loss + self.beta * losses["ef_loss"]
         self.policy.optimizer.zero_grad()
         loss.backward()
         # Clipped per parameter group (encoder, heads, EF): EF's pixel-summed loss has gradient norms in the
         # thousands, which under one global clip would shrink the TD-MPC2 heads' updates by as much.
         grad_norms = {
-            f"{group['name']}_grad_norm": th.nn.utils.clip_grad_norm_(group["params"], self.max_grad_norm).item()
+            f"{group['name']}_grad_norm": th.nn.utils.clip_grad_norm_(group["params"], self.max_grad_norm)
             for group in self.policy.optimizer.param_groups
         }
         self.policy.optimizer.step()
 
         pi_loss = self._policy_loss(latents.detach(), valid)
+        self._check_finite(pi_loss=pi_loss)
         self.policy.pi_optimizer.zero_grad()
         pi_loss.backward()
         th.nn.utils.clip_grad_norm_(self.world_model.pi_head.parameters(), self.max_grad_norm)
         self.policy.pi_optimizer.step()
         self.world_model.soft_update_target_q(self.tau)
 
-        logs = {key: value.item() for key, value in losses.items()}
-        logs.update(total_loss=loss.item(), pi_loss=pi_loss.item())
+        logs = {key: value.detach() for key, value in losses.items()}
+        logs.update(total_loss=loss.detach(), pi_loss=pi_loss.detach())
         logs.update(grad_norms)
-        logs["q_scale"] = self.policy.q_scale.item()
+        logs["q_scale"] = self.policy.q_scale.clone()
         return logs
 
     def losses(self, batch: SequenceReplayBufferSamples) -> tuple[dict[str, th.Tensor], th.Tensor, th.Tensor]:
@@ -299,11 +275,9 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
             "reward_loss": (weights * _masked_mean(reward_ce, sequence.valid)).sum() / horizon,
             "value_loss": (weights * _masked_mean(value_ce, sequence.valid)).sum() / horizon,
         }
-        if self.ef is not None:
-            assert sequence.ef_steps is not None and sequence.ef_target is not None
-            losses["ef_loss"] = self.ef.loss(
-                first_latent, batch.future_actions, sequence.ef_steps, sequence.ef_target, sequence.ef_valid
-            )
+        ef_loss = self._ef_loss(first_latent, batch.future_actions, sequence.ef_window)
+        if ef_loss is not None:
+            losses["ef_loss"] = ef_loss
         first_valid = th.ones_like(sequence.valid[:1])
         return losses, rollout, th.cat([first_valid, sequence.valid])
 
@@ -320,23 +294,14 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
         following = th.stack([frames[:, t : t + stack].flatten(1, 2) for t in range(1, self.horizon + 1)])
         (following,) = random_shift(following.flatten(0, 1), pad=SHIFT_PAD)
         valid = batch.future_mask[:, : self.horizon].float().cumprod(dim=1).T
-        ef_steps = ef_target = ef_valid = None
-        if self.ef is None:
-            (first,) = random_shift(observations, pad=SHIFT_PAD)
-        else:
-            ef_steps = self.ef.draw_steps(batch.future_mask, generator=self._ef_generator)
-            rows = th.arange(size, device=observations.device)
-            first, ef_target = random_shift(observations, batch.future_frames[rows, ef_steps - 1], pad=SHIFT_PAD)
-            ef_valid = batch.future_mask[rows, ef_steps - 1]
+        first, ef_window = self._ef_window(batch, pad=SHIFT_PAD)
         return Sequence(
             first=first,
             following=following.unflatten(0, (self.horizon, size)),
             actions=batch.future_actions[:, : self.horizon].transpose(0, 1),
             rewards=batch.future_rewards[:, : self.horizon].T,
             valid=valid,
-            ef_steps=ef_steps,
-            ef_target=ef_target,
-            ef_valid=ef_valid,
+            ef_window=ef_window,
         )
 
     def _policy_loss(self, latents: th.Tensor, valid: th.Tensor) -> th.Tensor:
@@ -396,7 +361,7 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
         return super()._setup_learn(total_timesteps, callback, *args, **kwargs)
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_rollout_plan", "_ef_generator"]
+        return [*super()._excluded_save_params(), "_rollout_plan"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         return ["policy", "policy.optimizer", "policy.pi_optimizer"], []
@@ -405,65 +370,14 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
 class TDMPC2(TDMPC2EF):
     """TD-MPC2 (Hansen et al., 2024) for pixels: :class:`TDMPC2EF` without Ego-Foresight and motor babbling.
 
-    Same arguments as :class:`TDMPC2EF` minus ``beta``, ``ef_horizon``, ``babbling_steps`` and ``babbling_mode``.
+    Same arguments as :class:`TDMPC2EF` minus ``beta``, ``ef_horizon``, ``babbling_steps``, ``babbling_mode`` and
+    ``babbling_in_eval``.
     """
 
-    uses_ef: ClassVar[bool] = False
+    def __init__(self, policy: str | type[TDMPC2Policy], env: GymEnv | str, **kwargs: Any):
+        super().__init__(policy, env, **plain_variant_kwargs(kwargs, "TDMPC2", "TDMPC2EF"))
 
-    def __init__(
-        self,
-        policy: str | type[TDMPC2Policy],
-        env: GymEnv | str,
-        learning_rate: float | Schedule = 3e-4,
-        buffer_size: int = 1_000_000,
-        learning_starts: int = 2500,
-        batch_size: int = 256,
-        tau: float = 0.01,
-        gamma: float | None = None,
-        horizon: int = 3,
-        consistency_coef: float = 20.0,
-        reward_coef: float = 0.1,
-        value_coef: float = 0.1,
-        entropy_coef: float = 1e-4,
-        rho: float = 0.5,
-        max_grad_norm: float = 20.0,
-        replay_buffer_class: type[ReplayBuffer] | None = None,
-        replay_buffer_kwargs: dict[str, Any] | None = None,
-        stats_window_size: int = 100,
-        tensorboard_log: str | None = None,
-        policy_kwargs: dict[str, Any] | None = None,
-        verbose: int = 0,
-        seed: int | None = None,
-        device: th.device | str = "auto",
-        _init_setup_model: bool = True,
-    ):
-        super().__init__(
-            policy,
-            env,
-            learning_rate=learning_rate,
-            buffer_size=buffer_size,
-            learning_starts=learning_starts,
-            batch_size=batch_size,
-            tau=tau,
-            gamma=gamma,
-            horizon=horizon,
-            consistency_coef=consistency_coef,
-            reward_coef=reward_coef,
-            value_coef=value_coef,
-            entropy_coef=entropy_coef,
-            rho=rho,
-            max_grad_norm=max_grad_norm,
-            babbling_steps=0,
-            replay_buffer_class=replay_buffer_class,
-            replay_buffer_kwargs=replay_buffer_kwargs,
-            stats_window_size=stats_window_size,
-            tensorboard_log=tensorboard_log,
-            policy_kwargs=policy_kwargs,
-            verbose=verbose,
-            seed=seed,
-            device=device,
-            _init_setup_model=_init_setup_model,
-        )
+    __init__.__signature__ = plain_variant_signature(TDMPC2EF.__init__)  # type: ignore[attr-defined]
 
 
 def _masked_mean(values: th.Tensor, valid: th.Tensor) -> th.Tensor:
@@ -471,12 +385,9 @@ def _masked_mean(values: th.Tensor, valid: th.Tensor) -> th.Tensor:
     return (values * valid).sum(-1) / valid.sum(-1).clamp(min=1.0)
 
 
-def _check_arguments(
-    horizon: int, replay_buffer_class: type[ReplayBuffer] | None, policy_kwargs: dict[str, Any] | None
-) -> None:
+def _check_arguments(horizon: int, policy_kwargs: dict[str, Any] | None) -> None:
     if not isinstance(horizon, int) or horizon < 1:
         raise ValueError(f"horizon must be a positive integer, got {horizon!r}")
-    check_sequence_buffer(replay_buffer_class, "TD-MPC2 trains on consecutive steps")
     reserved = sorted(set(policy_kwargs or {}) & set(_ALGORITHM_POLICY_KWARGS))
     if reserved:
         raise ValueError(f"Pass {reserved} to the algorithm, not in policy_kwargs (they are set from its arguments)")

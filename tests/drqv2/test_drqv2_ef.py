@@ -184,7 +184,7 @@ def test_babbling_actions_are_signs_then_policy_actions():
     assert actions.shape == (40, 2)
     assert np.array_equal(np.abs(actions[:25]), np.ones_like(actions[:25]))
     assert np.all(np.abs(actions[25:]) < 1.0)
-    assert model.action_override is None
+    assert model.logger.name_to_value["rollout/babbling"] == 0.0  # babbling has ended
 
 
 def test_two_envs():

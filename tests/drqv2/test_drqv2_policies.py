@@ -3,7 +3,7 @@ import pytest
 import torch as th
 from gymnasium import spaces
 
-from sb3_ef.common.ef_host import check_stacked_frames
+from sb3_ef.common.env_checks import check_stacked_frames
 from sb3_ef.drqv2.policies import DrQv2Encoder, DrQv2Policy
 
 

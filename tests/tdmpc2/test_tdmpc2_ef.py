@@ -140,7 +140,7 @@ def test_babbling_comes_first_then_seed_actions_then_planning():
     assert np.all(np.abs(actions[:8]) == 1.0)
     assert not np.any(np.abs(actions[8:12]) == 1.0)
     assert not np.all(np.abs(actions[12:]) == 1.0)
-    assert model.action_override is None
+    assert model.logger.name_to_value["rollout/babbling"] == 0.0  # babbling has ended
 
 
 def test_save_load_gives_equal_predictions(tmp_path):

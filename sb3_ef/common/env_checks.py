@@ -1,0 +1,64 @@
+"""What the algorithms check about their env and replay buffer: stacked RGB frames, Box actions, a sequence buffer,
+and the episode length the env announces. Shared by the hosts, their policies, ``sb3_ef.ef`` and the analysis."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from gymnasium import spaces
+from gymnasium.wrappers import TimeLimit
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.vec_env import VecEnv
+
+from sb3_ef.common.buffers import SequenceReplayBuffer
+
+# Channels of one RGB frame in a stacked observation.
+FRAME_CHANNELS = 3
+
+
+def check_stacked_frames(observation_space: spaces.Space, algorithm: str) -> tuple[int, int, int]:
+    """Check for stacked uint8 RGB frames, channels-first, and return their ``(channels, height, width)``."""
+    if (
+        not isinstance(observation_space, spaces.Box)
+        or observation_space.dtype != np.uint8
+        or len(observation_space.shape) != 3
+        or observation_space.shape[0] % FRAME_CHANNELS != 0
+    ):
+        raise ValueError(
+            f"{algorithm} expects stacked RGB frames: a uint8 Box of shape (3 * frame_stack, height, width), "
+            f"got {observation_space}"
+        )
+    channels, height, width = observation_space.shape
+    return channels, height, width
+
+
+def check_box_actions(action_space: spaces.Space, algorithm: str) -> None:
+    if not isinstance(action_space, spaces.Box):
+        raise ValueError(f"{algorithm} needs a continuous (Box) action space, got {action_space}")
+
+
+def check_sequence_buffer(replay_buffer_class: type[ReplayBuffer] | None, why: str) -> None:
+    """``why`` says what the algorithm samples that only a :class:`SequenceReplayBuffer` provides."""
+    if replay_buffer_class is not None and not issubclass(replay_buffer_class, SequenceReplayBuffer):
+        raise ValueError(
+            f"{why}: replay_buffer_class must be a SequenceReplayBuffer (sub)class, got {replay_buffer_class.__name__}"
+        )
+
+
+def episode_steps(env: VecEnv) -> int | None:
+    """The episode length in agent steps when the env tells it: its spec, a TimeLimit wrapper, the attributes of
+    sb3-ef's pixel envs (``episode_length`` simulator steps at ``action_repeat``) or ``max_episode_steps``."""
+    spec = env.get_attr("spec", indices=[0])[0]
+    if spec is not None and spec.max_episode_steps is not None:
+        return int(spec.max_episode_steps)
+    if env.env_is_wrapped(TimeLimit, indices=[0])[0]:
+        return int(env.get_attr("_max_episode_steps", indices=[0])[0])
+    if env.has_attr("episode_length") and env.has_attr("action_repeat"):
+        episode_length, action_repeat = (
+            env.get_attr(name, indices=[0])[0] for name in ("episode_length", "action_repeat")
+        )
+        return math.ceil(episode_length / action_repeat)
+    if env.has_attr("max_episode_steps"):
+        return int(env.get_attr("max_episode_steps", indices=[0])[0])
+    return None
