@@ -20,6 +20,9 @@ _PUBLIC = {
     "DrQv2": "sb3_ef.drqv2",
     "TDMPC2EF": "sb3_ef.tdmpc2",
     "TDMPC2": "sb3_ef.tdmpc2",
+    "SACEF": "sb3_ef.sb3_hosts",
+    "TD3EF": "sb3_ef.sb3_hosts",
+    "TQCEF": "sb3_ef.sb3_hosts",
     "SequenceReplayBuffer": "sb3_ef.common.buffers",
     "make_env": "sb3_ef.envs",
 }
