@@ -15,6 +15,7 @@ import torch as th
 from sb3_contrib import TQC
 from stable_baselines3 import SAC, TD3
 from stable_baselines3.common.base_class import maybe_make_env
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.type_aliases import GymEnv
 
 from sb3_ef.common.buffers import SequenceReplayBufferSamples
@@ -63,7 +64,9 @@ class AuxiliaryEFMixin(EFHostMixin):
         _init_setup_model: bool = True,
         **kwargs: Any,
     ):
-        host = type(self).__mro__[type(self).__mro__.index(AuxiliaryEFMixin) + 2].__name__
+        host = next(
+            c for c in type(self).__mro__ if issubclass(c, OffPolicyAlgorithm) and not issubclass(c, EFHostMixin)
+        )
         if env is not None:
             env = maybe_make_env(env, kwargs.get("verbose", 0))
             check_stacked_frames(env.observation_space, type(self).__name__)
@@ -71,7 +74,9 @@ class AuxiliaryEFMixin(EFHostMixin):
         for name in ("policy_kwargs", "replay_buffer_kwargs"):
             kwargs[name] = dict(kwargs.get(name) or {})
         super().__init__(policy, env, _init_setup_model=False, **kwargs)  # type: ignore[call-arg]
-        self._init_ef(beta, ef_horizon, babbling_steps, babbling_mode, babbling_in_eval, check_finite_losses, host)
+        self._init_ef(
+            beta, ef_horizon, babbling_steps, babbling_mode, babbling_in_eval, check_finite_losses, host.__name__
+        )
         if shift_pad < 0:
             raise ValueError(f"shift_pad must be >= 0, got {shift_pad}")
         self.agent_dim = agent_dim
