@@ -2,5 +2,6 @@
 step on the critic's encoder after each update."""
 
 from sb3_ef.sb3_hosts.ef_hosts import SACEF, TD3EF, TQCEF, AuxiliaryEFMixin
+from sb3_ef.sb3_hosts.shifted_buffer import ShiftedSequenceReplayBuffer
 
-__all__ = ["SACEF", "TD3EF", "TQCEF", "AuxiliaryEFMixin"]
+__all__ = ["SACEF", "TD3EF", "TQCEF", "AuxiliaryEFMixin", "ShiftedSequenceReplayBuffer"]

@@ -21,6 +21,7 @@ from stable_baselines3.common.type_aliases import GymEnv
 from sb3_ef.common.buffers import SequenceReplayBufferSamples
 from sb3_ef.common.env_checks import check_box_actions, check_stacked_frames, episode_steps
 from sb3_ef.ef.host import EFHostMixin, build_ef, check_horizon_fits_episodes
+from sb3_ef.sb3_hosts.shifted_buffer import ShiftedSequenceReplayBuffer
 
 
 class AuxiliaryEFMixin(EFHostMixin):
@@ -33,7 +34,9 @@ class AuxiliaryEFMixin(EFHostMixin):
     :param ef_horizon: EF's prediction horizon H (the rollout length k is drawn in [1, H]).
     :param agent_dim: size of the agent features, the first ``agent_dim`` features of the critic's encoder.
     :param ef_kwargs: extra arguments of :class:`sb3_ef.ef.EgoForesight` (decoder / rollout options).
-    :param shift_pad: random shift (pixels) applied to the context and frame t+k of EF's step; 0 for none.
+    :param shift_pad: random shift (pixels) applied to the context and frame t+k of EF's step; 0 for none. With a
+        :class:`ShiftedSequenceReplayBuffer` (``replay_buffer_class``), which shifts every batch of the host and of
+        EF itself, EF's step adds no shift of its own.
     :param ef_learning_rate: learning rate of EF's optimiser; ``None`` uses the host's ``learning_rate`` (schedule).
     :param babbling_steps: steps of motor babbling at the start (0: none).
     :param babbling_mode: ``"sign"`` (random +-1) or ``"clamped_uniform"``.
@@ -135,7 +138,8 @@ class AuxiliaryEFMixin(EFHostMixin):
 
     def _update_ef(self, batch: SequenceReplayBufferSamples) -> dict[str, th.Tensor]:
         """One EF step on the critic's encoder and the EF module; returns the (detached) loss, without a sync."""
-        observations, window = self._ef_window(batch, pad=self.shift_pad)
+        pad = 0 if isinstance(self.replay_buffer, ShiftedSequenceReplayBuffer) else self.shift_pad
+        observations, window = self._ef_window(batch, pad=pad)
         ef_loss = self._ef_loss(self.encode(observations), batch.future_actions, window)
         assert ef_loss is not None and self.beta is not None
         self._check_finite(ef_loss=ef_loss)

@@ -1,0 +1,39 @@
+"""A sequence replay buffer whose samples are random-shifted, for hosts whose ``train()`` samples the buffer itself."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from stable_baselines3.common.vec_env import VecNormalize
+
+from sb3_ef.common.augmentation import random_shift
+from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
+
+
+class ShiftedSequenceReplayBuffer(SequenceReplayBuffer):
+    """:class:`SequenceReplayBuffer` whose samples are augmented as in DrQ: each sample's observations at t and its
+    future frames share one random shift (so Ego-Foresight's targets move with their context), its next
+    observations get their own. Gives SB3's SAC / TD3 / TQC DrQ-style augmentation without changing their
+    ``train()``.
+
+    :param shift_pad: the largest shift in pixels; the other arguments are :class:`SequenceReplayBuffer`'s.
+    """
+
+    def __init__(self, *args: Any, shift_pad: int = 4, **kwargs: Any):
+        if shift_pad < 0:
+            raise ValueError(f"shift_pad must be >= 0, got {shift_pad}")
+        super().__init__(*args, **kwargs)
+        self.shift_pad = shift_pad
+
+    def sample(self, batch_size: int, env: VecNormalize | None = None) -> SequenceReplayBufferSamples:
+        batch = super().sample(batch_size, env)
+        horizon = batch.future_frames.shape[1]
+        observations, future_frames = random_shift(
+            batch.observations, batch.future_frames.flatten(1, 2), pad=self.shift_pad
+        )
+        (next_observations,) = random_shift(batch.next_observations, pad=self.shift_pad)
+        return batch._replace(
+            observations=observations,
+            next_observations=next_observations,
+            future_frames=future_frames.unflatten(1, (horizon, -1)),
+        )
