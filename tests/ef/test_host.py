@@ -204,3 +204,21 @@ def test_ef_window_draws_k_from_the_model_seed_and_shifts_with_the_global_genera
     assert th.equal(window.steps, other.steps) and not th.equal(first, second)
     rows = th.arange(8)
     assert th.equal(window.valid, batch.future_mask[rows, window.steps - 1])
+
+
+def test_one_update_returns_tensors_without_reading_them(monkeypatch):
+    tdmpc2 = TDMPC2EF(
+        "CnnPolicy", ToyAgentEnv(size=64, max_episode_steps=20), learning_starts=100, batch_size=4, buffer_size=100,
+        ef_horizon=3, babbling_steps=0, seed=0,
+        policy_kwargs={"num_channels": 4, "mlp_dim": 16, "num_q": 2, "agent_dim": 16,
+                       "planner_kwargs": {"iterations": 1, "num_samples": 8, "num_elites": 2, "num_pi_trajs": 1},
+                       "ef_kwargs": {"rollout_hidden_dims": (8,), "decoder_channels": 4}},
+    )  # fmt: skip
+    for model in (make_drqv2(learning_starts=100), tdmpc2):
+        model.learn(20)
+        batch = model.replay_buffer.sample(4)
+        model.policy.set_training_mode(True)
+        with monkeypatch.context() as patch:  # the update can be traced (torch.compile): no host sync by .item()
+            patch.setattr(th.Tensor, "item", lambda self: pytest.fail("_update called .item()"))
+            logs = model._update(batch)
+        assert "ef_loss" in logs and all(isinstance(v, th.Tensor) and v.dim() == 0 for v in logs.values())
