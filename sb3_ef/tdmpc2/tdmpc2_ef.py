@@ -24,7 +24,7 @@ from sb3_ef.common.ef_host import (
     check_sequence_buffer,
     episode_steps,
 )
-from sb3_ef.tdmpc2.math import discount_from_episode_length
+from sb3_ef.tdmpc2.math import discount_from_episode_length, seed_steps_from_episode_length
 from sb3_ef.tdmpc2.policies import TDMPC2Policy, check_pixel_space
 from sb3_ef.tdmpc2.world_model import WorldModel
 
@@ -54,7 +54,8 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
     prior on detached latents, and acts by MPPI planning with that model. Ego-Foresight reads the encoder latent
     of the first observation (agent part: the first ``agent_dim`` features), rolls the agent part forward with the
     next ``k`` actions and decodes frame ``t+k``; motor babbling (random +-1 actions) fills the first
-    ``babbling_steps`` steps. One gradient update per environment step after ``learning_starts`` seed steps.
+    ``babbling_steps`` steps. After ``learning_starts`` seed steps, as many updates as seed steps at once (TD-MPC2's
+    pretraining on the seed data), then one gradient update per environment step.
 
     Papers: Nunes et al., "Ego-Foresight" (ICLR 2026); Hansen et al., "TD-MPC2" (ICLR 2024).
 
@@ -62,7 +63,8 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
     :param env: the environment (uint8 stacked 64x64 RGB frames, channels-first; Box actions) or its id.
     :param learning_rate: Adam learning rate (the encoder uses ``policy_kwargs["encoder_lr_scale"]`` times it).
     :param buffer_size: replay buffer capacity (frames).
-    :param learning_starts: seed steps of uniform random actions before the first update.
+    :param learning_starts: seed steps of uniform random actions before the first updates; ``None`` derives them from
+        the episode length (TD-MPC2's ``max(1000, 5 x episode length)``, 2500 on DMC).
     :param batch_size: minibatch size.
     :param tau: Polyak coefficient of the target Q-ensemble and of the running Q scale.
     :param gamma: discount; ``None`` derives it from the episode length (TD-MPC2's heuristic, 0.99 on DMC).
@@ -72,8 +74,8 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
     :param value_coef: weight of the value cross-entropy.
     :param entropy_coef: weight of the policy prior's (action-dim scaled) entropy bonus.
     :param rho: per-step decay of the loss weights over the horizon.
-    :param max_grad_norm: gradient clipping, per parameter group (encoder, dynamics/reward/Q heads, EF) and of the
-        policy prior.
+    :param max_grad_norm: gradient clipping: one global norm over the world model for the host's loss (as TD-MPC2),
+        one over the encoder and EF's module for EF's loss, one for the policy prior.
     :param beta: weight of the Ego-Foresight loss (to switch EF off, use :class:`TDMPC2`).
     :param ef_horizon: Ego-Foresight prediction horizon H (the rollout length k is drawn in [1, H]).
     :param babbling_steps: steps of motor babbling at the start (0: none).
@@ -99,7 +101,7 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
         env: GymEnv | str,
         learning_rate: float | Schedule = 3e-4,
         buffer_size: int = 1_000_000,
-        learning_starts: int = 2500,
+        learning_starts: int | None = None,
         batch_size: int = 256,
         tau: float = 0.01,
         gamma: float | None = None,
@@ -175,6 +177,7 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
         """Build the sequence replay buffer (window ``max(horizon, ef_horizon)``) and the policy; the planner's
         horizon and discount and EF's horizon are passed to the policy from the algorithm's arguments."""
         self._check_episode_length()
+        self._derive_seed_steps()
         self._setup_lr_schedule()
         self.set_random_seed(self.seed)
         if self.replay_buffer_class is None:
@@ -213,6 +216,18 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
             self.gamma = discount_from_episode_length(steps)
         check_horizon_fits_episodes(self.ef_horizon, steps)
 
+    def _derive_seed_steps(self) -> None:
+        """``learning_starts=None``: TD-MPC2's seed steps from the episode length (a saved model keeps its own)."""
+        if self.learning_starts is not None:
+            return
+        steps = None if self.env is None else episode_steps(self.env)
+        if steps is None:
+            raise ValueError(
+                "learning_starts=None derives the seed steps from the episode length, which this env does not expose "
+                "(no spec.max_episode_steps, TimeLimit, episode_length or max_episode_steps): pass learning_starts"
+            )
+        self.learning_starts = seed_steps_from_episode_length(steps)
+
     @property
     def window(self) -> int:
         """Steps of the replay window: the world-model horizon, or EF's when it is longer."""
@@ -229,7 +244,7 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
         self.policy.set_training_mode(True)
         self._update_learning_rates()
         logs: dict[str, list[float]] = {}
-        for _ in range(gradient_steps):
+        for _ in range(self._with_seed_burst(gradient_steps)):
             self._n_updates += 1
             batch = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
             for key, value in self._update(batch).items():
@@ -238,24 +253,23 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
         for key, values in logs.items():
             self.logger.record(f"train/{key}", float(np.mean(values)))
 
+    def _with_seed_burst(self, gradient_steps: int) -> int:
+        """TD-MPC2 pretrains on its seed data: the first round runs ``learning_starts`` updates (when that is more
+        than ``gradient_steps``), so that after ``T`` env steps ``T - 1`` updates have run, as in the reference."""
+        return max(gradient_steps, self.learning_starts) if self._n_updates == 0 else gradient_steps
+
     def _update(self, batch: SequenceReplayBufferSamples) -> dict[str, float]:
         """One gradient update from one batch; returns the scalars to log."""
         losses, latents, valid = self.losses(batch)
-        loss = (
+        host_loss = (
             self.consistency_coef * losses["consistency_loss"]
             + self.reward_coef * losses["reward_loss"]
             + self.value_coef * losses["value_loss"]
         )
-        if "ef_loss" in losses:
-            loss = loss + self.beta * losses["ef_loss"]
+        ef_loss = losses.get("ef_loss")
+        loss = host_loss if ef_loss is None else host_loss + self.beta * ef_loss
         self.policy.optimizer.zero_grad()
-        loss.backward()
-        # Clipped per parameter group (encoder, heads, EF): EF's pixel-summed loss has gradient norms in the
-        # thousands, which under one global clip would shrink the TD-MPC2 heads' updates by as much.
-        grad_norms = {
-            f"{group['name']}_grad_norm": th.nn.utils.clip_grad_norm_(group["params"], self.max_grad_norm).item()
-            for group in self.policy.optimizer.param_groups
-        }
+        grad_norms = self._world_model_gradients(host_loss, ef_loss)
         self.policy.optimizer.step()
 
         pi_loss = self._policy_loss(latents.detach(), valid)
@@ -270,6 +284,30 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
         logs.update(grad_norms)
         logs["q_scale"] = self.policy.q_scale.item()
         return logs
+
+    def _world_model_gradients(self, host_loss: th.Tensor, ef_loss: th.Tensor | None) -> dict[str, float]:
+        """Backpropagate the world-model losses and clip; returns the gradient norms before clipping.
+
+        The host's gradient gets TD-MPC2's one global clip over the world model (encoder, dynamics, reward, Q).
+        EF's gradient (``beta * ef_loss``, summed over pixels: norms in the thousands) is computed apart, clipped to
+        the same norm over the encoder and EF's module, and added: one shared clip would shrink the host's update by
+        EF's norm."""
+        groups = {group["name"]: group["params"] for group in self.policy.optimizer.param_groups}
+        host_params = [param for name, params in groups.items() if name != "ef" for param in params]
+        ef_params = [*groups["encoder"], *groups.get("ef", [])]
+        ef_grads = None
+        if ef_loss is not None:
+            ef_grads = th.autograd.grad(self.beta * ef_loss, ef_params, retain_graph=True, allow_unused=True)
+        host_loss.backward()
+        norms = {"grad_norm": th.nn.utils.clip_grad_norm_(host_params, self.max_grad_norm).item()}
+        if ef_grads is not None:
+            pairs = [(param, grad) for param, grad in zip(ef_params, ef_grads, strict=True) if grad is not None]
+            ef_norm = th.nn.utils.get_total_norm([grad for _, grad in pairs])
+            scale = (self.max_grad_norm / (ef_norm + 1e-6)).clamp(max=1.0)
+            for param, grad in pairs:
+                param.grad = grad * scale if param.grad is None else param.grad.add_(grad * scale)
+            norms["ef_grad_norm"] = ef_norm.item()
+        return norms
 
     def losses(self, batch: SequenceReplayBufferSamples) -> tuple[dict[str, th.Tensor], th.Tensor, th.Tensor]:
         """World-model losses of one batch: ``consistency_loss``, ``reward_loss``, ``value_loss`` (and ``ef_loss``
@@ -350,8 +388,7 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
         finally:
             model.q_heads.requires_grad_(True)
         self._update_q_scale(q_values[0].detach())
-        entropy = -sample.log_prob * model.action_dim
-        objective = _masked_mean(self.entropy_coef * entropy + q_values / self.policy.q_scale, valid)
+        objective = _masked_mean(self.entropy_coef * sample.scaled_entropy + q_values / self.policy.q_scale, valid)
         weights = self.rho ** th.arange(latents.shape[0], device=latents.device, dtype=th.float32)
         return -(weights * objective).mean()
 
@@ -416,7 +453,7 @@ class TDMPC2(TDMPC2EF):
         env: GymEnv | str,
         learning_rate: float | Schedule = 3e-4,
         buffer_size: int = 1_000_000,
-        learning_starts: int = 2500,
+        learning_starts: int | None = None,
         batch_size: int = 256,
         tau: float = 0.01,
         gamma: float | None = None,
