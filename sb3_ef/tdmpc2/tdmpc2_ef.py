@@ -76,6 +76,8 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
     :param rho: per-step decay of the loss weights over the horizon.
     :param max_grad_norm: gradient clipping: one global norm over the world model for the host's loss (as TD-MPC2),
         one over the encoder and EF's module for EF's loss, one for the policy prior.
+    :param seed_burst: when the seed steps end, run as many updates as seed steps at once (TD-MPC2); ``False``: one
+        update per step from the start (cheaper on CPU, not the reference's schedule).
     :param beta: weight of the Ego-Foresight loss (to switch EF off, use :class:`TDMPC2`).
     :param ef_horizon: Ego-Foresight prediction horizon H (the rollout length k is drawn in [1, H]).
     :param babbling_steps: steps of motor babbling at the start (0: none).
@@ -112,6 +114,7 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
         entropy_coef: float = 1e-4,
         rho: float = 0.5,
         max_grad_norm: float = 20.0,
+        seed_burst: bool = True,
         beta: float = 1.0,
         ef_horizon: int = 10,
         babbling_steps: int = 1250,
@@ -163,6 +166,7 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
         self.entropy_coef = entropy_coef
         self.rho = rho
         self.max_grad_norm = max_grad_norm
+        self.seed_burst = seed_burst
         self.beta = beta if self.uses_ef else None
         self.ef_horizon = ef_horizon if self.uses_ef else None
         self.babbling_steps = babbling_steps
@@ -256,7 +260,9 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
     def _with_seed_burst(self, gradient_steps: int) -> int:
         """TD-MPC2 pretrains on its seed data: the first round runs ``learning_starts`` updates (when that is more
         than ``gradient_steps``), so that after ``T`` env steps ``T - 1`` updates have run, as in the reference."""
-        return max(gradient_steps, self.learning_starts) if self._n_updates == 0 else gradient_steps
+        if self.seed_burst and self._n_updates == 0:
+            return max(gradient_steps, self.learning_starts)
+        return gradient_steps
 
     def _update(self, batch: SequenceReplayBufferSamples) -> dict[str, float]:
         """One gradient update from one batch; returns the scalars to log."""
@@ -464,6 +470,7 @@ class TDMPC2(TDMPC2EF):
         entropy_coef: float = 1e-4,
         rho: float = 0.5,
         max_grad_norm: float = 20.0,
+        seed_burst: bool = True,
         replay_buffer_class: type[ReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
         stats_window_size: int = 100,
@@ -490,6 +497,7 @@ class TDMPC2(TDMPC2EF):
             entropy_coef=entropy_coef,
             rho=rho,
             max_grad_norm=max_grad_norm,
+            seed_burst=seed_burst,
             babbling_steps=0,
             replay_buffer_class=replay_buffer_class,
             replay_buffer_kwargs=replay_buffer_kwargs,

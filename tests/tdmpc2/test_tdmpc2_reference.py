@@ -92,6 +92,12 @@ def test_seed_data_burst_then_one_update_per_step(algorithm):
     assert (model.num_timesteps, model._n_updates) == (15, 14)
 
 
+def test_without_the_burst_one_update_per_step_after_the_seed_steps():
+    model = make(learning_starts=10, seed_burst=False)
+    model.learn(15)
+    assert model._n_updates == 5
+
+
 # MPPI iterations.
 
 
