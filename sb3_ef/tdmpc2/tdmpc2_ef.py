@@ -212,12 +212,7 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
         episode (done here, not in ``__init__``, so that ``load`` checks the saved values)."""
         steps = None if self.env is None else episode_steps(self.env)
         if self.gamma is None:
-            if steps is None:
-                raise ValueError(
-                    "gamma=None derives the discount from the episode length, which this env does not expose "
-                    "(no spec.max_episode_steps, TimeLimit, episode_length or max_episode_steps): pass gamma"
-                )
-            self.gamma = discount_from_episode_length(steps)
+            self.gamma = discount_from_episode_length(_known_episode_steps(steps, "gamma"))
         check_horizon_fits_episodes(self.ef_horizon, steps)
 
     def _derive_seed_steps(self) -> None:
@@ -225,12 +220,7 @@ class TDMPC2EF(EFHostMixin, OffPolicyAlgorithm):
         if self.learning_starts is not None:
             return
         steps = None if self.env is None else episode_steps(self.env)
-        if steps is None:
-            raise ValueError(
-                "learning_starts=None derives the seed steps from the episode length, which this env does not expose "
-                "(no spec.max_episode_steps, TimeLimit, episode_length or max_episode_steps): pass learning_starts"
-            )
-        self.learning_starts = seed_steps_from_episode_length(steps)
+        self.learning_starts = seed_steps_from_episode_length(_known_episode_steps(steps, "learning_starts"))
 
     @property
     def window(self) -> int:
@@ -514,6 +504,16 @@ class TDMPC2(TDMPC2EF):
 def _masked_mean(values: th.Tensor, valid: th.Tensor) -> th.Tensor:
     """Mean over the batch (last axis) of the valid entries, per leading index: ``(T, B) -> (T,)``."""
     return (values * valid).sum(-1) / valid.sum(-1).clamp(min=1.0)
+
+
+def _known_episode_steps(steps: int | None, argument: str) -> int:
+    """The episode length from which ``argument=None`` is derived; raise naming ``argument`` when it is unknown."""
+    if steps is None:
+        raise ValueError(
+            f"{argument}=None derives its value from the episode length, which this env does not expose "
+            f"(no spec.max_episode_steps, TimeLimit, episode_length or max_episode_steps): pass {argument}"
+        )
+    return steps
 
 
 def _check_arguments(
