@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import torch as th
 from gymnasium import spaces
+from tdmpc2_tiny import TINY_POLICY, host_loss
 
 from sb3_ef.envs.toy import ToyAgentEnv
 from sb3_ef.tdmpc2 import TDMPC2, TDMPC2EF
@@ -19,16 +20,9 @@ from sb3_ef.tdmpc2.math import planning_iterations, seed_steps_from_episode_leng
 from sb3_ef.tdmpc2.planner import MPPIPlanner
 from sb3_ef.tdmpc2.policies import TDMPC2Policy
 
-LEARNING_RATE = lambda _: 3e-4  # noqa: E731
 
-TINY_POLICY = {
-    "num_channels": 4,
-    "mlp_dim": 32,
-    "num_q": 2,
-    "agent_dim": 16,
-    "planner_kwargs": {"iterations": 2, "num_samples": 16, "num_elites": 4, "num_pi_trajs": 2},
-    "ef_kwargs": {"rollout_hidden_dims": (32,), "decoder_channels": 8},
-}
+def learning_rate(_progress_remaining: float) -> float:
+    return 3e-4
 
 
 def make(algorithm=TDMPC2, episode_steps: int = 20, **kwargs):
@@ -108,10 +102,10 @@ def test_two_more_planning_iterations_for_large_action_spaces():
     policy_kwargs = {"num_channels": 4, "mlp_dim": 16, "num_q": 2}
     for action_dim, iterations in ((6, 6), (21, 8)):
         action_space = spaces.Box(-1, 1, (action_dim,), np.float32)
-        policy = TDMPC2Policy(observation_space, action_space, LEARNING_RATE, **policy_kwargs)
+        policy = TDMPC2Policy(observation_space, action_space, learning_rate, **policy_kwargs)
         assert policy.planner.iterations == iterations
     given = TDMPC2Policy(
-        observation_space, action_space, LEARNING_RATE, planner_kwargs={"iterations": 3}, **policy_kwargs
+        observation_space, action_space, learning_rate, planner_kwargs={"iterations": 3}, **policy_kwargs
     )
     assert given.planner.iterations == 3
 
@@ -274,14 +268,6 @@ def host_parameters(model) -> list[th.nn.Parameter]:
     return [param for module in modules for param in module.parameters()]
 
 
-def host_loss(model, losses):
-    return (
-        model.consistency_coef * losses["consistency_loss"]
-        + model.reward_coef * losses["reward_loss"]
-        + model.value_coef * losses["value_loss"]
-    )
-
-
 @pytest.mark.parametrize("algorithm", [TDMPC2, TDMPC2EF])
 def test_one_global_clip_over_the_world_model_for_the_host(algorithm):
     # Reference: clip_grad_norm_(world model, 20) on the host loss's gradient. With EF, its gradient is clipped on
@@ -313,8 +299,7 @@ def test_one_global_clip_over_the_world_model_for_the_host(algorithm):
         assert norms["ef_grad_norm"] > max_norm
         ef_gradients = [param.grad for param in model.ef.parameters()]
         encoder_ef = [
-            param.grad - expected
-            for param, expected in zip(parameters[:encoder], expected_host[:encoder], strict=True)
+            param.grad - expected for param, expected in zip(parameters[:encoder], expected_host[:encoder], strict=True)
         ]
         total = th.linalg.vector_norm(th.stack([th.linalg.vector_norm(g) for g in ef_gradients + encoder_ef]))
         assert total.item() == pytest.approx(max_norm, rel=1e-3)
