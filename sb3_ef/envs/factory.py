@@ -36,12 +36,16 @@ def make_env(
     :param fast_render: shadows, reflections and multisampling off: several times faster on CPU.
     :param seed: seed of the initial states (and of the Meta-World task variant).
     :param kwargs: suite options: ``episode_length`` (simulator steps; 1000 DMC, 500 Meta-World),
-        ``render_mode`` (``"rgb_array"``), ``resample_task`` (Meta-World).
+        ``render_mode`` (``"rgb_array"``), ``resample_task`` (Meta-World), ``repeat_discount`` (Meta-World: the
+        reward of an agent step is ``r1 + repeat_discount * r2``; 0.99 with ``gamma=authors_gamma()`` is the EF
+        authors' protocol, see :mod:`sb3_ef.envs.meta_world`).
     :return: a :class:`~sb3_ef.envs.pixel_env.PixelEnv`; ``env.agent_mask()`` gives the agent's pixels.
     """
     task = parse_env_name(name)
     if not isinstance(size, (int, np.integer)) or isinstance(size, bool) or not MIN_SIZE <= size <= MAX_SIZE:
         raise ValueError(f"size must be an int in [{MIN_SIZE}, {MAX_SIZE}] (e.g. 64 or 84), got {size!r}")
+    if task.suite != "metaworld" and "repeat_discount" in kwargs:
+        raise ValueError(f"repeat_discount (the EF authors' protocol) is a Meta-World option, got it for {name!r}")
     ensure_gl_backend()
     if task.suite == "dmc":
         from sb3_ef.envs.dmc import DMCPixelEnv as env_class

@@ -1,4 +1,5 @@
-"""TD-MPC2 numerics: symlog/symexp, two-hot discrete regression and the discount heuristic."""
+"""TD-MPC2 numerics: symlog/symexp, two-hot discrete regression, and the reference's heuristics (discount, seed
+steps, planning iterations)."""
 
 from __future__ import annotations
 
@@ -63,3 +64,15 @@ def discount_from_episode_length(
         raise ValueError(f"episode_length must be positive, got {episode_length}")
     fraction = episode_length / denominator
     return min(max((fraction - 1) / fraction, minimum), maximum)
+
+
+def seed_steps_from_episode_length(episode_length: int, minimum: int = 1000, episodes: int = 5) -> int:
+    """TD-MPC2's seed steps: ``max(1000, 5 x episode length)`` agent steps (2500 for 500-step episodes)."""
+    if episode_length <= 0:
+        raise ValueError(f"episode_length must be positive, got {episode_length}")
+    return max(minimum, episodes * episode_length)
+
+
+def planning_iterations(action_dim: int, iterations: int = 6, large_action_dim: int = 20, extra: int = 2) -> int:
+    """TD-MPC2's MPPI iterations: 6, and 2 more for large action spaces (``action_dim >= 20``: humanoid, dog)."""
+    return iterations + extra * int(action_dim >= large_action_dim)

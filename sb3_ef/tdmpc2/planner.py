@@ -7,6 +7,9 @@ from typing import Protocol
 
 import torch as th
 
+#: What ``plan(..., deterministic=True)`` returns: TD-MPC2's evaluation action or the final mean.
+EVAL_ACTIONS = ("elite", "mean")
+
 
 class LatentModel(Protocol):
     """What the planner needs from a world model (:class:`~sb3_ef.tdmpc2.world_model.WorldModel` provides it)."""
@@ -29,7 +32,12 @@ class MPPIPlanner:
     Each iteration samples ``num_samples`` action sequences (the first ``num_pi_trajs`` from the policy prior,
     the rest from a Gaussian), scores them with the model (rewards over the horizon plus the discounted Q of
     the last latent), and refits the Gaussian to the ``num_elites`` best, weighted by ``exp(temperature * value)``.
-    Plans are batched over environments.
+    The action is the first step of one elite drawn with probability proportional to its weight, plus the final
+    std as noise when exploring. Plans are batched over environments.
+
+    ``eval_action`` chooses the action without noise (``deterministic=True``): ``"elite"`` (TD-MPC2's evaluation:
+    the drawn elite's first action) or ``"mean"`` (the first action of the final mean, deterministic given the
+    samples).
     """
 
     horizon: int = 3
@@ -41,6 +49,7 @@ class MPPIPlanner:
     max_std: float = 2.0
     temperature: float = 0.5
     gamma: float = 0.99
+    eval_action: str = "elite"
 
     def __post_init__(self) -> None:
         if self.horizon < 1 or self.iterations < 1:
@@ -51,6 +60,8 @@ class MPPIPlanner:
             raise ValueError(f"num_elites must be in [1, num_samples={self.num_samples}], got {self.num_elites}")
         if not 0 < self.min_std <= self.max_std:
             raise ValueError(f"Need 0 < min_std <= max_std, got min_std={self.min_std}, max_std={self.max_std}")
+        if self.eval_action not in EVAL_ACTIONS:
+            raise ValueError(f"eval_action must be one of {EVAL_ACTIONS}, got {self.eval_action!r}")
 
     def estimate_value(self, model: LatentModel, z: th.Tensor, actions: th.Tensor) -> th.Tensor:
         """Discounted model rewards along ``actions`` ``(..., H, A)`` from ``z`` ``(..., L)`` plus the final Q."""
@@ -70,7 +81,8 @@ class MPPIPlanner:
 
         :param previous_mean: ``(B, H, A)`` mean of the last plan per env (warm start, shifted by one step);
             ``None`` or zero rows start from a zero mean (episode start).
-        :param deterministic: return the first action of the final mean instead of a noisy elite sample.
+        :param deterministic: act without exploration noise: the drawn elite's first action, or the final mean's
+            with ``eval_action="mean"``.
         :return: actions ``(B, A)`` in [-1, 1] and the final mean ``(B, H, A)`` to warm-start the next call.
         """
         batch, device = z.shape[0], z.device
@@ -95,10 +107,12 @@ class MPPIPlanner:
             weights = score[:, :, None, None]
             mean = (weights * elite_actions).sum(1)
             std = (weights * (elite_actions - mean.unsqueeze(1)).pow(2)).sum(1).sqrt().clamp(self.min_std, self.max_std)
-        if deterministic:
+        if deterministic and self.eval_action == "mean":
             return mean[:, 0].clamp(-1, 1), mean
         chosen = th.multinomial(score, 1).squeeze(1)
         first = elite_actions[th.arange(batch, device=device), chosen, 0]
+        if deterministic:
+            return first, mean
         return (first + std[:, 0] * th.randn_like(first)).clamp(-1, 1), mean
 
     def _policy_trajectories(self, model: LatentModel, z: th.Tensor) -> th.Tensor:

@@ -13,7 +13,7 @@ from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_stacked_frames
 from sb3_ef.ef import EgoForesight
 from sb3_ef.ef.host import build_ef
-from sb3_ef.tdmpc2.math import TwoHot
+from sb3_ef.tdmpc2.math import TwoHot, planning_iterations
 from sb3_ef.tdmpc2.planner import MPPIPlanner
 from sb3_ef.tdmpc2.world_model import FRAME_SIZE, WorldModel
 
@@ -50,7 +50,8 @@ class TDMPC2Policy(BasePolicy):
     :param encoder_lr_scale: encoder learning rate relative to the rest.
     :param horizon: planning / world-model horizon (set by the algorithm).
     :param gamma: discount of the planner's value estimate (set by the algorithm).
-    :param planner_kwargs: MPPI sizes, see :class:`MPPIPlanner` (``iterations``, ``num_samples``, ...).
+    :param planner_kwargs: MPPI settings, see :class:`MPPIPlanner` (``num_samples``, ``eval_action``, ...);
+        ``iterations`` defaults to TD-MPC2's heuristic (6, or 8 when ``action_dim >= 20``).
     :param ef_horizon: Ego-Foresight horizon, ``None`` without EF (set by the algorithm).
     :param agent_dim: size of the agent part of the latent (a multiple of ``simnorm_dim``).
     :param ef_kwargs: extra arguments of :class:`EgoForesight` (decoder and rollout options).
@@ -135,7 +136,8 @@ class TDMPC2Policy(BasePolicy):
         )
         if channels_last:
             self.world_model.encoder.to(memory_format=th.channels_last)  # type: ignore[call-overload]
-        self.planner = MPPIPlanner(horizon=horizon, gamma=gamma, **(planner_kwargs or {}))
+        planner_kwargs = {"iterations": planning_iterations(action_dim), **(planner_kwargs or {})}
+        self.planner = MPPIPlanner(horizon=horizon, gamma=gamma, **planner_kwargs)
         self.register_buffer("q_scale", th.ones(()))
         self._plan_mean: th.Tensor | None = None
 

@@ -24,7 +24,7 @@ from sb3_ef.ef.host import (
     plain_variant_kwargs,
     plain_variant_signature,
 )
-from sb3_ef.tdmpc2.math import discount_from_episode_length
+from sb3_ef.tdmpc2.math import discount_from_episode_length, seed_steps_from_episode_length
 from sb3_ef.tdmpc2.policies import TDMPC2Policy, check_pixel_space
 from sb3_ef.tdmpc2.world_model import WorldModel
 
@@ -52,7 +52,8 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     prior on detached latents, and acts by MPPI planning with that model. Ego-Foresight reads the encoder latent
     of the first observation (agent part: the first ``agent_dim`` features), rolls the agent part forward with the
     next ``k`` actions and decodes frame ``t+k``; motor babbling (random +-1 actions) fills the first
-    ``babbling_steps`` steps. One gradient update per environment step after ``learning_starts`` seed steps.
+    ``babbling_steps`` steps. After ``learning_starts`` seed steps, as many updates as seed steps at once (TD-MPC2's
+    pretraining on the seed data), then one gradient update per environment step.
 
     Papers: Nunes et al., "Ego-Foresight" (ICLR 2026); Hansen et al., "TD-MPC2" (ICLR 2024).
 
@@ -60,7 +61,8 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     :param env: the environment (uint8 stacked 64x64 RGB frames, channels-first; Box actions) or its id.
     :param learning_rate: Adam learning rate (the encoder uses ``policy_kwargs["encoder_lr_scale"]`` times it).
     :param buffer_size: replay buffer capacity (frames).
-    :param learning_starts: seed steps of uniform random actions before the first update.
+    :param learning_starts: seed steps of uniform random actions before the first updates; ``None`` derives them from
+        the episode length (TD-MPC2's ``max(1000, 5 x episode length)``, 2500 on DMC).
     :param batch_size: minibatch size.
     :param tau: Polyak coefficient of the target Q-ensemble and of the running Q scale.
     :param gamma: discount; ``None`` derives it from the episode length (TD-MPC2's heuristic, 0.99 on DMC).
@@ -70,8 +72,10 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     :param value_coef: weight of the value cross-entropy.
     :param entropy_coef: weight of the policy prior's (action-dim scaled) entropy bonus.
     :param rho: per-step decay of the loss weights over the horizon.
-    :param max_grad_norm: gradient clipping, per parameter group (encoder, dynamics/reward/Q heads, EF) and of the
-        policy prior.
+    :param max_grad_norm: gradient clipping: one global norm over the world model for the host's loss (as TD-MPC2),
+        one over the encoder and EF's module for EF's loss, one for the policy prior.
+    :param seed_burst: when the seed steps end, run as many updates as seed steps at once (TD-MPC2); ``False``: one
+        update per step from the start (cheaper on CPU, not the reference's schedule).
     :param beta: weight of the Ego-Foresight loss (to switch EF off, use :class:`TDMPC2`).
     :param ef_horizon: Ego-Foresight prediction horizon H (the rollout length k is drawn in [1, H]).
     :param babbling_steps: steps of motor babbling at the start (0: none).
@@ -101,7 +105,7 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         env: GymEnv | str,
         learning_rate: float | Schedule = 3e-4,
         buffer_size: int = 1_000_000,
-        learning_starts: int = 2500,
+        learning_starts: int | None = None,
         batch_size: int = 256,
         tau: float = 0.01,
         gamma: float | None = None,
@@ -112,6 +116,7 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         entropy_coef: float = 1e-4,
         rho: float = 0.5,
         max_grad_norm: float = 20.0,
+        seed_burst: bool = True,
         beta: float = 1.0,
         ef_horizon: int = 10,
         babbling_steps: int = 1250,
@@ -163,6 +168,7 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         self.entropy_coef = entropy_coef
         self.rho = rho
         self.max_grad_norm = max_grad_norm
+        self.seed_burst = seed_burst
         self._init_ef(beta, ef_horizon, babbling_steps, babbling_mode, babbling_in_eval, check_finite_losses, "TDMPC2")
         self._rollout_plan: th.Tensor | None = None
 
@@ -173,6 +179,7 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         """SB3's setup with a sequence replay buffer (window ``max(horizon, ef_horizon)``); the planner's horizon
         and discount and EF's horizon are passed to the policy from the algorithm's arguments."""
         self._check_episode_length()
+        self._derive_seed_steps()
         self._use_sequence_buffer("TD-MPC2 trains on consecutive steps", horizon=self.window, n_steps=1)
         self.policy_kwargs.update(horizon=self.horizon, gamma=self.gamma, ef_horizon=self.ef_horizon)
         super()._setup_model()
@@ -182,13 +189,15 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         episode (done here, not in ``__init__``, so that ``load`` checks the saved values)."""
         steps = None if self.env is None else episode_steps(self.env)
         if self.gamma is None:
-            if steps is None:
-                raise ValueError(
-                    "gamma=None derives the discount from the episode length, which this env does not expose "
-                    "(no spec.max_episode_steps, TimeLimit, episode_length or max_episode_steps): pass gamma"
-                )
-            self.gamma = discount_from_episode_length(steps)
+            self.gamma = discount_from_episode_length(_known_episode_steps(steps, "gamma"))
         check_horizon_fits_episodes(self.ef_horizon, steps)
+
+    def _derive_seed_steps(self) -> None:
+        """``learning_starts=None``: TD-MPC2's seed steps from the episode length (a saved model keeps its own)."""
+        if self.learning_starts is not None:
+            return
+        steps = None if self.env is None else episode_steps(self.env)
+        self.learning_starts = seed_steps_from_episode_length(_known_episode_steps(steps, "learning_starts"))
 
     @property
     def window(self) -> int:
@@ -206,31 +215,32 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         self.policy.set_training_mode(True)
         self._update_learning_rates()
         updates = []
-        for _ in range(gradient_steps):
+        for _ in range(self._with_seed_burst(gradient_steps)):
             self._n_updates += 1
             batch = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
             updates.append(self._update(batch))
         self._record_updates(updates)
 
+    def _with_seed_burst(self, gradient_steps: int) -> int:
+        """TD-MPC2 pretrains on its seed data: the first round runs ``learning_starts`` updates (when that is more
+        than ``gradient_steps``), so that after ``T`` env steps ``T - 1`` updates have run, as in the reference."""
+        if self.seed_burst and self._n_updates == 0:
+            return max(gradient_steps, self.learning_starts)
+        return gradient_steps
+
     def _update(self, batch: SequenceReplayBufferSamples) -> dict[str, th.Tensor]:
         """One gradient update from one batch; returns the (detached) scalars to log, without a device sync."""
         losses, latents, valid = self.losses(batch)
         self._check_finite(**losses)
-        loss = (
+        host_loss = (
             self.consistency_coef * losses["consistency_loss"]
             + self.reward_coef * losses["reward_loss"]
             + self.value_coef * losses["value_loss"]
         )
-        if self.ef is not None:
-            loss = loss + self.beta * losses["ef_loss"]
+        ef_loss = losses.get("ef_loss")
+        loss = host_loss if ef_loss is None else host_loss + self.beta * ef_loss
         self.policy.optimizer.zero_grad()
-        loss.backward()
-        # Clipped per parameter group (encoder, heads, EF): EF's pixel-summed loss has gradient norms in the
-        # thousands, which under one global clip would shrink the TD-MPC2 heads' updates by as much.
-        grad_norms = {
-            f"{group['name']}_grad_norm": th.nn.utils.clip_grad_norm_(group["params"], self.max_grad_norm)
-            for group in self.policy.optimizer.param_groups
-        }
+        grad_norms = self._world_model_gradients(host_loss, ef_loss)
         self.policy.optimizer.step()
 
         pi_loss = self._policy_loss(latents.detach(), valid)
@@ -246,6 +256,30 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         logs.update(grad_norms)
         logs["q_scale"] = self.policy.q_scale.clone()
         return logs
+
+    def _world_model_gradients(self, host_loss: th.Tensor, ef_loss: th.Tensor | None) -> dict[str, th.Tensor]:
+        """Backpropagate the world-model losses and clip; returns the gradient norms before clipping.
+
+        The host's gradient gets TD-MPC2's one global clip over the world model (encoder, dynamics, reward, Q).
+        EF's gradient (``beta * ef_loss``, summed over pixels: norms in the thousands) is computed apart, clipped to
+        the same norm over the encoder and EF's module, and added: one shared clip would shrink the host's update by
+        EF's norm."""
+        groups = {group["name"]: group["params"] for group in self.policy.optimizer.param_groups}
+        host_params = [param for name, params in groups.items() if name != "ef" for param in params]
+        ef_params = [*groups["encoder"], *groups.get("ef", [])]
+        ef_grads = None
+        if ef_loss is not None:
+            ef_grads = th.autograd.grad(self.beta * ef_loss, ef_params, retain_graph=True, allow_unused=True)
+        host_loss.backward()
+        norms = {"grad_norm": th.nn.utils.clip_grad_norm_(host_params, self.max_grad_norm)}
+        if ef_grads is not None:
+            pairs = [(param, grad) for param, grad in zip(ef_params, ef_grads, strict=True) if grad is not None]
+            ef_norm = th.nn.utils.get_total_norm([grad for _, grad in pairs])
+            scale = (self.max_grad_norm / (ef_norm + 1e-6)).clamp(max=1.0)
+            for param, grad in pairs:
+                param.grad = grad * scale if param.grad is None else param.grad.add_(grad * scale)
+            norms["ef_grad_norm"] = ef_norm
+        return norms
 
     def losses(self, batch: SequenceReplayBufferSamples) -> tuple[dict[str, th.Tensor], th.Tensor, th.Tensor]:
         """World-model losses of one batch: ``consistency_loss``, ``reward_loss``, ``value_loss`` (and ``ef_loss``
@@ -315,8 +349,7 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         finally:
             model.q_heads.requires_grad_(True)
         self._update_q_scale(q_values[0].detach())
-        entropy = -sample.log_prob * model.action_dim
-        objective = _masked_mean(self.entropy_coef * entropy + q_values / self.policy.q_scale, valid)
+        objective = _masked_mean(self.entropy_coef * sample.scaled_entropy + q_values / self.policy.q_scale, valid)
         weights = self.rho ** th.arange(latents.shape[0], device=latents.device, dtype=th.float32)
         return -(weights * objective).mean()
 
@@ -383,6 +416,16 @@ class TDMPC2(TDMPC2EF):
 def _masked_mean(values: th.Tensor, valid: th.Tensor) -> th.Tensor:
     """Mean over the batch (last axis) of the valid entries, per leading index: ``(T, B) -> (T,)``."""
     return (values * valid).sum(-1) / valid.sum(-1).clamp(min=1.0)
+
+
+def _known_episode_steps(steps: int | None, argument: str) -> int:
+    """The episode length from which ``argument=None`` is derived; raise naming ``argument`` when it is unknown."""
+    if steps is None:
+        raise ValueError(
+            f"{argument}=None derives its value from the episode length, which this env does not expose "
+            f"(no spec.max_episode_steps, TimeLimit, episode_length or max_episode_steps): pass {argument}"
+        )
+    return steps
 
 
 def _check_arguments(horizon: int, policy_kwargs: dict[str, Any] | None) -> None:

@@ -23,6 +23,7 @@ class PolicyOutput(NamedTuple):
     action: th.Tensor  # sampled action in [-1, 1]
     mean: th.Tensor  # tanh of the Gaussian mean
     log_prob: th.Tensor  # log-probability of ``action`` (tanh-corrected), shape (...,)
+    scaled_entropy: th.Tensor  # TD-MPC2's entropy term: -action_dim x the Gaussian (pre-tanh) log-prob, (...,)
 
 
 class WorldModel(nn.Module):
@@ -116,7 +117,10 @@ class WorldModel(nn.Module):
         return self.two_hot.decode(self.reward(z, action))
 
     def pi(self, z: th.Tensor) -> PolicyOutput:
-        """Sample the tanh-squashed Gaussian policy prior (reparameterised)."""
+        """Sample the tanh-squashed Gaussian policy prior (reparameterised).
+
+        ``scaled_entropy`` is the reference's entropy term: the Gaussian log-prob times ``-action_dim``, without the
+        tanh correction (which enters only ``log_prob``)."""
         mean, log_std = self.pi_head(z).chunk(2, dim=-1)
         log_std = self.log_std_min + 0.5 * (self.log_std_max - self.log_std_min) * (th.tanh(log_std) + 1)
         noise = th.randn_like(mean)
@@ -124,7 +128,7 @@ class WorldModel(nn.Module):
         gaussian_log_prob = (-0.5 * noise.pow(2) - log_std - 0.5 * math.log(2 * math.pi)).sum(-1)
         action = th.tanh(action)
         log_prob = gaussian_log_prob - th.log(F.relu(1 - action.pow(2)) + 1e-6).sum(-1)
-        return PolicyOutput(action, th.tanh(mean), log_prob)
+        return PolicyOutput(action, th.tanh(mean), log_prob, -self.action_dim * gaussian_log_prob)
 
     def q(self, z: th.Tensor, action: th.Tensor, target: bool = False) -> th.Tensor:
         """Logits of every Q head, ``(num_q, ..., num_bins)``; ``target`` uses the Polyak-averaged copy."""

@@ -5,18 +5,10 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
 from stable_baselines3.common.monitor import Monitor
+from tdmpc2_tiny import TINY_POLICY, host_loss
 
 from sb3_ef.envs.toy import ToyAgentEnv
 from sb3_ef.tdmpc2 import TDMPC2, TDMPC2EF
-
-TINY_POLICY = {
-    "num_channels": 4,
-    "mlp_dim": 32,
-    "num_q": 2,
-    "agent_dim": 16,
-    "planner_kwargs": {"iterations": 2, "num_samples": 16, "num_elites": 4, "num_pi_trajs": 2},
-    "ef_kwargs": {"rollout_hidden_dims": (32,), "decoder_channels": 8},
-}
 
 
 def toy_env(max_episode_steps: int = 20) -> ToyAgentEnv:
@@ -47,14 +39,6 @@ def filled_batch(model, steps: int = 40, batch_size: int = 8):
     return model.replay_buffer.sample(batch_size)
 
 
-def host_loss(model, losses):
-    return (
-        model.consistency_coef * losses["consistency_loss"]
-        + model.reward_coef * losses["reward_loss"]
-        + model.value_coef * losses["value_loss"]
-    )
-
-
 def test_exposes_the_ef_contract_and_the_paper_defaults():
     model = make(policy_kwargs={**TINY_POLICY, "num_channels": 8})
     assert model.frame_shape == (3, 64, 64)
@@ -70,7 +54,7 @@ def test_exposes_the_ef_contract_and_the_paper_defaults():
         3,
         10,
         1250,
-        2500,
+        None,  # seed steps derived from the episode length at setup (test_tdmpc2_reference.py)
     )
     assert (defaults.learning_rate, defaults.batch_size, defaults.tau, defaults.rho) == (3e-4, 256, 0.01, 0.5)
 
