@@ -101,7 +101,9 @@ def test_a_checkpoint_without_buffer_or_random_states_still_loads(tmp_path):
     assert loaded.num_timesteps == 24
 
 
-@pytest.mark.parametrize(("arguments", "named"), [({"save_freq": 0}, "save_freq"), ({"save_freq": 5, "keep": 0}, "keep")])
+@pytest.mark.parametrize(
+    ("arguments", "named"), [({"save_freq": 0}, "save_freq"), ({"save_freq": 5, "keep": 0}, "keep")]
+)
 def test_bad_arguments_are_named(arguments, named, tmp_path):
     with pytest.raises(ValueError, match=named):
         ResumableCheckpointCallback(save_path=str(tmp_path), **arguments)
