@@ -24,10 +24,12 @@ the checkpoint falls on an episode boundary of every env and the env draws rando
 
 from __future__ import annotations
 
+import json
 import os
 import pickle
 import random
 import re
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -66,18 +68,23 @@ def checkpoint_paths(save_path: str | os.PathLike, name_prefix: str, step: int) 
     )
 
 
+def _checkpoint_step(file_name: str, name_prefix: str) -> int | None:
+    """The step of a ``<prefix>_<step>_steps.zip`` file name, else ``None``."""
+    match = re.fullmatch(rf"{re.escape(name_prefix)}_(\d+)_steps\.zip", file_name)
+    return None if match is None else int(match.group(1))
+
+
 def list_checkpoints(run_dir: str | os.PathLike, name_prefix: str = "rl_model") -> list[Checkpoint]:
     """The complete checkpoints in ``run_dir``, oldest first. A checkpoint is complete once its model zip exists
     (written last); its buffer and random states are listed when present."""
-    pattern = re.compile(rf"{re.escape(name_prefix)}_(\d+)_steps\.zip")
     found = []
     folder = Path(run_dir)
     if not folder.is_dir():
         return []
     for path in folder.iterdir():
-        match = pattern.fullmatch(path.name)
-        if match is not None:
-            paths = checkpoint_paths(folder, name_prefix, int(match.group(1)))
+        step = _checkpoint_step(path.name, name_prefix)
+        if step is not None:
+            paths = checkpoint_paths(folder, name_prefix, step)
             found.append(
                 Checkpoint(
                     paths.step,
@@ -93,6 +100,28 @@ def latest_checkpoint(run_dir: str | os.PathLike, name_prefix: str = "rl_model")
     """The newest complete checkpoint in ``run_dir``, or ``None`` when there is none."""
     checkpoints = list_checkpoints(run_dir, name_prefix)
     return checkpoints[-1] if checkpoints else None
+
+
+def checkpoint_for(model_path: str | os.PathLike, name_prefix: str = "rl_model") -> Checkpoint:
+    """The checkpoint a model zip belongs to: the files beside a ``<prefix>_<step>_steps.zip``, or for any other zip
+    (a final model) the ``replay_buffer.pkl`` beside it (rl-zoo3's ``--save-replay-buffer``) and no random states."""
+    path = Path(model_path)
+    if not path.is_file():
+        raise FileNotFoundError(f"No model zip at {path}")
+    step = _checkpoint_step(path.name, name_prefix)
+    if step is not None:
+        paths = checkpoint_paths(path.parent, name_prefix, step)
+        buffer_path, rng_path = paths.replay_buffer_path, paths.rng_path
+    else:
+        buffer_path, rng_path = path.parent / "replay_buffer.pkl", None
+    with zipfile.ZipFile(path) as archive:
+        step = int(json.loads(archive.read("data"))["num_timesteps"])
+    return Checkpoint(
+        step,
+        path,
+        buffer_path if buffer_path.is_file() else None,
+        rng_path if rng_path is not None and rng_path.is_file() else None,
+    )
 
 
 def _write_atomically(path: Path, write: Any) -> None:
