@@ -105,5 +105,5 @@ def test_continuing_a_finished_run_says_so(resumed):
 def test_bad_resume_and_trained_agent_are_named(tmp_path):
     with pytest.raises(ValueError, match="--resume expects an sb3-ef run folder"):
         train.main(["--resume", str(tmp_path)])
-    with pytest.raises(ValueError, match="-i expects the path of a saved model .zip"):
+    with pytest.raises(ValueError, match=r"-i expects the path of a saved model \.zip"):
         train.main(["--algo", "drqv2_ef", "--env", ENV_ID, "-i", str(tmp_path / "missing.zip")])
