@@ -116,3 +116,54 @@ def test_model_command_on_a_one_dimensional_action_task_with_the_runs_rendering(
     with pytest.raises(ValueError, match="does not match the model's size 32"):
         main(["model", str(tmp_path / "dmc-cartpole-swingup-v0.zip"), "--env", "dmc/cartpole-swingup",
               "--env-kwargs", "size:64", "--out", str(out)])  # fmt: skip
+
+
+def _zoo_task_names():
+    import yaml
+
+    from sb3_ef.zoo.config import default_config_path
+
+    names = set()
+    for algo in ("drqv2_ef", "tdmpc2_ef"):
+        with open(default_config_path(algo)) as file:
+            names |= {name.removesuffix("-v0") for name in yaml.safe_load(file) if name != "default"}
+    return sorted(names)
+
+
+def _first_frame(env):
+    try:
+        observation, _ = env.reset(seed=0)
+    finally:
+        env.close()
+    return observation[-3:].astype(np.int16)
+
+
+def _analysis_frame_of_a_fast_render_run(tmp_path, name):
+    from sb3_ef.analysis.cli import make_analysis_env, run_env_kwargs
+
+    run = tmp_path / name.replace("/", "-")
+    _write_zoo_run(run, "env", {"fast_render": True, "size": 32}, None)
+    kwargs = run_env_kwargs(run / "model.zip")
+    return _first_frame(make_analysis_env(name, (3, 32, 32), 3, 2, env_kwargs={**kwargs, "seed": 0}))
+
+
+def test_analysis_renders_like_the_run_where_fast_render_changes_the_frames(tmp_path):
+    """reacher-easy: without its shadows the frame differs by ~28 grey levels; the analysis env renders as trained."""
+    from sb3_ef import make_env
+
+    trained = _first_frame(make_env("dmc/reacher-easy", size=32, fast_render=True, seed=0))
+    default = _first_frame(make_env("dmc/reacher-easy", size=32, seed=0))
+    assert np.abs(trained - default).mean() > 10
+    assert np.array_equal(_analysis_frame_of_a_fast_render_run(tmp_path, "dmc/reacher-easy"), trained)
+
+
+@pytest.mark.slow
+def test_analysis_renders_like_the_run_on_every_zoo_task(tmp_path):
+    """The 12 DMC and 16 Meta-World tasks of zoo_configs/, one first frame each (about a minute on 2 cores)."""
+    from sb3_ef import make_env
+
+    names = _zoo_task_names()
+    assert len(names) == 28
+    for name in names:
+        trained = _first_frame(make_env(name, size=32, fast_render=True, seed=0))
+        assert np.array_equal(_analysis_frame_of_a_fast_render_run(tmp_path, name), trained), name
