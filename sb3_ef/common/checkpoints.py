@@ -171,17 +171,16 @@ def restore_random_states(model: BaseAlgorithm, states: dict[str, Any]) -> None:
             f"{model.num_timesteps}: the files come from different checkpoints"
         )
     env = model.get_env()
+    saved_generators = states["env_generators"]
+    if env is not None and saved_generators is not None and len(saved_generators) != env.num_envs:
+        raise ValueError(f"The checkpoint was saved with {len(saved_generators)} envs, got {env.num_envs}")
     if env is not None:
         # Consume the seeds loading left pending for the next reset, so that the reset in ``learn`` draws from the
         # restored generators instead of re-seeding the envs.
         env.reset()
-        if states["env_generators"] is not None:
-            if len(states["env_generators"]) != env.num_envs:
-                raise ValueError(
-                    f"The checkpoint was saved with {len(states['env_generators'])} envs, got {env.num_envs}"
-                )
+        if saved_generators is not None:
             generators = env.get_attr("np_random")
-            for index, (generator, state) in enumerate(zip(generators, states["env_generators"], strict=True)):
+            for index, (generator, state) in enumerate(zip(generators, saved_generators, strict=True)):
                 generator.bit_generator.state = state
                 env.set_attr("np_random", generator, indices=[index])
     model._last_obs = None  # type: ignore[assignment]
