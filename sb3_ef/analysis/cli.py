@@ -72,27 +72,28 @@ def parse_env_kwargs(pairs: list[str]) -> dict[str, Any]:
 
 
 def run_env_kwargs(model_path: str | os.PathLike) -> dict[str, Any]:
-    """The env options recorded by the rl-zoo3 run whose folder holds ``model_path``: the config entry's
-    ``env_kwargs`` updated by the command line's (``<env>/config.yml``, ``<env>/args.yml``); ``{}`` elsewhere."""
+    """The env options of the rl-zoo3 run whose folder holds ``model_path`` (``{}`` elsewhere). As in rl-zoo3's
+    train and enjoy, the command line's ``--env-kwargs`` (``<env>/args.yml``) replace the config entry's
+    (``<env>/config.yml``)."""
     import yaml
 
     folder = Path(model_path).resolve().parent
     args_files = sorted(folder.glob("*/args.yml"))
     if len(args_files) != 1:
         return {}
-    kwargs: dict[str, Any] = {}
-    config_path = args_files[0].with_name("config.yml")
-    if config_path.is_file():
-        with open(config_path) as file:
-            entry = dict(yaml.load(file, Loader=yaml.UnsafeLoader) or [])  # rl-zoo3 writes a list of pairs
-        recorded = entry.get("env_kwargs") or {}
-        if isinstance(recorded, str):  # rl-zoo3 evaluates strings such as "dict(size=64)"
-            recorded = eval(recorded, {"__builtins__": {}, "dict": dict})
-        kwargs.update(recorded)
     with open(args_files[0]) as file:
         args = yaml.load(file, Loader=yaml.UnsafeLoader)  # an OrderedDict (Python tags)
-    kwargs.update(args.get("env_kwargs") or {})
-    return kwargs
+    if args.get("env_kwargs"):
+        return dict(args["env_kwargs"])
+    config_path = args_files[0].with_name("config.yml")
+    if not config_path.is_file():
+        return {}
+    with open(config_path) as file:
+        entry = dict(yaml.load(file, Loader=yaml.UnsafeLoader) or [])  # rl-zoo3 writes a list of pairs
+    recorded = entry.get("env_kwargs") or {}
+    if isinstance(recorded, str):  # rl-zoo3 evaluates strings such as "dict(size=64)"
+        recorded = eval(recorded, {"__builtins__": {}, "dict": dict})
+    return dict(recorded)
 
 
 def analyze_results(directory: str, out: str, return_scale: float = 1000.0, reps: int = 2000) -> dict[str, Any]:

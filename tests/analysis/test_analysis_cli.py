@@ -86,8 +86,10 @@ def _write_zoo_run(folder, env_name, command_line_kwargs, config_kwargs):
 def test_run_env_kwargs_come_from_the_zoo_run_folder(tmp_path):
     from sb3_ef.analysis.cli import parse_env_kwargs, run_env_kwargs
 
-    _write_zoo_run(tmp_path, "dmc-reacher-easy-v0", {"fast_render": True}, "dict(size=64, camera=0)")
-    assert run_env_kwargs(tmp_path / "dmc-reacher-easy-v0.zip") == {"size": 64, "camera": 0, "fast_render": True}
+    _write_zoo_run(tmp_path / "cli", "dmc-reacher-easy-v0", {"fast_render": True}, {"fast_render": True})
+    assert run_env_kwargs(tmp_path / "cli" / "dmc-reacher-easy-v0.zip") == {"fast_render": True}
+    _write_zoo_run(tmp_path / "config", "dmc-reacher-easy-v0", None, "dict(size=64, fast_render=True)")
+    assert run_env_kwargs(tmp_path / "config" / "dmc-reacher-easy-v0.zip") == {"size": 64, "fast_render": True}
     assert run_env_kwargs(tmp_path / "elsewhere" / "model.zip") == {}
     assert parse_env_kwargs(["fast_render:True", "size:64", "camera:corner"]) == {
         "fast_render": True,
