@@ -107,3 +107,40 @@ def test_bad_resume_and_trained_agent_are_named(tmp_path):
         train.main(["--resume", str(tmp_path)])
     with pytest.raises(ValueError, match=r"-i expects the path of a saved model \.zip"):
         train.main(["--algo", "drqv2_ef", "--env", ENV_ID, "-i", str(tmp_path / "missing.zip")])
+
+
+@pytest.mark.slow
+def test_a_run_killed_with_sigkill_resumes_from_its_newest_checkpoint(tmp_path):
+    """A real `kill -9` of a training process, then --resume: the run ends at its total with its whole buffer."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    run = tmp_path / "drqv2_ef" / "toy-agent-v0_1"
+    args = [
+        "--algo", "drqv2_ef", "--env", "toy/agent-v0", "-n", "300", "-f", str(tmp_path), "--seed", "0",
+        "--save-freq", "50", "--checkpoint-buffer", "--save-replay-buffer", "--num-threads", "1", "--verbose", "0",
+        "--env-kwargs", "size:32", "max_episode_steps:25",
+        "--hyperparams", *cli_pairs({**HYPERPARAMS, "babbling_steps": 0}),
+    ]  # fmt: skip
+    process = subprocess.Popen(
+        [sys.executable, "-m", "sb3_ef.zoo.train", *args], env=os.environ.copy(), stdout=subprocess.DEVNULL
+    )
+    try:
+        deadline = time.monotonic() + 300
+        while latest_checkpoint(run) is None or latest_checkpoint(run).step < 100:
+            assert process.poll() is None and time.monotonic() < deadline, "no checkpoint before the run ended"
+            time.sleep(0.2)
+    finally:
+        process.send_signal(signal.SIGKILL)
+        process.wait()
+    killed_at = latest_checkpoint(run).step
+    assert not (run / "toy-agent-v0.zip").exists()  # it never finished
+
+    train.main(["--resume", str(run)])
+    model = algorithm_classes()["drqv2_ef"].load(run / "toy-agent-v0.zip", device="cpu")
+    assert model.num_timesteps == 300 > killed_at
+    with open(run / "replay_buffer.pkl", "rb") as file:
+        assert pickle.load(file).size() == 300
