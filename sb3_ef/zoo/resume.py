@@ -11,7 +11,8 @@ algorithm:
   the config's ``n_timesteps``) steps in all, continuing its step count; when the model lies in an rl-zoo3 run
   folder the run continues there: ``evaluations.npz`` and the monitor files are appended to, the evaluation steps
   carry on, the final model replaces the old one;
-- a run that fails before training starts removes the run folder it created.
+- a run that fails before training starts removes the folders it created (run folder, and log folders that did
+  not exist before).
 """
 
 from __future__ import annotations
@@ -47,6 +48,14 @@ class CheckpointOptions:
 def is_run_folder(folder: Path, env_name: str) -> bool:
     """Whether ``folder`` is an rl-zoo3 run folder of ``env_name`` (it holds ``<env_name>/args.yml``)."""
     return (folder / env_name / "args.yml").is_file()
+
+
+def outermost_missing(path: Path) -> Path | None:
+    """The outermost of ``path`` and its parents that does not exist yet (what creating ``path`` creates)."""
+    missing = None
+    while not path.exists():
+        missing, path = path, path.parent
+    return missing
 
 
 def continue_evaluations(callback: EvalCallback) -> None:
@@ -99,12 +108,12 @@ class ResumingExperimentManager(ExperimentManager):
             self.continues_folder = True
 
     def setup_experiment(self) -> tuple[BaseAlgorithm, dict[str, Any]] | None:
-        existed = os.path.exists(self.save_path)
+        created = outermost_missing(Path(self.save_path).absolute())
         try:
             return super().setup_experiment()
         except BaseException:
-            if not existed:
-                shutil.rmtree(self.save_path, ignore_errors=True)
+            if created is not None:
+                shutil.rmtree(created, ignore_errors=True)
             raise
 
     def create_callbacks(self) -> None:

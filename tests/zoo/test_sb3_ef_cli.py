@@ -60,12 +60,17 @@ def test_train_errors_reach_the_user_as_one_line(tmp_path, capsys, monkeypatch):
 
 def test_a_failed_start_leaves_no_run_folder(tmp_path, capsys):
     """net_arch 'big' fails while the model is built, after rl-zoo3 made the run folder: it is removed again."""
+    (tmp_path / "drqv2" / "dmc-cartpole-swingup-v0_1").mkdir(parents=True)  # an earlier run stays
     status = cli.main(["train", "--algo", "drqv2", "--env", "dmc/cartpole-swingup-v0", "-f", str(tmp_path),
                        "--env-kwargs", "size:32", "fast_render:True", "--hyperparams", "buffer_size:100",
                        "policy_kwargs:dict(net_arch='big')"])  # fmt: skip
     assert status == 2
     assert "net_arch" in capsys.readouterr().err
-    assert list((tmp_path / "drqv2").iterdir()) == []
+    assert [path.name for path in (tmp_path / "drqv2").iterdir()] == ["dmc-cartpole-swingup-v0_1"]
+    status = cli.main(["train", "--algo", "drqv2", "--env", "dmc/cartpole-swingup-v0", "-f", str(tmp_path / "new"),
+                       "--env-kwargs", "size:32", "fast_render:True", "--hyperparams", "buffer_size:100",
+                       "policy_kwargs:dict(net_arch='big')"])  # fmt: skip
+    assert status == 2 and not (tmp_path / "new").exists()  # nor the log folders it would have made
 
 
 def test_version(capsys):
