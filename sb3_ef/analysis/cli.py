@@ -2,14 +2,20 @@
 
 sb3-ef analyze results DIR [--out DIR] [--return-scale 1000] [--reps 2000]
 sb3-ef analyze model PATH --env NAME [--algo drqv2_ef|tdmpc2_ef] [--steps T] [--actions policy|figure8]
-                                     [--action-repeat 2] [--seed 0] [--out DIR]
+                                     [--action-repeat 2] [--env-kwargs key:value ...] [--seed 0] [--out DIR]
+
+``analyze model`` builds the env the model was trained on: rendering settings such as ``fast_render`` change the
+frames, so they come from ``--env-kwargs`` or, for a model inside an rl-zoo3 run folder, from the run's
+``<env>/args.yml`` and ``<env>/config.yml``.
 """
 
 from __future__ import annotations
 
 import argparse
+import ast
 import json
 import os
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -38,13 +44,61 @@ def build_parser() -> argparse.ArgumentParser:
     model.add_argument("--steps", type=int, help="prediction length T (default: the EF horizon)")
     model.add_argument("--actions", choices=("policy", "figure8"), default="policy", help="actions played")
     model.add_argument("--action-repeat", type=int, default=2, help="action repeat of dmc/ and metaworld/ envs")
+    model.add_argument(
+        "--env-kwargs",
+        nargs="+",
+        default=None,
+        metavar="KEY:VALUE",
+        help="make_env options of the training env, e.g. fast_render:True (default: the run's, if recorded)",
+    )
     model.add_argument("--seed", type=int, default=0, help="env reset seed")
     model.add_argument("--out", help="output directory (default: next to the model, <name>_analysis)")
     return parser
 
 
+def parse_env_kwargs(pairs: list[str]) -> dict[str, Any]:
+    """``["size:64", "fast_render:True"]`` -> ``{"size": 64, "fast_render": True}`` (values as Python literals,
+    else strings), as rl-zoo3 writes ``--env-kwargs``."""
+    kwargs = {}
+    for pair in pairs:
+        key, separator, value = pair.partition(":")
+        if not separator or not key:
+            raise ValueError(f"--env-kwargs expects key:value pairs (e.g. fast_render:True), got {pair!r}")
+        try:
+            kwargs[key] = ast.literal_eval(value)
+        except (ValueError, SyntaxError):
+            kwargs[key] = value
+    return kwargs
+
+
+def run_env_kwargs(model_path: str | os.PathLike) -> dict[str, Any]:
+    """The env options of the rl-zoo3 run whose folder holds ``model_path`` (``{}`` elsewhere). As in rl-zoo3's
+    train and enjoy, the command line's ``--env-kwargs`` (``<env>/args.yml``) replace the config entry's
+    (``<env>/config.yml``)."""
+    import yaml
+
+    folder = Path(model_path).resolve().parent
+    args_files = sorted(folder.glob("*/args.yml"))
+    if len(args_files) != 1:
+        return {}
+    with open(args_files[0]) as file:
+        args = yaml.load(file, Loader=yaml.UnsafeLoader)  # an OrderedDict (Python tags)
+    if args.get("env_kwargs"):
+        return dict(args["env_kwargs"])
+    config_path = args_files[0].with_name("config.yml")
+    if not config_path.is_file():
+        return {}
+    with open(config_path) as file:
+        entry = dict(yaml.load(file, Loader=yaml.UnsafeLoader) or [])  # rl-zoo3 writes a list of pairs
+    recorded = entry.get("env_kwargs") or {}
+    if isinstance(recorded, str):  # rl-zoo3 evaluates strings such as "dict(size=64)"
+        recorded = eval(recorded, {"__builtins__": {}, "dict": dict})
+    return dict(recorded)
+
+
 def analyze_results(directory: str, out: str, return_scale: float = 1000.0, reps: int = 2000) -> dict[str, Any]:
-    """Write ``scores.csv``, ``ens.csv``, ``ens_details.csv``, ``rliable.csv`` and the plots to ``out``."""
+    """Write ``scores.csv``, ``ens.csv``, ``ens_details.csv``, ``rliable.csv`` and the plots to ``out`` (created
+    only once the records have been read)."""
     from sb3_ef.analysis.metrics import (
         efficiency_normalized_score,
         ens_table,
@@ -54,8 +108,8 @@ def analyze_results(directory: str, out: str, return_scale: float = 1000.0, reps
     )
     from sb3_ef.analysis.plots import plot_ens, plot_intervals, plot_learning_curves
 
-    os.makedirs(out, exist_ok=True)
     scores = records_to_scores(load_records(directory), return_scale=return_scale)
+    os.makedirs(out, exist_ok=True)
     scores.to_csv(os.path.join(out, "scores.csv"), index=False)
     written = {"curves": plot_learning_curves(scores, out)}
     ens = None
@@ -76,14 +130,28 @@ def analyze_results(directory: str, out: str, return_scale: float = 1000.0, reps
     return written
 
 
-def make_analysis_env(name: str, frame_shape: tuple[int, ...], frame_stack: int, action_repeat: int) -> gym.Env:
-    """The model's env at its frame size: ``make_env`` for dmc/ and metaworld/ names, ``gym.make`` otherwise."""
+def make_analysis_env(
+    name: str,
+    frame_shape: tuple[int, ...],
+    frame_stack: int,
+    action_repeat: int,
+    env_kwargs: dict[str, Any] | None = None,
+) -> gym.Env:
+    """The model's env at its frame size: ``make_env`` for dmc/ and metaworld/ names, ``gym.make`` otherwise.
+
+    :param env_kwargs: the other options of the training env (``fast_render``, ``camera``, ...); its ``size`` and
+        ``frame_stack`` must agree with the model's.
+    """
+    kwargs = dict(env_kwargs or {})
     size = frame_shape[-1]
+    for key, expected in (("size", size), ("frame_stack", frame_stack)):
+        if kwargs.pop(key, expected) != expected:
+            raise ValueError(f"env_kwargs {key}={env_kwargs[key]!r} does not match the model's {key} {expected}")
     if name.startswith(("dmc/", "metaworld/")):
         from sb3_ef.envs import make_env
 
-        return make_env(name, size=size, frame_stack=frame_stack, action_repeat=action_repeat)
-    return gym.make(name, size=size, frame_stack=frame_stack)
+        return make_env(name, size=size, frame_stack=frame_stack, **{"action_repeat": action_repeat, **kwargs})
+    return gym.make(name, size=size, frame_stack=frame_stack, **kwargs)
 
 
 def load_ef_model(path: str, algo: str | None) -> Any:
@@ -109,17 +177,22 @@ def analyze_model(
     actions: str = "policy",
     action_repeat: int = 2,
     seed: int = 0,
+    env_kwargs: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Write ``prediction.png`` (context / predicted / true rows), ``prediction.gif`` (predicted | true),
-    ``saliency.png`` and ``scores.json`` for one rollout of a saved model on ``env_name``."""
-    from sb3_ef.analysis.prediction import figure_eight_actions, save_image, save_video
+    ``saliency.png`` and ``scores.json`` for one rollout of a saved model on ``env_name``, built with
+    ``env_kwargs`` (default: :func:`run_env_kwargs`)."""
+    from sb3_ef.analysis.plots import plot_prediction, plot_saliency
+    from sb3_ef.analysis.prediction import figure_eight_actions, save_video
     from sb3_ef.analysis.report import foresight_report, record_rollout
 
     model = load_ef_model(path, algo)
     if model.ef is None:
         raise ValueError(f"{path} is a {type(model).__name__} without Ego-Foresight: nothing to analyze")
     frame_stack = model.observation_space.shape[0] // 3
-    env = make_analysis_env(env_name, model.frame_shape, frame_stack, action_repeat)
+    if env_kwargs is None:
+        env_kwargs = run_env_kwargs(path)
+    env = make_analysis_env(env_name, model.frame_shape, frame_stack, action_repeat, env_kwargs)
     steps = steps or model.ef.horizon
     if actions == "figure8":
         sequence = figure_eight_actions(steps, model.action_space.shape[0])
@@ -131,12 +204,19 @@ def analyze_model(
     finally:
         env.close()
     os.makedirs(out, exist_ok=True)
+    title = f"{type(model).__name__} on {env_name}, {actions} actions"
     written = {
-        "prediction": save_image(os.path.join(out, "prediction.png"), report.prediction_image()),
+        "prediction": plot_prediction(report, os.path.join(out, "prediction.png"), title),
         "video": save_video(os.path.join(out, "prediction.gif"), report.predicted, report.rollout.true_frames),
-        "saliency": save_image(os.path.join(out, "saliency.png"), report.saliency_image()),
+        "saliency": plot_saliency(report, os.path.join(out, "saliency.png"), f"{title}, t+{len(report.predicted)}"),
     }
-    scores = {"env": env_name, "steps": len(report.predicted), "actions": actions, **report.scalars()}
+    scores = {
+        "env": env_name,
+        "env_kwargs": env_kwargs,
+        "steps": len(report.predicted),
+        "actions": actions,
+        **report.scalars(),
+    }
     written["scores"] = os.path.join(out, "scores.json")
     with open(written["scores"], "w") as file:
         json.dump(
@@ -145,6 +225,7 @@ def analyze_model(
             indent=2,
         )
     print(json.dumps(scores, indent=2))
+    print(f"Wrote {', '.join(os.path.basename(path) for path in written.values())} to {out}")
     return written
 
 
@@ -157,7 +238,10 @@ def main(argv: list[str] | None = None) -> int:
         )
     else:
         out = args.out or os.path.splitext(args.path)[0] + "_analysis"
-        analyze_model(args.path, args.env, out, args.algo, args.steps, args.actions, args.action_repeat, args.seed)
+        env_kwargs = None if args.env_kwargs is None else parse_env_kwargs(args.env_kwargs)
+        analyze_model(
+            args.path, args.env, out, args.algo, args.steps, args.actions, args.action_repeat, args.seed, env_kwargs
+        )
     return 0
 
 

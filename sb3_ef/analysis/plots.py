@@ -1,4 +1,5 @@
-"""Figures written to files (matplotlib, Agg backend): learning curves, ENS bars, rliable interval plots."""
+"""Figures written to files (matplotlib, Agg backend): learning curves, ENS bars, rliable interval plots, and the
+labelled prediction and saliency figures of ``sb3-ef analyze model``."""
 
 from __future__ import annotations
 
@@ -13,6 +14,8 @@ from sb3_ef.analysis.metrics import SCORE_COLUMNS, check_columns
 
 if TYPE_CHECKING:
     import pandas as pd
+
+    from sb3_ef.analysis.report import ForesightReport
 
 
 def _safe_name(name: str) -> str:
@@ -75,3 +78,53 @@ def plot_intervals(table: pd.DataFrame, path: str | os.PathLike) -> str:
         axis.set_title(metric)
         axis.set_xlabel("normalised score")
     return _save(figure, path)
+
+
+def _frame_row_axes(axis, rows: list[str], columns: list[str], frame_size: int, spacing: int = 2) -> None:
+    """Label the rows and columns of a :func:`~sb3_ef.analysis.prediction.frame_grid` image."""
+    cell = frame_size + spacing
+    axis.set_yticks([cell * (index + 0.5) for index in range(len(rows))], rows)
+    axis.set_xticks([cell * (index + 0.5) for index in range(len(columns))], columns)
+
+
+def plot_prediction(report: ForesightReport, path: str | os.PathLike, title: str) -> str:
+    """The context, predicted and true frames of ``report`` as one labelled figure: rows named, columns ``t+k``."""
+    return _save(prediction_figure(report, title), path)
+
+
+def prediction_figure(report: ForesightReport, title: str):
+    """The figure of :func:`plot_prediction` (open, for display or inspection)."""
+    image = report.prediction_image()
+    steps = max(len(report.predicted), report.rollout.first_observation.shape[0] // 3)
+    figure, axis = pyplot().subplots(figsize=(max(4.0, 1.1 * (steps + 1)), 3.8))
+    axis.imshow(image)
+    columns = [f"t+{index + 1}" for index in range(len(report.predicted))]
+    _frame_row_axes(axis, ["context", "predicted", "true"], columns, report.predicted.shape[1])
+    axis.set_title(title)
+    return figure
+
+
+def plot_saliency(report: ForesightReport, path: str | os.PathLike, title: str) -> str:
+    """The last predicted frame and its saliency maps, each panel titled (h_a in red, h_s in blue)."""
+    return _save(saliency_figure(report, title), path)
+
+
+def saliency_figure(report: ForesightReport, title: str):
+    """The figure of :func:`plot_saliency` (open, for display or inspection)."""
+    from sb3_ef.analysis.saliency import saliency_overlay
+
+    saliency = report.saliency
+    panels = {
+        "predicted frame": saliency.frame,
+        "h_a saliency (red)": saliency_overlay(saliency.frame, saliency.agent, color=(255, 0, 0)),
+        "h_s saliency (blue)": saliency_overlay(saliency.frame, saliency.scene, color=(0, 0, 255)),
+    }
+    if report.rollout.agent_mask is not None:
+        panels["true agent mask"] = report.rollout.agent_mask
+    figure, axes = pyplot().subplots(1, len(panels), figsize=(2.4 * len(panels), 2.9))
+    for axis, (name, image) in zip(axes, panels.items(), strict=True):
+        axis.imshow(image, cmap="gray" if image.ndim == 2 else None)
+        axis.set_title(name, fontsize=9)
+        axis.axis("off")
+    figure.suptitle(title)
+    return figure

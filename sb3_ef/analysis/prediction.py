@@ -98,18 +98,19 @@ def figure_eight_actions(steps: int, action_dim: int, period: int = 40) -> np.nd
     Component 0 is ``cos(2 pi t / period)`` and component 1 is ``cos(4 pi t / period)``: integrating them (as a
     delta-position action space like Meta-World's does) traces ``x = sin(w t)``, ``y = sin(2 w t) / 2``, a figure
     eight. Components beyond the first two are zero, so on higher-dimensional action spaces only the first two
-    actuators move; a 1-D action space is refused.
+    actuators move; on a 1-D action space (cartpole) component 0 alone swings back and forth.
 
     :return: float32 (steps, action_dim) in [-1, 1].
     """
-    if action_dim < 2:
-        raise ValueError(f"figure_eight_actions needs an action space with at least 2 dimensions, got {action_dim}")
+    if action_dim < 1:
+        raise ValueError(f"figure_eight_actions needs an action space with at least 1 dimension, got {action_dim}")
     if steps < 1 or period < 2:
         raise ValueError(f"Need steps >= 1 and period >= 2, got steps={steps}, period={period}")
     phase = 2 * np.pi * np.arange(steps) / period
     actions = np.zeros((steps, action_dim), dtype=np.float32)
     actions[:, 0] = np.cos(phase)
-    actions[:, 1] = np.cos(2 * phase)
+    if action_dim > 1:
+        actions[:, 1] = np.cos(2 * phase)
     return actions
 
 

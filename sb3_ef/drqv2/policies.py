@@ -8,7 +8,7 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_mlp
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_mlp, get_actor_critic_arch
 from stable_baselines3.common.type_aliases import Schedule
 from torch import nn
 
@@ -42,6 +42,11 @@ class DrQv2Encoder(BaseFeaturesExtractor):
     """
 
     def __init__(self, observation_space: spaces.Box, features_dim: int | None = 2048, n_filters: int = 32):
+        if features_dim is not None and not _is_positive_int(features_dim):
+            raise ValueError(
+                "features_dim must be a positive integer (or None for the unprojected conv features), "
+                f"got {features_dim!r}"
+            )
         channels, height, width = check_stacked_frames(observation_space, "DrQ-v2")
         conv_height, conv_width = _conv_output_size(height), _conv_output_size(width)
         divisor = _POOL if features_dim is not None else 1
@@ -100,6 +105,24 @@ class DrQv2Critic(nn.Module):
         return tuple(q_network(trunk_actions) for q_network in self.q_networks)
 
 
+def _is_positive_int(value: Any) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value > 0
+
+
+def actor_critic_arch(net_arch: list[int] | dict[str, list[int]]) -> tuple[list[int], list[int]]:
+    """Hidden sizes of the actor and of each Q head: one list for both, or SB3's ``dict(pi=[...], qf=[...])``."""
+    expected = "a list of positive layer sizes (e.g. [1024, 1024]) or dict(pi=[...], qf=[...])"
+    if isinstance(net_arch, dict):
+        if set(net_arch) != {"pi", "qf"}:
+            raise ValueError(f"net_arch as a dict needs exactly the keys 'pi' and 'qf', got {sorted(net_arch)}")
+        layers = [*net_arch["pi"], *net_arch["qf"]] if all(isinstance(v, list) for v in net_arch.values()) else None
+    else:
+        layers = net_arch if isinstance(net_arch, list) else None
+    if layers is None or not all(_is_positive_int(size) for size in layers):
+        raise ValueError(f"net_arch must be {expected}, got {net_arch!r}")
+    return get_actor_critic_arch(net_arch)
+
+
 def _orthogonal_init(module: nn.Module) -> None:
     """DrQ-v2's initialisation: orthogonal weights (ReLU gain for convolutions), zero biases."""
     if isinstance(module, nn.Linear):
@@ -119,7 +142,7 @@ class DrQv2Policy(BasePolicy):
     :param observation_space: uint8 Box of shape (3 * frame_stack, height, width).
     :param action_space: Box action space.
     :param lr_schedule: learning rate schedule (the same rate for all networks, as DrQ-v2).
-    :param net_arch: hidden sizes of the actor and Q heads.
+    :param net_arch: hidden sizes of the actor and Q heads, or ``dict(pi=[...], qf=[...])`` for different ones.
     :param trunk_dim: size of the actor's and critic's trunk output.
     :param n_critics: number of Q heads (their minimum is used).
     :param features_dim: encoder projection size, ``None`` for DrQ-v2's unprojected conv features.
@@ -138,7 +161,7 @@ class DrQv2Policy(BasePolicy):
         observation_space: spaces.Box,
         action_space: spaces.Box,
         lr_schedule: Schedule,
-        net_arch: list[int] | None = None,
+        net_arch: list[int] | dict[str, list[int]] | None = None,
         trunk_dim: int = 50,
         n_critics: int = 2,
         features_dim: int | None = 2048,
@@ -162,6 +185,7 @@ class DrQv2Policy(BasePolicy):
             squash_output=True,
         )
         self.net_arch = net_arch if net_arch is not None else [1024, 1024]
+        self.actor_arch, self.critic_arch = actor_critic_arch(self.net_arch)
         self.trunk_dim = trunk_dim
         self.n_critics = n_critics
         self.features_dim = features_dim
@@ -175,11 +199,11 @@ class DrQv2Policy(BasePolicy):
         action_dim = int(np.prod(self.action_space.shape))
         self.encoder = DrQv2Encoder(self.observation_space, features_dim=self.features_dim)
         repr_dim = self.encoder.features_dim
-        self.actor = DrQv2Actor(repr_dim, action_dim, self.trunk_dim, self.net_arch)
-        self.critic = DrQv2Critic(repr_dim, action_dim, self.trunk_dim, self.net_arch, self.n_critics)
+        self.actor = DrQv2Actor(repr_dim, action_dim, self.trunk_dim, self.actor_arch)
+        self.critic = DrQv2Critic(repr_dim, action_dim, self.trunk_dim, self.critic_arch, self.n_critics)
         for module in (self.encoder, self.actor, self.critic):
             module.apply(_orthogonal_init)
-        self.critic_target = DrQv2Critic(repr_dim, action_dim, self.trunk_dim, self.net_arch, self.n_critics)
+        self.critic_target = DrQv2Critic(repr_dim, action_dim, self.trunk_dim, self.critic_arch, self.n_critics)
         self.critic_target.load_state_dict(self.critic.state_dict())
         self.critic_target.train(False)
         self.critic_target.requires_grad_(False)

@@ -6,6 +6,7 @@ candidate is tried in a subprocess (a failed OpenGL initialisation can abort the
 
 from __future__ import annotations
 
+import ctypes.util
 import os
 import subprocess
 import sys
@@ -16,6 +17,14 @@ GL_BACKENDS: dict[str, str] = {
     "egl": "libEGL with a working driver (Debian/Ubuntu: apt install libegl1 libgl1-mesa-dri)",
     "osmesa": "OSMesa (Debian/Ubuntu: apt install libosmesa6)",
 }
+
+#: The shared library each backend loads (``ctypes.util.find_library`` names), checked when MUJOCO_GL is set.
+GL_LIBRARIES: dict[str, str] = {"egl": "EGL", "osmesa": "OSMesa"}
+
+
+class RenderingBackendError(RuntimeError):
+    """No usable headless OpenGL backend: the message says what to install or set."""
+
 
 _PROBE = "import mujoco; context = mujoco.GLContext(8, 8); context.make_current(); context.free()"
 
@@ -38,10 +47,17 @@ def ensure_gl_backend(candidates: dict[str, str] | None = None) -> str:
     """Return the ``MUJOCO_GL`` backend in use, choosing and setting the first working one if it is unset.
 
     :param candidates: backends to try in order, each with an install hint (default :data:`GL_BACKENDS`).
-    :raises RuntimeError: if ``MUJOCO_GL`` is unset and no candidate works; the message says what to install.
+    :raises RenderingBackendError: if ``MUJOCO_GL`` names a backend whose library is missing, or it is unset and no
+        candidate works; the message says what to install.
     """
     chosen = os.environ.get("MUJOCO_GL")
     if chosen:
+        library = GL_LIBRARIES.get(chosen)
+        if library is not None and ctypes.util.find_library(library) is None:
+            raise RenderingBackendError(
+                f"MUJOCO_GL={chosen} needs the {library} library, which is not installed: install "
+                f"{GL_BACKENDS[chosen]}, or set MUJOCO_GL to another backend (egl, osmesa, glfw with a display)"
+            )
         return chosen
     if "mujoco" in sys.modules:
         warnings.warn(
@@ -56,7 +72,7 @@ def ensure_gl_backend(candidates: dict[str, str] | None = None) -> str:
             os.environ["MUJOCO_GL"] = backend
             return backend
         failures.append(f"{backend}: {reason} (needs {hint})")
-    raise RuntimeError(
+    raise RenderingBackendError(
         "No headless OpenGL backend works for MuJoCo rendering. Tried MUJOCO_GL="
         + "; ".join(failures)
         + ". Install one of them, or set MUJOCO_GL yourself."

@@ -33,7 +33,8 @@ def make_env(
     :param frame_stack: frames stacked along channels, oldest first.
     :param action_repeat: simulator steps per agent step (rewards summed, success OR-ed).
     :param camera: camera index or name; default camera 0 for DMC (2 for quadruped), ``"corner"`` for Meta-World.
-    :param fast_render: shadows, reflections and multisampling off: several times faster on CPU.
+    :param fast_render: shadows, reflections and multisampling off: several times faster on CPU, other frames
+        (no shadows: analyse and evaluate with the same setting).
     :param seed: seed of the initial states (and of the Meta-World task variant).
     :param kwargs: suite options: ``episode_length`` (simulator steps; 1000 DMC, 500 Meta-World),
         ``render_mode`` (``"rgb_array"``), ``resample_task`` (Meta-World), ``repeat_discount`` (Meta-World: the

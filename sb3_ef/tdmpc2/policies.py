@@ -28,6 +28,15 @@ def check_pixel_space(observation_space: spaces.Space) -> tuple[int, int, int]:
     return channels, height, width
 
 
+#: DrQ-v2 policy arguments a TD-MPC2 policy does not take, with what sizes it has instead.
+_DRQV2_ARGUMENTS = {
+    "net_arch": "mlp_dim (width of every MLP)",
+    "features_dim": "num_channels (the latent has 16 * num_channels dims)",
+    "trunk_dim": "mlp_dim",
+    "n_critics": "num_q",
+}
+
+
 class TDMPC2Policy(BasePolicy):
     """Holds everything TD-MPC2 learns and plans with.
 
@@ -85,7 +94,11 @@ class TDMPC2Policy(BasePolicy):
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
         channels_last: bool = True,
+        **unknown: Any,
     ):
+        for name in unknown:
+            instead = _DRQV2_ARGUMENTS.get(name, "see the TDMPC2Policy docstring")
+            raise ValueError(f"TDMPC2Policy has no argument {name!r}: its sizes are set by {instead}")
         if optimizer_kwargs is None and optimizer_class is th.optim.Adam:
             optimizer_kwargs = {"fused": True}
         super().__init__(

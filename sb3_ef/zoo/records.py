@@ -2,9 +2,11 @@
 
 rl-zoo3's EvalCallback writes ``evaluations.npz`` (steps, per-episode returns, successes when the env reports
 them) in each run folder ``<logs>/<algo>/<env>_<run>/``; the run's ``<env>/args.yml`` holds the env id and seed.
-Each run becomes one CSV ``<out>/<algo>/<env>_<run>.csv`` in the format of :mod:`sb3_ef.analysis.records`.
+Each run becomes one CSV ``<out>/<Algo>/<env>_<run>.csv`` in the format of :mod:`sb3_ef.analysis.records`, where
+``<Algo>`` is the algorithm's class name (``drqv2_ef`` -> ``DrQv2EF``): the name
+:class:`~sb3_ef.analysis.records.EvalRecorderCallback` writes, so runs of both kinds make one algorithm.
 
-    python -m sb3_ef.zoo.records logs results
+    python -m sb3_ef.zoo.records logs results     # results/DrQv2EF/dmc-cheetah-run-v0_1.csv, ...
     sb3-ef analyze results results
 """
 
@@ -17,8 +19,17 @@ from collections.abc import Sequence
 
 import numpy as np
 import yaml
+from rl_zoo3 import utils
 
 from sb3_ef.analysis.records import append_records, record_row
+from sb3_ef.zoo.registration import register_algorithms
+
+
+def algorithm_name(zoo_key: str) -> str:
+    """The class name of the algorithm rl-zoo3 registers as ``zoo_key`` (``zoo_key`` itself if unknown)."""
+    register_algorithms()
+    algo_class = utils.ALGOS.get(zoo_key)
+    return zoo_key if algo_class is None else algo_class.__name__
 
 
 def run_records(run_folder: str, algo: str, action_repeat: int = 2) -> list[dict[str, object]]:
@@ -45,14 +56,15 @@ def run_records(run_folder: str, algo: str, action_repeat: int = 2) -> list[dict
 
 
 def export_records(log_folder: str, out: str, action_repeat: int = 2) -> list[str]:
-    """Write one evaluation CSV per rl-zoo3 run under ``log_folder`` that has evaluations; return their paths.
+    """Write one evaluation CSV per rl-zoo3 run under ``log_folder`` that has evaluations, under the algorithm's class
+    name; return their paths.
 
     Existing CSVs are replaced, so exporting twice gives the same files.
     """
     written = []
     for npz in sorted(glob.glob(os.path.join(log_folder, "*", "*", "evaluations.npz"))):
         run_folder = os.path.dirname(npz)
-        algo = os.path.basename(os.path.dirname(run_folder))
+        algo = algorithm_name(os.path.basename(os.path.dirname(run_folder)))
         path = os.path.join(out, algo, f"{os.path.basename(run_folder)}.csv")
         if os.path.exists(path):
             os.remove(path)

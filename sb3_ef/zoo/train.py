@@ -7,22 +7,33 @@ Takes exactly rl-zoo3's arguments. Differences, all on top of rl-zoo3's own beha
   so subprocess envs and ``enjoy`` find the ids too);
 - the whole YAML file and the ``--hyperparams`` overrides are checked before anything is built, so a bad key
   or env id fails at once with the entry and key named;
-- ``-optimize`` uses the Optuna samplers of :mod:`sb3_ef.zoo.hyperparams_opt`.
+- ``-optimize`` uses the Optuna samplers of :mod:`sb3_ef.zoo.hyperparams_opt`;
+- ``--save-freq`` checkpoints can be resumed, ``-i`` continues a run, and ``--resume RUN_DIR`` continues a run from
+  its newest checkpoint with the run's own arguments (:mod:`sb3_ef.zoo.resume`). Options of sb3-ef only:
+  ``--resume RUN_DIR``, ``--checkpoint-buffer`` (checkpoints include the replay buffer) and
+  ``--keep-checkpoints N`` (default 2).
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
+import itertools
+import json
+import os
 import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 from rl_zoo3 import exp_manager, utils
 
 import sb3_ef  # noqa: F401  (registers the environments)
+from sb3_ef.common.checkpoints import latest_checkpoint
 from sb3_ef.zoo import config
 from sb3_ef.zoo.registration import register_algorithms
+from sb3_ef.zoo.resume import ARGV_FILE, CheckpointOptions, ResumingExperimentManager
 
 GYM_PACKAGE = "sb3_ef"
 
@@ -88,6 +99,54 @@ def prepare(argv: Sequence[str]) -> list[str]:
     return with_gym_package(argv)
 
 
+def _sb3_ef_parser() -> argparse.ArgumentParser:
+    """The train options sb3-ef adds to rl-zoo3's (removed before rl-zoo3 parses the rest)."""
+    parser = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    parser.add_argument("--resume", default=None, metavar="RUN_DIR")
+    parser.add_argument("--checkpoint-buffer", action="store_true")
+    parser.add_argument("--keep-checkpoints", type=int, default=2)
+    return parser
+
+
+def _without_options(argv: list[str], options: dict[str, bool]) -> list[str]:
+    """``argv`` without the given options (name -> whether it takes a value), in both spellings of a value."""
+    kept, skip = [], False
+    for arg in argv:
+        name = arg.split("=", 1)[0]
+        if skip:
+            skip = False
+        elif name in options:
+            skip = options[name] and "=" not in arg
+        else:
+            kept.append(arg)
+    return kept
+
+
+def resume_argv(run_dir: str, extra: list[str]) -> list[str]:
+    """The train arguments that continue ``run_dir``: the run's own (from ``<env>/train_argv.json``) with
+    ``-i`` pointing at its newest checkpoint (or its final model), then ``extra`` (later values win)."""
+    folder = Path(run_dir)
+    saved = sorted(folder.glob(f"*/{ARGV_FILE}"))
+    if not folder.is_dir() or len(saved) != 1:
+        raise ValueError(
+            f"--resume expects an sb3-ef run folder holding <env>/{ARGV_FILE}, got {run_dir!r} "
+            f"({'not a folder' if not folder.is_dir() else f'{len(saved)} such files'})"
+        )
+    checkpoint = latest_checkpoint(folder)
+    model_path = checkpoint.model_path if checkpoint is not None else folder / f"{saved[0].parent.name}.zip"
+    if not model_path.is_file():
+        raise ValueError(f"--resume: {run_dir!r} holds no checkpoint (train with --save-freq) and no final model")
+    argv = _without_options(json.loads(saved[0].read_text()), {"-i": True, "--trained-agent": True})
+    return [*argv, "-i", str(model_path), *extra]
+
+
+def _check_trained_agent(argv: list[str]) -> None:
+    """Name a ``-i`` value that is not a model zip (rl-zoo3 only asserts it)."""
+    for arg, value in itertools.pairwise(argv):
+        if arg in ("-i", "--trained-agent") and not (value.endswith(".zip") and os.path.isfile(value)):
+            raise ValueError(f"{arg} expects the path of a saved model .zip, got {value!r}")
+
+
 def run_with_argv(function: Callable[[], None], argv: Sequence[str]) -> None:
     """Call an rl-zoo3 entry point (which parses ``sys.argv``) on ``argv``."""
     saved = sys.argv
@@ -100,9 +159,27 @@ def run_with_argv(function: Callable[[], None], argv: Sequence[str]) -> None:
 
 def main(argv: Sequence[str] | None = None) -> None:
     """Train (or, with ``-optimize``, tune) an agent with rl-zoo3; ``argv`` defaults to the command line."""
-    from rl_zoo3.train import train
+    from rl_zoo3 import train as zoo_train
 
-    run_with_argv(train, prepare(sys.argv[1:] if argv is None else argv))
+    argv = list(sys.argv[1:] if argv is None else argv)
+    options, _ = _sb3_ef_parser().parse_known_args(argv)
+    if options.keep_checkpoints < 1:
+        raise ValueError(f"--keep-checkpoints must be >= 1, got {options.keep_checkpoints}")
+    if options.resume is not None:
+        argv = resume_argv(options.resume, _without_options(argv, {"--resume": True}))
+    _check_trained_agent(argv)
+    zoo_argv = prepare(_without_options(argv, {"--checkpoint-buffer": False, "--keep-checkpoints": True}))
+    manager = functools.partial(
+        ResumingExperimentManager,
+        checkpoint_options=CheckpointOptions(options.checkpoint_buffer, options.keep_checkpoints),
+        argv=argv,
+    )
+    saved = zoo_train.ExperimentManager
+    zoo_train.ExperimentManager = manager  # type: ignore[misc]  # rl-zoo3's train builds it by this name
+    try:
+        run_with_argv(zoo_train.train, zoo_argv)
+    finally:
+        zoo_train.ExperimentManager = saved
 
 
 if __name__ == "__main__":

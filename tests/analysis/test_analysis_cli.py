@@ -47,9 +47,10 @@ def test_results_command_writes_tables_and_plots(tmp_path, capsys):
 def test_results_command_without_records_fails_clearly(tmp_path):
     with pytest.raises(FileNotFoundError, match="No evaluation CSV"):
         main(["results", str(tmp_path)])
+    assert list(tmp_path.iterdir()) == []  # no analysis/ folder left behind
 
 
-def test_model_command_writes_prediction_saliency_and_scores(tmp_path):
+def test_model_command_writes_prediction_saliency_and_scores(tmp_path, capsys):
     model = DrQv2EF("CnnPolicy", ToyAgentEnv(size=32), buffer_size=100, batch_size=4, learning_starts=8,
                     ef_horizon=3, babbling_steps=0, policy_kwargs=TINY_DRQV2, device="cpu")  # fmt: skip
     model.learn(10)
@@ -58,10 +59,113 @@ def test_model_command_writes_prediction_saliency_and_scores(tmp_path):
     status = main(["model", str(tmp_path / "model.zip"), "--env", "toy/agent-v0", "--steps", "5",
                    "--actions", "figure8", "--out", str(out)])  # fmt: skip
     assert status == 0
-    assert Image.open(out / "prediction.png").size == (5 * 32 + 8, 3 * 32 + 4)
-    assert Image.open(out / "saliency.png").size == (3 * 32 + 4, 32)
+    assert f"Wrote prediction.png, prediction.gif, saliency.png, scores.json to {out}" in capsys.readouterr().out
+    # Labelled figures: larger than the bare frame grids (5 x 3 and 3 x 1 frames of 32 pixels, 2-pixel spacing).
+    assert Image.open(out / "prediction.png").size > (5 * 32 + 8, 3 * 32 + 4)
+    assert Image.open(out / "saliency.png").size > (3 * 32 + 4, 32)
     assert (out / "prediction.gif").stat().st_size > 0
     scores = json.loads((out / "scores.json").read_text())
     assert scores["steps"] == 5 and {"prediction_mse", "mask_precision", "mask_recall", "mask_iou"} <= set(scores)
     with pytest.raises(SystemExit):
         main(["model", str(tmp_path / "model.zip")])  # --env is required
+
+
+def _write_zoo_run(folder, env_name, command_line_kwargs, config_kwargs):
+    """The two files of an rl-zoo3 run that record env options, in rl-zoo3's own YAML layout."""
+    from collections import OrderedDict
+
+    import yaml
+
+    (folder / env_name).mkdir(parents=True)
+    with open(folder / env_name / "args.yml", "w") as file:
+        yaml.dump(OrderedDict([("env", env_name), ("env_kwargs", command_line_kwargs)]), file)
+    with open(folder / env_name / "config.yml", "w") as file:
+        yaml.dump(OrderedDict([("env_kwargs", config_kwargs), ("policy", "CnnPolicy")]), file)
+
+
+def test_run_env_kwargs_come_from_the_zoo_run_folder(tmp_path):
+    from sb3_ef.analysis.cli import parse_env_kwargs, run_env_kwargs
+
+    _write_zoo_run(tmp_path / "cli", "dmc-reacher-easy-v0", {"fast_render": True}, {"fast_render": True})
+    assert run_env_kwargs(tmp_path / "cli" / "dmc-reacher-easy-v0.zip") == {"fast_render": True}
+    _write_zoo_run(tmp_path / "config", "dmc-reacher-easy-v0", None, "dict(size=64, fast_render=True)")
+    assert run_env_kwargs(tmp_path / "config" / "dmc-reacher-easy-v0.zip") == {"size": 64, "fast_render": True}
+    assert run_env_kwargs(tmp_path / "elsewhere" / "model.zip") == {}
+    assert parse_env_kwargs(["fast_render:True", "size:64", "camera:corner"]) == {
+        "fast_render": True,
+        "size": 64,
+        "camera": "corner",
+    }
+    with pytest.raises(ValueError, match="key:value"):
+        parse_env_kwargs(["fast_render"])
+
+
+def test_model_command_on_a_one_dimensional_action_task_with_the_runs_rendering(tmp_path, capsys):
+    """Cartpole has one action dimension; the run trained with fast_render, so the analysis renders that way too."""
+    from sb3_ef import make_env
+
+    model = DrQv2EF("CnnPolicy", make_env("dmc/cartpole-swingup", size=32, fast_render=True), buffer_size=100,
+                    batch_size=4, learning_starts=8, ef_horizon=3, babbling_steps=0, policy_kwargs=TINY_DRQV2,
+                    device="cpu")  # fmt: skip
+    model.learn(10)
+    _write_zoo_run(tmp_path, "dmc-cartpole-swingup-v0", {"fast_render": True}, None)
+    model.save(tmp_path / "dmc-cartpole-swingup-v0.zip")
+    out = tmp_path / "analysis"
+    main(["model", str(tmp_path / "dmc-cartpole-swingup-v0.zip"), "--env", "dmc/cartpole-swingup", "--steps", "3",
+          "--actions", "figure8", "--out", str(out)])  # fmt: skip
+    scores = json.loads((out / "scores.json").read_text())
+    assert scores["env_kwargs"] == {"fast_render": True} and scores["steps"] == 3
+    with pytest.raises(ValueError, match="does not match the model's size 32"):
+        main(["model", str(tmp_path / "dmc-cartpole-swingup-v0.zip"), "--env", "dmc/cartpole-swingup",
+              "--env-kwargs", "size:64", "--out", str(out)])  # fmt: skip
+
+
+def _zoo_task_names():
+    import yaml
+
+    from sb3_ef.zoo.config import default_config_path
+
+    names = set()
+    for algo in ("drqv2_ef", "tdmpc2_ef"):
+        with open(default_config_path(algo)) as file:
+            names |= {name.removesuffix("-v0") for name in yaml.safe_load(file) if name != "default"}
+    return sorted(names)
+
+
+def _first_frame(env):
+    try:
+        observation, _ = env.reset(seed=0)
+    finally:
+        env.close()
+    return observation[-3:].astype(np.int16)
+
+
+def _analysis_frame_of_a_fast_render_run(tmp_path, name):
+    from sb3_ef.analysis.cli import make_analysis_env, run_env_kwargs
+
+    run = tmp_path / name.replace("/", "-")
+    _write_zoo_run(run, "env", {"fast_render": True, "size": 32}, None)
+    kwargs = run_env_kwargs(run / "model.zip")
+    return _first_frame(make_analysis_env(name, (3, 32, 32), 3, 2, env_kwargs={**kwargs, "seed": 0}))
+
+
+def test_analysis_renders_like_the_run_where_fast_render_changes_the_frames(tmp_path):
+    """reacher-easy: without its shadows the frame differs by ~28 grey levels; the analysis env renders as trained."""
+    from sb3_ef import make_env
+
+    trained = _first_frame(make_env("dmc/reacher-easy", size=32, fast_render=True, seed=0))
+    default = _first_frame(make_env("dmc/reacher-easy", size=32, seed=0))
+    assert np.abs(trained - default).mean() > 10
+    assert np.array_equal(_analysis_frame_of_a_fast_render_run(tmp_path, "dmc/reacher-easy"), trained)
+
+
+@pytest.mark.slow
+def test_analysis_renders_like_the_run_on_every_zoo_task(tmp_path):
+    """The 12 DMC and 16 Meta-World tasks of zoo_configs/, one first frame each (about a minute on 2 cores)."""
+    from sb3_ef import make_env
+
+    names = _zoo_task_names()
+    assert len(names) == 28
+    for name in names:
+        trained = _first_frame(make_env(name, size=32, fast_render=True, seed=0))
+        assert np.array_equal(_analysis_frame_of_a_fast_render_run(tmp_path, name), trained), name

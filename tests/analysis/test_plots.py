@@ -17,3 +17,21 @@ def test_plots_are_written_as_images(tmp_path):
         width, height = Image.open(path).size
         assert width > 100 and height > 100
     assert isinstance(table, pd.DataFrame)
+
+
+def test_prediction_and_saliency_figures_are_labelled():
+    from analysis_fakes import DotEnv, FakeModel
+
+    from sb3_ef.analysis.plots import prediction_figure, saliency_figure
+    from sb3_ef.analysis.prediction import figure_eight_actions
+    from sb3_ef.analysis.report import foresight_report, record_rollout
+
+    probe = figure_eight_actions(4, 2, period=4)
+    report = foresight_report(FakeModel(), record_rollout(DotEnv(), lambda _obs, step: probe[step], 4, seed=0))
+    figure = prediction_figure(report, "fake on dots")
+    [axis] = figure.axes
+    assert [label.get_text() for label in axis.get_yticklabels()] == ["context", "predicted", "true"]
+    assert [label.get_text() for label in axis.get_xticklabels()] == ["t+1", "t+2", "t+3", "t+4"]
+    assert axis.get_title() == "fake on dots"
+    titles = [axis.get_title() for axis in saliency_figure(report, "fake").axes]
+    assert titles == ["predicted frame", "h_a saliency (red)", "h_s saliency (blue)", "true agent mask"]

@@ -54,8 +54,16 @@ def test_figure_eight_is_a_closed_bounded_path_padded_with_zeros():
     assert np.all(actions[:, 2:] == 0)
     positions = np.cumsum(actions[:, :2], axis=0)
     assert np.allclose(positions[-1], 0.0, atol=1e-4)  # back at the start after one period
-    with pytest.raises(ValueError, match="at least 2 dimensions, got 1"):
-        figure_eight_actions(10, 1)
+    with pytest.raises(ValueError, match="at least 1 dimension, got 0"):
+        figure_eight_actions(10, 0)
+
+
+def test_figure_eight_on_one_action_dimension_swings_back_and_forth():
+    """Cartpole has one actuator: the probe is the figure eight's first component alone."""
+    actions = figure_eight_actions(40, 1, period=40)
+    assert actions.shape == (40, 1)
+    assert np.array_equal(actions[:, 0], figure_eight_actions(40, 2, period=40)[:, 0])
+    assert actions.max() == 1.0 and actions.min() < -0.99
 
 
 def test_grid_png_and_videos_are_written(tmp_path):

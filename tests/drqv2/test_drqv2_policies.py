@@ -126,3 +126,33 @@ def test_speed_options_keep_the_maths():
     assert fast.encoder.convnet[0].weight.is_contiguous(memory_format=th.channels_last)
     observations = th.randint(0, 256, (4, 9, 32, 32), dtype=th.uint8)
     assert th.allclose(fast(observations), plain(observations), atol=1e-6)
+
+
+def test_net_arch_dict_gives_actor_and_critic_their_own_sizes():
+    """SB3's usual dict(pi=[...], qf=[...]) spelling."""
+    policy = DrQv2Policy(image_space(32), ACTIONS, lambda _: 1e-4, **{**TINY, "net_arch": {"pi": [16], "qf": [24, 8]}})
+    actor_sizes = [layer.out_features for layer in policy.actor.mu if isinstance(layer, th.nn.Linear)]
+    critic_sizes = [layer.out_features for layer in policy.critic.q_networks[0] if isinstance(layer, th.nn.Linear)]
+    assert actor_sizes == [16, 2] and critic_sizes == [24, 8, 1]
+    rebuilt = DrQv2Policy(**policy._get_constructor_parameters())
+    assert [p.shape for p in rebuilt.critic_target.parameters()] == [p.shape for p in policy.critic.parameters()]
+
+
+@pytest.mark.parametrize(
+    ("net_arch", "message"),
+    [
+        ("big", "net_arch must be a list of positive layer sizes .* got 'big'"),
+        ([256, -1], r"got \[256, -1\]"),
+        ({"pi": [16]}, "exactly the keys 'pi' and 'qf', got \\['pi'\\]"),
+        ({"pi": [16], "qf": "big"}, "net_arch must be"),
+    ],
+)
+def test_bad_net_arch_is_named(net_arch, message):
+    with pytest.raises(ValueError, match=message):
+        DrQv2Policy(image_space(32), ACTIONS, lambda _: 1e-4, **{**TINY, "net_arch": net_arch})
+
+
+@pytest.mark.parametrize("features_dim", [-5, 0, 2.5, True])
+def test_bad_features_dim_is_named(features_dim):
+    with pytest.raises(ValueError, match=f"features_dim must be a positive integer .*got {features_dim!r}"):
+        DrQv2Encoder(image_space(32), features_dim=features_dim)

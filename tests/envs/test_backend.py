@@ -1,12 +1,14 @@
 """OpenGL backend choice: set when MUJOCO_GL is unset, a clear error when nothing works."""
 
+import ctypes.util
 import os
 import subprocess
 import sys
 
 import pytest
 
-from sb3_ef.envs.backend import GL_BACKENDS, ensure_gl_backend
+from sb3_ef.envs import make_env
+from sb3_ef.envs.backend import GL_BACKENDS, RenderingBackendError, ensure_gl_backend
 
 CHILD = """
 import os
@@ -29,8 +31,16 @@ def test_backend_is_chosen_when_unset():
 
 
 def test_set_backend_is_respected(monkeypatch):
+    monkeypatch.setenv("MUJOCO_GL", "glfw")
+    assert ensure_gl_backend() == "glfw"
+
+
+@pytest.mark.skipif(ctypes.util.find_library("OSMesa") is not None, reason="OSMesa is installed here")
+def test_set_backend_without_its_library_names_what_to_install(monkeypatch):
+    """Without this check, make_env fails with an AttributeError inside PyOpenGL."""
     monkeypatch.setenv("MUJOCO_GL", "osmesa")
-    assert ensure_gl_backend() == "osmesa"
+    with pytest.raises(RenderingBackendError, match=r"MUJOCO_GL=osmesa needs the OSMesa library.*libosmesa6"):
+        make_env("dmc/cartpole-swingup", size=32)
 
 
 def test_no_working_backend_names_what_to_install(monkeypatch):

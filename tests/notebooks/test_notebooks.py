@@ -28,6 +28,19 @@ def test_notebooks_are_stored_without_outputs():
     [pytest.param(path, id=path.stem, marks=[] if path.name in DEFAULT else [pytest.mark.slow]) for path in NOTEBOOKS],
 )
 def test_notebook_executes_in_small_mode(path, tmp_path, monkeypatch):
+    execute_small(path, tmp_path, monkeypatch)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["02_predictions.ipynb", "03_disentanglement.ipynb"])
+def test_analysis_notebooks_run_on_a_one_dimensional_action_task(name, tmp_path, monkeypatch):
+    """Cartpole has a single actuator: the probe actions must still work."""
+    monkeypatch.setenv("SB3_EF_ENV", "dmc/cartpole-swingup")
+    execute_small(NOTEBOOKS[[path.name for path in NOTEBOOKS].index(name)], tmp_path, monkeypatch)
+
+
+def execute_small(path: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Execute a notebook in SMALL mode and check that it showed a picture."""
     monkeypatch.setenv("SB3_EF_SMALL", "1")
     monkeypatch.setenv("OMP_NUM_THREADS", "1")
     monkeypatch.setenv("MUJOCO_GL", "egl")
@@ -35,9 +48,6 @@ def test_notebook_executes_in_small_mode(path, tmp_path, monkeypatch):
     resources = {"metadata": {"path": str(tmp_path)}}  # the kernel's working directory: saved files go there
     NotebookClient(notebook, timeout=600, kernel_name="python3", resources=resources).execute()
     images = [
-        output
-        for cell in notebook.cells
-        for output in cell.get("outputs", [])
-        if "image/png" in output.get("data", {})
+        output for cell in notebook.cells for output in cell.get("outputs", []) if "image/png" in output.get("data", {})
     ]
     assert images, f"{path.name} showed no picture"

@@ -48,9 +48,37 @@ def test_analyze_exit_status_reaches_the_shell(monkeypatch):
     assert cli.main(["analyze", "results", "missing/"]) == 3
 
 
-def test_train_errors_reach_the_user(tmp_path):
+def test_train_errors_reach_the_user_as_one_line(tmp_path, capsys, monkeypatch):
+    monkeypatch.delenv("SB3_EF_TRACEBACK", raising=False)
+    assert cli.main(["train", "--algo", "sac_ef", "--env", "dmc/cheetah-run-v0", "-f", str(tmp_path)]) == 2
+    [line] = capsys.readouterr().err.splitlines()
+    assert line.startswith("sb3-ef train: error: Unknown algorithm 'sac_ef'")
+    monkeypatch.setenv("SB3_EF_TRACEBACK", "1")
     with pytest.raises(ValueError, match="Unknown algorithm 'sac_ef'"):
         cli.main(["train", "--algo", "sac_ef", "--env", "dmc/cheetah-run-v0", "-f", str(tmp_path)])
+
+
+def test_a_failed_start_leaves_no_run_folder(tmp_path, capsys):
+    """net_arch 'big' fails while the model is built, after rl-zoo3 made the run folder: it is removed again."""
+    (tmp_path / "drqv2" / "dmc-cartpole-swingup-v0_1").mkdir(parents=True)  # an earlier run stays
+    status = cli.main(["train", "--algo", "drqv2", "--env", "dmc/cartpole-swingup-v0", "-f", str(tmp_path),
+                       "--env-kwargs", "size:32", "fast_render:True", "--hyperparams", "buffer_size:100",
+                       "policy_kwargs:dict(net_arch='big')"])  # fmt: skip
+    assert status == 2
+    assert "net_arch" in capsys.readouterr().err
+    assert [path.name for path in (tmp_path / "drqv2").iterdir()] == ["dmc-cartpole-swingup-v0_1"]
+    status = cli.main(["train", "--algo", "drqv2", "--env", "dmc/cartpole-swingup-v0", "-f", str(tmp_path / "new"),
+                       "--env-kwargs", "size:32", "fast_render:True", "--hyperparams", "buffer_size:100",
+                       "policy_kwargs:dict(net_arch='big')"])  # fmt: skip
+    assert status == 2 and not (tmp_path / "new").exists()  # nor the log folders it would have made
+
+
+def test_version(capsys):
+    from sb3_ef import __version__
+
+    with pytest.raises(SystemExit) as raised:
+        cli.main(["--version"])
+    assert raised.value.code == 0 and capsys.readouterr().out.strip() == f"sb3-ef {__version__}"
 
 
 @pytest.mark.parametrize("argv", [[], ["tune"]])

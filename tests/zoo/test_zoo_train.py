@@ -74,7 +74,7 @@ def test_enjoy_loads_without_the_training_buffer(trained, capsys, monkeypatch):
 def test_evaluations_of_a_zoo_run_export_to_analysis_records(trained, tmp_path):
     [path] = export_records(str(trained), str(tmp_path))
     records = load_records(tmp_path)
-    assert path.endswith(f"drqv2/{LOG_NAME}_1.csv")
+    assert path.endswith(f"DrQv2/{LOG_NAME}_1.csv")  # the class name, as EvalRecorderCallback writes it
     assert records["step"].tolist() == [60, 120, 180]
     assert records["frame"].tolist() == [120, 240, 360]
     assert set(records["task"]) == {ENV_ID} and set(records["seed"]) == {0}

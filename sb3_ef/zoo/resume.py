@@ -1,0 +1,177 @@
+"""rl-zoo3 runs that continue: resumable checkpoints, ``-i`` that carries on, and no empty run folders.
+
+rl-zoo3's ``-i model.zip`` loads the model and trains ``-n`` more steps from step 0 in a new run folder: babbling,
+the ``learning_starts`` warm-up and the schedules start again, evaluations restart at step 0, and its checkpoints
+hold neither the replay buffer nor the random states. :class:`ResumingExperimentManager` changes, for every
+algorithm:
+
+- ``--save-freq`` writes :class:`~sb3_ef.common.checkpoints.ResumableCheckpointCallback` checkpoints (random
+  states always, the replay buffer with ``--checkpoint-buffer``, the newest ``--keep-checkpoints`` kept);
+- ``-i`` loads the model with the buffer and random states saved beside it and trains until the run has ``-n`` (or
+  the config's ``n_timesteps``) steps in all, continuing its step count; when the model lies in an rl-zoo3 run
+  folder the run continues there: ``evaluations.npz`` and the monitor files are appended to, the evaluation steps
+  carry on, the final model replaces the old one;
+- a run that fails before training starts removes the folders it created (run folder, and log folders that did
+  not exist before).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rl_zoo3.exp_manager import ExperimentManager
+from rl_zoo3.utils import ALGOS
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
+from stable_baselines3.common.vec_env import VecEnv
+
+from sb3_ef.common.checkpoints import Checkpoint, ResumableCheckpointCallback, checkpoint_for, load_checkpoint
+
+#: File in ``<run>/<env>/`` holding the sb3-ef train arguments of the run (read by ``--resume``).
+ARGV_FILE = "train_argv.json"
+
+
+@dataclass(frozen=True)
+class CheckpointOptions:
+    """What ``--save-freq`` checkpoints hold: the replay buffer or not, and how many are kept."""
+
+    include_buffer: bool = False
+    keep: int = 2
+
+
+def is_run_folder(folder: Path, env_name: str) -> bool:
+    """Whether ``folder`` is an rl-zoo3 run folder of ``env_name`` (it holds ``<env_name>/args.yml``)."""
+    return (folder / env_name / "args.yml").is_file()
+
+
+def outermost_missing(path: Path) -> Path | None:
+    """The outermost of ``path`` and its parents that does not exist yet (what creating ``path`` creates)."""
+    missing = None
+    while not path.exists():
+        missing, path = path, path.parent
+    return missing
+
+
+def continue_evaluations(callback: EvalCallback) -> None:
+    """Start ``callback`` from the evaluations its ``evaluations.npz`` already holds, so new ones are appended
+    and ``best_model.zip`` is only replaced by a better mean return."""
+    path = f"{callback.log_path}.npz" if callback.log_path is not None else None
+    if path is None or not os.path.isfile(path):
+        return
+    with np.load(path) as evaluations:
+        callback.evaluations_timesteps = evaluations["timesteps"].tolist()
+        callback.evaluations_results = evaluations["results"].tolist()
+        callback.evaluations_length = evaluations["ep_lengths"].tolist()
+        if "successes" in evaluations.files:
+            callback.evaluations_successes = evaluations["successes"].tolist()
+    if callback.evaluations_results:
+        callback.best_mean_reward = max(float(np.mean(returns)) for returns in callback.evaluations_results)
+
+
+class _Continuing:
+    """A model whose ``learn`` keeps its counters (rl-zoo3 calls ``model.learn(n_timesteps, ...)``)."""
+
+    def __init__(self, model: BaseAlgorithm):
+        self._model = model
+
+    def learn(self, total_timesteps: int, **kwargs: Any) -> BaseAlgorithm:
+        return self._model.learn(total_timesteps, reset_num_timesteps=False, **kwargs)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._model, name)
+
+
+class ResumingExperimentManager(ExperimentManager):
+    """rl-zoo3's ``ExperimentManager`` with resumable checkpoints and a ``-i`` that continues the run (module
+    docstring).
+
+    :param args, kwargs: rl-zoo3's ``ExperimentManager`` arguments.
+    :param checkpoint_options: what checkpoints hold.
+    :param argv: the sb3-ef train arguments, saved in the run folder for ``--resume``.
+    """
+
+    def __init__(self, *args: Any, checkpoint_options: CheckpointOptions, argv: list[str], **kwargs: Any):
+        super().__init__(*args, **kwargs)
+        self.checkpoint_options = checkpoint_options
+        self.argv = argv
+        self.checkpoint: Checkpoint | None = checkpoint_for(self.trained_agent) if self.continue_training else None
+        self.continues_folder = False
+        if self.checkpoint is not None and is_run_folder(self.checkpoint.model_path.parent, self.env_name):
+            self.save_path = str(self.checkpoint.model_path.parent)
+            self.params_path = os.path.join(self.save_path, self.env_name)
+            self.continues_folder = True
+
+    def setup_experiment(self) -> tuple[BaseAlgorithm, dict[str, Any]] | None:
+        created = outermost_missing(Path(self.save_path).absolute())
+        try:
+            return super().setup_experiment()
+        except BaseException:
+            if created is not None:
+                shutil.rmtree(created, ignore_errors=True)
+            raise
+
+    def create_callbacks(self) -> None:
+        super().create_callbacks()
+        for index, callback in enumerate(self.callbacks):
+            if isinstance(callback, CheckpointCallback):
+                self.callbacks[index] = ResumableCheckpointCallback(
+                    callback.save_freq,
+                    callback.save_path,
+                    callback.name_prefix,
+                    save_replay_buffer=self.checkpoint_options.include_buffer,
+                    keep=self.checkpoint_options.keep,
+                    verbose=callback.verbose,
+                )
+            elif isinstance(callback, EvalCallback) and self.continues_folder:
+                continue_evaluations(callback)
+
+    def create_envs(self, n_envs: int, eval_env: bool = False, no_log: bool = False) -> VecEnv:
+        if self.continues_folder:
+            self.monitor_kwargs = {**self.monitor_kwargs, "override_existing": False}  # append to <i>.monitor.csv
+        return super().create_envs(n_envs, eval_env=eval_env, no_log=no_log)
+
+    def _load_pretrained_agent(self, hyperparams: dict[str, Any], env: VecEnv) -> BaseAlgorithm:
+        assert self.checkpoint is not None
+        print(f"Continuing from {self.checkpoint.model_path} (step {self.checkpoint.step})")
+        kwargs = {key: value for key, value in hyperparams.items() if key not in ("policy", "policy_kwargs")}
+        return load_checkpoint(
+            ALGOS[self.algo],
+            self.checkpoint,
+            env,
+            seed=self.seed,
+            tensorboard_log=self.tensorboard_log,
+            verbose=self.verbose,
+            device=self.device,
+            **kwargs,
+        )
+
+    def _save_config(self, saved_hyperparams: dict[str, Any]) -> None:
+        super()._save_config(saved_hyperparams)
+        Path(self.params_path, ARGV_FILE).write_text(json.dumps(self.argv))
+
+    def learn(self, model: BaseAlgorithm) -> None:
+        """rl-zoo3's ``learn``; a continued model trains up to ``n_timesteps`` steps in all, its counters kept."""
+        if self.checkpoint is None:
+            super().learn(model)
+            return
+        total = self.n_timesteps
+        if model.num_timesteps >= total:
+            raise ValueError(
+                f"The run is already at step {model.num_timesteps}, which reaches its n_timesteps {total}: "
+                "pass a larger -n to train further"
+            )
+        n_envs = model.get_env().num_envs
+        for callback in self.callbacks:
+            if isinstance(callback, EvalCallback):
+                callback.n_calls = model.num_timesteps // n_envs  # evaluate at the uninterrupted run's steps
+        self.n_timesteps = total - model.num_timesteps
+        try:
+            super().learn(_Continuing(model))  # type: ignore[arg-type]
+        finally:
+            self.n_timesteps = total
