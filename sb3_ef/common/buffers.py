@@ -302,27 +302,30 @@ class SequenceReplayBuffer(ReplayBuffer):
     def _check_memory(self, storage: th.device) -> None:
         """Raise before allocating when the storage cannot hold the buffer, naming the ways out."""
         frame_bytes, step_bytes = self._storage_bytes()
+        ways_out = [
+            f"a smaller buffer_size (an episode of T steps takes T + {self.frame_stack} frames; to load a model only "
+            "to act, Model.load(path, buffer_size=1000))"
+        ]
         if storage.type == "cuda":
-            needed, available, where = (
-                frame_bytes + step_bytes,
-                th.cuda.mem_get_info(storage)[0],
-                f"free {storage} memory",
-            )
+            needed, available, where = frame_bytes + step_bytes, th.cuda.mem_get_info(storage)[0], f"{storage} memory"
+            ways_out.append("storage_device='cpu' (host memory; batches are copied to the GPU)")
         elif self.memmap_dir is not None:
             os.makedirs(self.memmap_dir, exist_ok=True)
             needed, available = frame_bytes, shutil.disk_usage(self.memmap_dir).free
-            where = f"free disk space in memmap_dir={self.memmap_dir}"
+            where = f"disk space in memmap_dir={self.memmap_dir}"
+            ways_out.append("a memmap_dir on a larger disk")
         else:
-            needed, available, where = frame_bytes + step_bytes, available_host_memory(), "available RAM"
+            needed, available, where = frame_bytes + step_bytes, available_host_memory(), "RAM"
+            ways_out.append(
+                f"memmap_dir=<a folder on a disk with {frame_bytes / 1e9:.1f} GB free> (frames in a file, read "
+                "through the page cache)"
+            )
         if available is None or needed <= available:
             return
-        frames = self.n_envs * self.buffer_size
         raise MemoryError(
-            f"SequenceReplayBuffer needs {needed / 1e9:.2f} GB ({frames} frames of {self.frame_shape} uint8 and their "
-            f"step data) but only {available / 1e9:.2f} GB of {where} are available. Ways out: a smaller buffer_size "
-            f"(an episode of T steps takes T + {self.frame_stack} frames; to load a model only to act, "
-            f"Model.load(path, buffer_size=1000)), memmap_dir=<a folder on a disk with {frame_bytes / 1e9:.1f} GB "
-            "free> (frames in a file, served from the page cache), or storage_device='cpu' when a GPU is too small."
+            f"SequenceReplayBuffer needs {needed / 1e9:.2f} GB ({self.n_envs * self.buffer_size} frames of "
+            f"{self.frame_shape} uint8 and their step data) but only {available / 1e9:.2f} GB of {where} are "
+            f"available. Ways out: {'; or '.join(ways_out)}."
         )
 
     def _allocate_storage(self, storage: th.device) -> None:
