@@ -440,7 +440,7 @@ class SequenceReplayBuffer(ReplayBuffer):
         _write_rows(self._actions, step_rows, action)
         _write_rows(self._rewards, step_rows, reward)
         _write_rows(self._terminals, step_rows, done & ~truncated)
-        if self._step_flags.data_ptr() != self._has_step_rows.ctypes.data:  # a GPU copy of the flags
+        if self.storage_device.type != "cpu":  # the flags have a copy on the GPU
             touched = np.unique(np.concatenate([step_rows, *cleared]))
             _write_rows(self._step_flags, touched, self._has_step_rows[touched])
         self._n_adds += 1
@@ -626,13 +626,10 @@ class SequenceReplayBuffer(ReplayBuffer):
         device = self.device
         if gathered.copied is not None:
             th.cuda.current_stream(_normalize_device(device)).wait_event(gathered.copied)
-        g = _Gathered(
-            *(
-                getattr(gathered, name).to(device, non_blocking=True)
-                for name in _Gathered.__annotations__
-                if name != "copied"
-            )
-        )
+        # Host to GPU copies may run behind the caller (they are stream-ordered); GPU to host ones must not.
+        non_blocking = device.type == "cuda"
+        fields = [name for name in _Gathered.__annotations__ if name != "copied"]
+        g = _Gathered(*(getattr(gathered, name).to(device, non_blocking=non_blocking) for name in fields))
         step_rewards = g.step_rewards
         if env is not None:
             normalized = np.asarray(env.normalize_reward(step_rewards.cpu().numpy()), dtype=np.float32)
