@@ -23,9 +23,9 @@ TDMPC2_POLICY = {
 EF_POLICY = {"agent_dim": 8, "ef_kwargs": {"rollout_hidden_dims": (16,), "decoder_channels": 8}}
 ALGORITHMS = {
     DrQv2: ({}, DRQV2_POLICY),
-    DrQv2EF: ({"ef_horizon": 3, "babbling_steps": 8}, {**DRQV2_POLICY, **EF_POLICY}),
+    DrQv2EF: ({"ef_horizon": 3, "babbling_steps": 4}, {**DRQV2_POLICY, **EF_POLICY}),
     TDMPC2: ({}, TDMPC2_POLICY),
-    TDMPC2EF: ({"ef_horizon": 3, "babbling_steps": 8}, {**TDMPC2_POLICY, **EF_POLICY}),
+    TDMPC2EF: ({"ef_horizon": 3, "babbling_steps": 4}, {**TDMPC2_POLICY, **EF_POLICY}),
 }
 
 
@@ -53,18 +53,18 @@ def test_trains_on_two_envs_in_subprocesses(algorithm):
             env,
             buffer_size=400,
             batch_size=8,
-            learning_starts=20,
+            learning_starts=16,
             seed=0,
             policy_kwargs=policy_kwargs,
             **extra,
         )
-        model.learn(48)  # 24 steps of both envs: 10 warm-up steps, then updates
+        model.learn(32)  # 16 steps of both envs: 8 warm-up steps, then updates
         buffer = model.replay_buffer
-        assert model.num_timesteps == 48 and buffer.n_envs == 2 and buffer.size() == 48
+        assert model.num_timesteps == 32 and buffer.n_envs == 2 and buffer.size() == 32
         assert model._n_updates > 0
         assert all(np.isfinite(value) for key, value in model.logger.name_to_value.items() if key.endswith("loss"))
         # Each env's ring holds its own rendered episode: real frames, different between the two seeds.
-        frames = buffer._frames[:-1].reshape(2, buffer.buffer_size, 3, SIZE, SIZE)[:, :24].numpy()
+        frames = buffer._frames[:-1].reshape(2, buffer.buffer_size, 3, SIZE, SIZE)[:, :16].numpy()
         assert frames.std() > 0 and not np.array_equal(frames[0], frames[1])
     finally:
         env.close()
