@@ -220,7 +220,7 @@ def markdown(results: list[Result], header: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--device", default="cuda")
     parser.add_argument("--smoke", action="store_true", help="tiny sizes: checks the code paths, times nothing")
@@ -228,7 +228,7 @@ def main() -> None:
     parser.add_argument("--algorithms", nargs="+", choices=list(ALGORITHMS), default=list(ALGORITHMS))
     parser.add_argument("--modes", nargs="+", choices=["eager", "compiled"], default=["eager", "compiled"])
     parser.add_argument("--budget-s", type=float, default=420.0, help="no run starts after this many seconds")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     device = th.device(args.device)
     sizes = SMOKE if args.smoke else PAPER
     if device.type == "cuda":
