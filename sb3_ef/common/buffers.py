@@ -723,9 +723,10 @@ def _normalize_device(device: th.device | str) -> th.device:
 
 
 def _write_rows(target: th.Tensor, rows: list[int] | np.ndarray, values: np.ndarray) -> None:
-    """``target[rows] = values`` on the target's device (through pinned memory, without blocking, on a GPU)."""
+    """``target[rows] = values`` on the target's device (through pinned memory, without blocking, on a CUDA GPU)."""
     source, index = th.from_numpy(np.ascontiguousarray(values)), th.as_tensor(np.asarray(rows, dtype=np.int64))
-    if target.device.type == "cuda":
-        source = source.pin_memory().to(target.device, non_blocking=True)
-        index = index.pin_memory().to(target.device, non_blocking=True)
+    if target.device.type != "cpu":
+        cuda = target.device.type == "cuda"
+        source = (source.pin_memory() if cuda else source).to(target.device, non_blocking=cuda)
+        index = (index.pin_memory() if cuda else index).to(target.device, non_blocking=cuda)
     target.index_copy_(0, index, source)
