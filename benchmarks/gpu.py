@@ -138,7 +138,7 @@ def measure(name: str, compiled: bool, device: th.device, sizes: Sizes, smoke: b
     started = time.perf_counter()
     if device.type == "cuda":
         th.cuda.reset_peak_memory_stats(device)
-    model = None
+    model = buffer = None
     try:
         model = build(name, compiled, device, sizes, smoke)
         buffer = model.replay_buffer
@@ -179,7 +179,7 @@ def measure(name: str, compiled: bool, device: th.device, sizes: Sizes, smoke: b
             result.peak_memory_gb = round(th.cuda.max_memory_allocated(device) / 1e9, 2)
         if model is not None:
             model.env.close()
-        del model
+        del model, buffer  # free the device buffer before the next run measures free memory
         gc.collect()
         if device.type == "cuda":
             th.cuda.empty_cache()
@@ -227,7 +227,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", type=Path, default=Path("gpu-benchmark"), help="writes OUT.json and OUT.md")
     parser.add_argument("--algorithms", nargs="+", choices=list(ALGORITHMS), default=list(ALGORITHMS))
     parser.add_argument("--modes", nargs="+", choices=["eager", "compiled"], default=["eager", "compiled"])
-    parser.add_argument("--budget-s", type=float, default=420.0, help="no run starts after this many seconds")
+    parser.add_argument("--budget-s", type=float, default=330.0, help="no run starts after this many seconds")
     args = parser.parse_args(argv)
     device = th.device(args.device)
     sizes = SMOKE if args.smoke else PAPER
