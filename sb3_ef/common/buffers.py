@@ -571,7 +571,8 @@ class SequenceReplayBuffer(ReplayBuffer):
     def _gather(self, indices: np.ndarray, slot: int, released: th.cuda.Event | None) -> _Gathered:
         """Gather the drawn transitions and windows on the storage device into the reused outputs of ``slot``."""
         storage, capacity, stack = self.storage_device, self.buffer_size, self.frame_stack
-        envs, start = th.from_numpy(indices).to(storage, non_blocking=True)
+        drawn = th.from_numpy(indices)
+        envs, start = (drawn.pin_memory() if storage.type == "cuda" else drawn).to(storage, non_blocking=True)
         span = max(self.n_steps, self.horizon)
         base = (envs * capacity)[:, None]
         steps = start[:, None] + th.arange(span, device=storage)  # absolute index of steps t .. t + span - 1
