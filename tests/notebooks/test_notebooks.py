@@ -35,6 +35,9 @@ def test_notebook_executes_in_small_mode(path, tmp_path, monkeypatch):
     resources = {"metadata": {"path": str(tmp_path)}}  # the kernel's working directory: saved files go there
     NotebookClient(notebook, timeout=600, kernel_name="python3", resources=resources).execute()
     images = [
-        output for cell in notebook.cells for output in cell.get("outputs", []) if "image/png" in output.get("data", {})
+        output
+        for cell in notebook.cells
+        for output in cell.get("outputs", [])
+        if "image/png" in output.get("data", {})
     ]
     assert images, f"{path.name} showed no picture"
