@@ -700,6 +700,11 @@ class SequenceReplayBuffer(ReplayBuffer):
     def __setstate__(self, state: dict[str, Any]) -> None:
         """Rebuild the storage where it belongs on this machine (a fresh memmap file when ``memmap_dir`` is set) and
         copy the frames in."""
+        if "_stored" not in state:
+            raise ValueError(
+                "SequenceReplayBuffer expects a pickle with torch storage (written since storage_device exists), got "
+                "one from an older sb3-ef: load and sample it with the version that saved it"
+            )
         stored, pending = state.pop("_stored"), state.pop("_pending_draw")
         self.__dict__.update(state)
         if self._device.type == "cuda" and not th.cuda.is_available():

@@ -240,3 +240,13 @@ def test_a_buffer_larger_than_the_ram_is_refused_before_allocating():
 def test_a_memmap_larger_than_the_disk_is_refused(tmp_path):
     with pytest.raises(MemoryError, match=f"GB of disk space in memmap_dir={tmp_path} are available"):
         SequenceReplayBuffer(10**9, BIG, ACTIONS, device="cpu", memmap_dir=tmp_path)
+
+
+def test_a_pickle_of_the_old_format_is_refused_clearly():
+    """What d98919b's buffer pickled: its frames as a list of arrays under ``_frames``, no generator."""
+    buffer, _ = filled("cpu")
+    state = buffer.__getstate__()
+    state["_frames"] = state.pop("_stored")["frames"]
+    del state["_pending_draw"], state["_rng"]
+    with pytest.raises(ValueError, match="got one from an older sb3-ef"):
+        SequenceReplayBuffer.__new__(SequenceReplayBuffer).__setstate__(state)
