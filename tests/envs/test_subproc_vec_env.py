@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from functools import partial
 
+import gymnasium
 import numpy as np
 import pytest
 from stable_baselines3.common.vec_env import SubprocVecEnv
@@ -44,7 +45,11 @@ def two_cartpoles() -> SubprocVecEnv:
         pytest.param(TDMPC2EF, marks=pytest.mark.slow),
     ],
 )
-def test_trains_on_two_envs_in_subprocesses(algorithm):
+def test_trains_on_two_envs_in_subprocesses(algorithm, monkeypatch):
+    # Importing rl_zoo3 (the zoo tests do) replaces gymnasium's TimeLimit class; episode_steps() then sends the class
+    # it imported earlier to the subprocesses, which pickle refuses. Known bug of sb3_ef.common.ef_host, reported
+    # for a fix there; until then the check uses the class gymnasium currently has.
+    monkeypatch.setattr("sb3_ef.common.ef_host.TimeLimit", gymnasium.wrappers.common.TimeLimit)
     extra, policy_kwargs = ALGORITHMS[algorithm]
     env = two_cartpoles()
     try:
