@@ -1,18 +1,31 @@
-"""Replay buffer benchmark: bytes per stored transition and sample() / add() speed.
+"""Replay buffer benchmark: bytes per stored transition, sample() / add() speed, and prefetch.
 
-Compares SequenceReplayBuffer (frames stored once, n-step transition + EF window per sample) with SB3's
-ReplayBuffer, its optimize_memory_usage variant and its NStepReplayBuffer, all filled with the same stream of
-random 84x84 RGB frames stacked 3 deep.
+Three parts, each its own flag (all by default):
 
-    python benchmarks/buffer.py --transitions 20000
+- ``--compare-sb3``: SequenceReplayBuffer (frames stored once, n-step transition + EF window per sample) against
+  SB3's ReplayBuffer, its optimize_memory_usage variant and its NStepReplayBuffer, all filled with the same stream of
+  random 84x84 RGB frames stacked 3 deep.
+- ``--compare-before``: ``sample()`` of today's buffer against the buffer as it was at commit ``--before`` (loaded from
+  git into a temporary module), same stream, same batch size, interleaved in one run.
+- ``--prefetch``: an update loop (add one step, sample, run the DrQ-v2 encoder forward and backward on part of the
+  batch) with and without prefetch; reports the share of the loop spent waiting in ``sample()``.
+
+    python benchmarks/buffer.py --transitions 20000 --compare-sb3
+    python benchmarks/buffer.py --transitions 50000 --compare-before --prefetch --update-batch 4
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
+import os
+import statistics
+import subprocess
+import sys
 import tempfile
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import torch as th
@@ -20,28 +33,36 @@ from gymnasium import spaces
 from stable_baselines3.common.buffers import NStepReplayBuffer, ReplayBuffer
 
 from sb3_ef.common.buffers import SequenceReplayBuffer
+from sb3_ef.drqv2.policies import DrQv2Encoder
+
+REPOSITORY = Path(__file__).resolve().parents[1]
 
 
-def fill(buffer: ReplayBuffer, transitions: int, episode_length: int, size: int, frame_stack: int) -> float:
-    """Add a stream of random-frame episodes; return the seconds spent inside add()."""
-    rng = np.random.default_rng(0)
-    frames = rng.integers(0, 256, (episode_length + frame_stack, 3, size, size), dtype=np.uint8)  # reused pixels
+class Stream:
+    """Random-frame episodes of fixed length, stacked oldest first; one env."""
 
-    def stack(t: int) -> np.ndarray:
-        return frames[t : t + frame_stack].reshape(1, 3 * frame_stack, size, size)
+    def __init__(self, episode_length: int, size: int, frame_stack: int, action_dim: int = 6):
+        self.rng = np.random.default_rng(0)
+        self.frames = self.rng.integers(0, 256, (episode_length + frame_stack, 3, size, size), dtype=np.uint8)
+        self.episode_length, self.frame_stack, self.size = episode_length, frame_stack, size
+        self.action = np.zeros((1, action_dim), dtype=np.float32)
+        self.step_index = 0
 
-    action = np.zeros((1, 6), dtype=np.float32)
-    seconds = 0.0
-    for step in range(transitions):
-        t = step % episode_length
-        done = np.array([t == episode_length - 1])
+    def stack(self, t: int) -> np.ndarray:
+        return self.frames[t : t + self.frame_stack].reshape(1, 3 * self.frame_stack, self.size, self.size)
+
+    def add_to(self, *buffers: ReplayBuffer) -> float:
+        """Add the next step to every buffer; return the seconds spent inside add()."""
+        t = self.step_index % self.episode_length
+        self.step_index += 1
+        done = np.array([t == self.episode_length - 1])
         infos = [{"TimeLimit.truncated": bool(done[0])}]
-        reward = np.array([rng.normal()], dtype=np.float32)
-        obs, next_obs = stack(t), stack(t + 1)
+        reward = np.array([self.rng.normal()], dtype=np.float32)
+        obs, next_obs = self.stack(t), self.stack(t + 1)
         start = time.perf_counter()
-        buffer.add(obs, next_obs, action, reward, done, infos)
-        seconds += time.perf_counter() - start
-    return seconds
+        for buffer in buffers:
+            buffer.add(obs, next_obs, self.action, reward, done, infos)
+        return time.perf_counter() - start
 
 
 def stored_bytes(buffer: ReplayBuffer) -> int:
@@ -53,33 +74,19 @@ def stored_bytes(buffer: ReplayBuffer) -> int:
     return sum(array.nbytes for array in arrays)
 
 
-def time_sampling(buffer: ReplayBuffer, batch_size: int, repeats: int) -> float:
-    """Median milliseconds per sample() call."""
+def time_sampling(buffer: ReplayBuffer, batch_size: int, repeats: int) -> list[float]:
+    """Milliseconds of each of ``repeats`` sample() calls (after one untimed call)."""
     buffer.sample(batch_size)
     times = []
     for _ in range(repeats):
         start = time.perf_counter()
         buffer.sample(batch_size)
-        times.append(time.perf_counter() - start)
-    return 1000 * float(np.median(times))
+        times.append(1000 * (time.perf_counter() - start))
+    return times
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--transitions", type=int, default=20000, help="buffer capacity, filled exactly once")
-    parser.add_argument("--episode-length", type=int, default=250, help="agent steps per episode (Meta-World: 250)")
-    parser.add_argument("--size", type=int, default=84)
-    parser.add_argument("--frame-stack", type=int, default=3)
-    parser.add_argument("--batch-size", type=int, default=256)
-    parser.add_argument("--horizon", type=int, default=10)
-    parser.add_argument("--n-steps", type=int, default=3)
-    parser.add_argument("--repeats", type=int, default=30)
-    args = parser.parse_args()
-    th.set_num_threads(1)
-
-    obs_space = spaces.Box(0, 255, (3 * args.frame_stack, args.size, args.size), np.uint8)
-    action_space = spaces.Box(-1, 1, (6,), np.float32)
-    sequence_kwargs = {"n_steps": args.n_steps, "horizon": args.horizon, "device": "cpu"}
+def compare_sb3(args: argparse.Namespace, obs_space: spaces.Box, action_space: spaces.Box) -> None:
+    sequence_kwargs = {"n_steps": args.n_steps, "horizon": args.horizon, "device": "cpu", "storage_device": "cpu"}
     memmap_dir = tempfile.TemporaryDirectory()
     candidates: dict[str, Callable[[], ReplayBuffer]] = {
         "SequenceReplayBuffer": lambda: SequenceReplayBuffer(
@@ -102,24 +109,150 @@ def main() -> None:
         ),
     }
     frame_bytes = 3 * args.size * args.size
-    print(
-        f"{args.transitions} transitions, episodes of {args.episode_length}, {args.size}x{args.size}, "
-        f"stack {args.frame_stack}, batch {args.batch_size}, horizon {args.horizon}, n_steps {args.n_steps}"
-    )
     print("| buffer | bytes / stored transition | x one frame | add() us | sample() ms | samples / s |")
     print("|---|---|---|---|---|---|")
     for name, make in candidates.items():
         buffer = make()
-        add_seconds = fill(buffer, args.transitions, args.episode_length, args.size, args.frame_stack)
-        stored = buffer.size()
-        per_transition = stored_bytes(buffer) / stored
-        sample_ms = time_sampling(buffer, args.batch_size, args.repeats)
+        stream = Stream(args.episode_length, args.size, args.frame_stack)
+        add_seconds = sum(stream.add_to(buffer) for _ in range(args.transitions))
+        per_transition = stored_bytes(buffer) / buffer.size()
+        sample_ms = statistics.median(time_sampling(buffer, args.batch_size, args.repeats))
         print(
             f"| {name} | {per_transition:,.0f} | {per_transition / frame_bytes:.2f} | "
             f"{1e6 * add_seconds / args.transitions:.0f} | {sample_ms:.1f} | "
-            f"{1000 * args.batch_size / sample_ms:,.0f} |"
+            f"{1000 * args.batch_size / sample_ms:,.0f} |",
+            flush=True,
         )
         del buffer
+
+
+def load_buffer_at(commit: str) -> type:
+    """``SequenceReplayBuffer`` as committed at ``commit``, imported from a temporary module."""
+    source = subprocess.run(
+        ["git", "-C", str(REPOSITORY), "show", f"{commit}:sb3_ef/common/buffers.py"],
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout
+    path = Path(tempfile.mkdtemp()) / f"buffers_{commit}.py"
+    path.write_text(source)
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[path.stem] = module
+    spec.loader.exec_module(module)
+    return module.SequenceReplayBuffer
+
+
+def compare_before(args: argparse.Namespace, obs_space: spaces.Box, action_space: spaces.Box) -> None:
+    """Interleaved sample() timings of the buffer at ``--before`` and today's, filled with the same stream."""
+    kwargs = {"n_steps": args.n_steps, "horizon": args.horizon, "device": "cpu"}
+    before = load_buffer_at(args.before)(args.transitions, obs_space, action_space, **kwargs)
+    now = SequenceReplayBuffer(args.transitions, obs_space, action_space, storage_device="cpu", **kwargs)
+    stream = Stream(args.episode_length, args.size, args.frame_stack)
+    for _ in range(args.transitions):
+        stream.add_to(before, now)
+    times: dict[str, list[float]] = {"before": [], "now": []}
+    for _ in range(args.rounds):
+        times["before"] += time_sampling(before, args.batch_size, args.repeats)
+        times["now"] += time_sampling(now, args.batch_size, args.repeats)
+    median = {name: statistics.median(values) for name, values in times.items()}
+    quartiles = {name: statistics.quantiles(values, n=4) for name, values in times.items()}
+    print(f"| buffer | sample({args.batch_size}) ms median | quartiles | ratio to {args.before} |")
+    print("|---|---|---|---|")
+    for name, label in (("before", f"at {args.before}"), ("now", "today")):
+        q = quartiles[name]
+        print(f"| {label} | {median[name]:.1f} | {q[0]:.1f}-{q[2]:.1f} | {median[name] / median['before']:.2f} |")
+
+
+def prefetch_loop(args: argparse.Namespace, obs_space: spaces.Box, action_space: spaces.Box) -> None:
+    """Share of an update loop spent waiting for data, with and without prefetch, interleaved."""
+    encoder = DrQv2Encoder(obs_space)
+    optimizer = th.optim.Adam(encoder.parameters())
+    buffers = {
+        prefetch: SequenceReplayBuffer(
+            args.transitions,
+            obs_space,
+            action_space,
+            device="cpu",
+            storage_device="cpu",
+            n_steps=args.n_steps,
+            horizon=args.horizon,
+            prefetch=prefetch,
+        )
+        for prefetch in (False, True)
+    }
+    stream = Stream(args.episode_length, args.size, args.frame_stack)
+    for _ in range(args.transitions):
+        stream.add_to(*buffers.values())
+
+    def update(batch) -> None:
+        observations = batch.observations[: args.update_batch].float() / 255 - 0.5
+        loss = encoder(observations).square().mean()
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+
+    shares: dict[bool, list[float]] = {False: [], True: []}
+    update_ms: dict[bool, list[float]] = {False: [], True: []}
+    loop_ms: dict[bool, list[float]] = {False: [], True: []}
+    for _ in range(args.rounds):
+        for prefetch, buffer in buffers.items():
+            waited = total = 0.0
+            for _ in range(args.repeats):
+                start = time.perf_counter()
+                stream.add_to(buffer)
+                batch = buffer.sample(args.batch_size)
+                waited += time.perf_counter() - start
+                update(batch)
+                total += time.perf_counter() - start
+            shares[prefetch].append(waited / total)
+            update_ms[prefetch].append(1000 * (total - waited) / args.repeats)
+            loop_ms[prefetch].append(1000 * total / args.repeats)
+    print(
+        f"| prefetch | waiting for data (add + sample), median share of the loop | update ms (encoder fwd+bwd on "
+        f"{args.update_batch} of the {args.batch_size}) | loop ms per iteration |"
+    )
+    print("|---|---|---|---|")
+    for prefetch in (False, True):
+        print(
+            f"| {'on' if prefetch else 'off'} | {100 * statistics.median(shares[prefetch]):.1f}% | "
+            f"{statistics.median(update_ms[prefetch]):.0f} | {statistics.median(loop_ms[prefetch]):.0f} |"
+        )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--transitions", type=int, default=20000, help="buffer capacity, filled exactly once")
+    parser.add_argument("--episode-length", type=int, default=250, help="agent steps per episode (Meta-World: 250)")
+    parser.add_argument("--size", type=int, default=84)
+    parser.add_argument("--frame-stack", type=int, default=3)
+    parser.add_argument("--batch-size", type=int, default=256)
+    parser.add_argument("--horizon", type=int, default=10)
+    parser.add_argument("--n-steps", type=int, default=3)
+    parser.add_argument("--repeats", type=int, default=30, help="timed calls per round")
+    parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds of the before/now and prefetch parts")
+    parser.add_argument("--before", default="d98919b", help="commit whose buffer --compare-before times")
+    parser.add_argument("--update-batch", type=int, default=32, help="samples the --prefetch loop's update encodes")
+    parser.add_argument("--compare-sb3", action="store_true")
+    parser.add_argument("--compare-before", action="store_true")
+    parser.add_argument("--prefetch", action="store_true")
+    args = parser.parse_args()
+    parts = [name for name in ("compare_sb3", "compare_before", "prefetch") if getattr(args, name)]
+    th.set_num_threads(1)
+
+    obs_space = spaces.Box(0, 255, (3 * args.frame_stack, args.size, args.size), np.uint8)
+    action_space = spaces.Box(-1, 1, (6,), np.float32)
+    print(
+        f"{args.transitions} transitions, episodes of {args.episode_length}, {args.size}x{args.size}, "
+        f"stack {args.frame_stack}, batch {args.batch_size}, horizon {args.horizon}, n_steps {args.n_steps}; "
+        f"1 torch thread; load average before: {os.getloadavg()[0]:.1f}"
+    )
+    for part in parts or ["compare_sb3", "compare_before", "prefetch"]:
+        print()
+        {"compare_sb3": compare_sb3, "compare_before": compare_before, "prefetch": prefetch_loop}[part](
+            args, obs_space, action_space
+        )
+    print(f"\nload average after: {os.getloadavg()[0]:.1f}")
 
 
 if __name__ == "__main__":

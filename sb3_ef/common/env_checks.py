@@ -7,7 +7,6 @@ import math
 
 import numpy as np
 from gymnasium import spaces
-from gymnasium.wrappers import TimeLimit
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.vec_env import VecEnv
 
@@ -52,7 +51,7 @@ def episode_steps(env: VecEnv) -> int | None:
     spec = env.get_attr("spec", indices=[0])[0]
     if spec is not None and spec.max_episode_steps is not None:
         return int(spec.max_episode_steps)
-    if env.env_is_wrapped(TimeLimit, indices=[0])[0]:
+    if env.has_attr("_max_episode_steps"):  # a TimeLimit wrapper (asked by name: rl-zoo3 swaps the class)
         return int(env.get_attr("_max_episode_steps", indices=[0])[0])
     if env.has_attr("episode_length") and env.has_attr("action_repeat"):
         episode_length, action_repeat = (

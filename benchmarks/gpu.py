@@ -1,0 +1,269 @@
+"""One GPU benchmark: DrQ-v2, DrQv2-EF (84x84) and TD-MPC2, TDMPC2-EF (64x64) at the paper's settings.
+
+For each algorithm, eager and compiled (``compile=True``; recorded as "unsupported" where the algorithm does not take
+it), on ``dmc/cartpole-swingup`` with real rendering (``fast_render``), batch 256 and a 1M-frame replay buffer with
+``storage_device="auto"`` (in device memory where it fits):
+
+- ``sample ms``: median of ``SequenceReplayBuffer.sample(256)`` calls, synchronised;
+- ``updates/s``: ``train()`` alone, one gradient step at a time;
+- ``env steps/s``: the whole training loop (acting, env step with rendering, buffer, updates at the algorithm's
+  ``train_freq``), after warm-up;
+- ``peak GB``: the device's peak allocated memory during the run (buffer included).
+
+Writes JSON and a Markdown table (``--out PATH`` gives ``PATH.json`` and ``PATH.md``). Eager runs go first; a run
+that would start past ``--budget-s`` is recorded as skipped, so the script ends in time (under 8 minutes on one
+H200 with the defaults). ``--device cpu --smoke`` runs every code path on a CPU with tiny sizes, in under 2 minutes
+(its timings mean nothing).
+
+    MUJOCO_GL=egl python benchmarks/gpu.py --out /tmp/gpu
+    MUJOCO_GL=egl python benchmarks/gpu.py --device cpu --smoke --out /tmp/gpu-smoke
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import json
+import os
+import platform
+import statistics
+import time
+import traceback
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import torch as th
+
+from sb3_ef.drqv2 import DrQv2, DrQv2EF
+from sb3_ef.envs import make_env
+from sb3_ef.tdmpc2 import TDMPC2, TDMPC2EF
+
+ENV_NAME = "dmc/cartpole-swingup"
+ALGORITHMS: dict[str, tuple[type, int]] = {  # name: (class, frame size)
+    "DrQv2": (DrQv2, 84),
+    "DrQv2EF": (DrQv2EF, 84),
+    "TDMPC2": (TDMPC2, 64),
+    "TDMPC2EF": (TDMPC2EF, 64),
+}
+
+
+@dataclass(frozen=True)
+class Sizes:
+    """How much each run does."""
+
+    buffer_size: int
+    batch_size: int
+    warmup_steps: int  # random-action steps that fill the buffer before learning starts
+    warmup_updates: int  # untimed updates (allocator, cuDNN autotuning, compilation)
+    sample_repeats: int
+    updates: int
+    loop_steps: int
+
+
+PAPER = Sizes(
+    buffer_size=1_000_000,
+    batch_size=256,
+    warmup_steps=1000,
+    warmup_updates=5,
+    sample_repeats=50,
+    updates=40,
+    loop_steps=200,
+)
+SMOKE = Sizes(
+    buffer_size=2000, batch_size=8, warmup_steps=30, warmup_updates=1, sample_repeats=3, updates=2, loop_steps=4
+)
+# Small networks for the smoke run only: the code paths are the same, the CPU time is not.
+SMOKE_POLICY: dict[str, dict[str, Any]] = {
+    "DrQv2": {"net_arch": [32], "trunk_dim": 16, "features_dim": 64},
+    "TDMPC2": {
+        "num_channels": 4,
+        "mlp_dim": 32,
+        "num_q": 2,
+        "planner_kwargs": {"iterations": 1, "num_samples": 8, "num_elites": 2, "num_pi_trajs": 2},
+    },
+}
+SMOKE_EF_POLICY = {"agent_dim": 8, "ef_kwargs": {"rollout_hidden_dims": (16,), "decoder_channels": 8}}
+
+
+@dataclass
+class Result:
+    algorithm: str
+    compiled: bool
+    frame_size: int
+    status: str = "ok"
+    storage_device: str = ""
+    buffer_gb: float | None = None
+    sample_ms: float | None = None
+    updates_per_s: float | None = None
+    env_steps_per_s: float | None = None
+    peak_memory_gb: float | None = None
+    seconds: float | None = None
+
+
+def synchronize(device: th.device) -> None:
+    if device.type == "cuda":
+        th.cuda.synchronize(device)
+
+
+def build(name: str, compiled: bool, device: th.device, sizes: Sizes, smoke: bool):
+    """The model on a fast-rendering cartpole, its 1M-frame (smoke: small) buffer in ``auto`` storage."""
+    algorithm, frame_size = ALGORITHMS[name]
+    env = make_env(ENV_NAME, size=frame_size, fast_render=True, seed=0)
+    kwargs: dict[str, Any] = {
+        "batch_size": sizes.batch_size,
+        "buffer_size": sizes.buffer_size,
+        "learning_starts": sizes.warmup_steps,
+        "seed": 0,
+        "device": device,
+        "replay_buffer_kwargs": {"storage_device": "auto"},
+    }
+    uses_ef = name.endswith("EF")
+    if uses_ef:
+        kwargs["babbling_steps"] = 0  # babbling skips the actor: not the steady state
+    if smoke:
+        kwargs["policy_kwargs"] = {**SMOKE_POLICY[name.removesuffix("EF")], **(SMOKE_EF_POLICY if uses_ef else {})}
+    if compiled:
+        kwargs["compile"] = True
+    try:
+        return algorithm("CnnPolicy", env, **kwargs)
+    except BaseException:
+        env.close()
+        raise
+
+
+def measure(name: str, compiled: bool, device: th.device, sizes: Sizes, smoke: bool) -> Result:
+    """Build, warm up and time one algorithm; errors become the result's status, so later runs still happen."""
+    result = Result(name, compiled, ALGORITHMS[name][1])
+    started = time.perf_counter()
+    if device.type == "cuda":
+        th.cuda.reset_peak_memory_stats(device)
+    model = buffer = None
+    try:
+        model = build(name, compiled, device, sizes, smoke)
+        buffer = model.replay_buffer
+        result.storage_device = str(buffer.storage_device)
+        result.buffer_gb = round(buffer.nbytes / 1e9, 3)
+        model.learn(sizes.warmup_steps)  # random actions fill the buffer
+        model.train(sizes.warmup_updates, sizes.batch_size)
+
+        times = []
+        for _ in range(sizes.sample_repeats):
+            synchronize(device)
+            start = time.perf_counter()
+            buffer.sample(sizes.batch_size)
+            synchronize(device)
+            times.append(1000 * (time.perf_counter() - start))
+        result.sample_ms = round(statistics.median(times), 3)
+
+        synchronize(device)
+        start = time.perf_counter()
+        for _ in range(sizes.updates):
+            model.train(1, sizes.batch_size)
+        synchronize(device)
+        result.updates_per_s = round(sizes.updates / (time.perf_counter() - start), 2)
+
+        start = time.perf_counter()
+        model.learn(sizes.loop_steps, reset_num_timesteps=False)
+        synchronize(device)
+        result.env_steps_per_s = round(sizes.loop_steps / (time.perf_counter() - start), 2)
+    except TypeError as error:
+        if not (compiled and "compile" in str(error)):
+            raise
+        result.status = "unsupported (no compile argument)"
+    except Exception as error:  # one failing run must not cost the others
+        result.status = f"error: {type(error).__name__}: {error}"
+        traceback.print_exc()
+    finally:
+        if device.type == "cuda":
+            result.peak_memory_gb = round(th.cuda.max_memory_allocated(device) / 1e9, 2)
+        if model is not None:
+            model.env.close()
+        del model, buffer  # free the device buffer before the next run measures free memory
+        gc.collect()
+        if device.type == "cuda":
+            th.cuda.empty_cache()
+    result.seconds = round(time.perf_counter() - started, 1)
+    return result
+
+
+def ratio(results: list[Result], plain: str, ef: str, compiled: bool, field: str) -> str:
+    values = {r.algorithm: getattr(r, field) for r in results if r.compiled == compiled and r.status == "ok"}
+    return f"{values[ef] / values[plain]:.2f}" if values.get(plain) and values.get(ef) else "-"
+
+
+def markdown(results: list[Result], header: str) -> str:
+    def cell(value: float | None) -> str:
+        return "-" if value is None else f"{value:g}"
+
+    lines = [
+        header,
+        "",
+        "| algorithm | frames | mode | status | storage | buffer GB | sample ms | updates/s | env steps/s "
+        "| peak GB | s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in results:
+        lines.append(
+            f"| {r.algorithm} | {r.frame_size}x{r.frame_size} | {'compiled' if r.compiled else 'eager'} | {r.status} "
+            f"| {r.storage_device or '-'} | {cell(r.buffer_gb)} | {cell(r.sample_ms)} | {cell(r.updates_per_s)} "
+            f"| {cell(r.env_steps_per_s)} | {cell(r.peak_memory_gb)} | {cell(r.seconds)} |"
+        )
+    lines += ["", "| host | mode | EF/plain updates/s | EF/plain env steps/s |", "|---|---|---|---|"]
+    for plain, ef in (("DrQv2", "DrQv2EF"), ("TDMPC2", "TDMPC2EF")):
+        for compiled in (False, True):
+            lines.append(
+                f"| {plain} | {'compiled' if compiled else 'eager'} | "
+                f"{ratio(results, plain, ef, compiled, 'updates_per_s')} | "
+                f"{ratio(results, plain, ef, compiled, 'env_steps_per_s')} |"
+            )
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--device", default="cuda")
+    parser.add_argument("--smoke", action="store_true", help="tiny sizes: checks the code paths, times nothing")
+    parser.add_argument("--out", type=Path, default=Path("gpu-benchmark"), help="writes OUT.json and OUT.md")
+    parser.add_argument("--algorithms", nargs="+", choices=list(ALGORITHMS), default=list(ALGORITHMS))
+    parser.add_argument("--modes", nargs="+", choices=["eager", "compiled"], default=["eager", "compiled"])
+    parser.add_argument("--budget-s", type=float, default=330.0, help="no run starts after this many seconds")
+    args = parser.parse_args(argv)
+    device = th.device(args.device)
+    sizes = SMOKE if args.smoke else PAPER
+    if device.type == "cuda":
+        th.backends.cudnn.benchmark = True
+        machine = (
+            f"{th.cuda.get_device_name(device)}, {th.cuda.get_device_properties(device).total_memory / 1e9:.0f} GB"
+        )
+    else:
+        machine = f"CPU ({os.cpu_count()} cores, {th.get_num_threads()} torch threads)"
+    header = (
+        f"{ENV_NAME}, fast_render, batch {sizes.batch_size}, buffer {sizes.buffer_size} frames (storage auto); "
+        f"{machine}; torch {th.__version__}, Python {platform.python_version()}; "
+        f"MUJOCO_GL={os.environ.get('MUJOCO_GL', 'unset')}"
+    )
+    if args.smoke:
+        header += "; SMOKE RUN: sizes are tiny, timings mean nothing"
+    print(header, flush=True)
+    started = time.perf_counter()
+    results = []
+    for mode in args.modes:
+        for name in args.algorithms:
+            if time.perf_counter() - started > args.budget_s:
+                results.append(Result(name, mode == "compiled", ALGORITHMS[name][1], status="skipped (time budget)"))
+                continue
+            results.append(measure(name, mode == "compiled", device, sizes, args.smoke))
+            print(json.dumps(asdict(results[-1])), flush=True)
+    table = markdown(results, header)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.with_suffix(".json").write_text(
+        json.dumps({"header": header, "results": [asdict(r) for r in results]}, indent=2)
+    )
+    args.out.with_suffix(".md").write_text(table)
+    print(table)
+    print(f"total {time.perf_counter() - started:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
