@@ -78,7 +78,9 @@ class ToyAgentEnv(gym.Env):
             raise ValueError(f"Expected an action of shape (2,), got {action.shape}")
         high = self.size - self.square
         self._agent = np.clip(self._agent + self.speed * np.clip(action, -1, 1), 0, high)
-        self._distractor = np.clip(self._distractor + self.speed * self.np_random.choice([-1.0, 1.0], 2), 0, high)
+        if self.distractor:  # without one, steps draw no random numbers (resets alone decide an episode)
+            walk = self.speed * self.np_random.choice([-1.0, 1.0], 2)
+            self._distractor = np.clip(self._distractor + walk, 0, high)
         self._steps += 1
         self._frames.append(self._render_frame())
         centre = (self.size - self.square) / 2

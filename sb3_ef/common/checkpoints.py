@@ -1,0 +1,260 @@
+"""Checkpoints a long run can be resumed from: model, replay buffer and random states, written atomically.
+
+SB3's ``CheckpointCallback`` saves the model after a step, before that step's transition reaches the replay buffer,
+and never the random states, so a resumed run neither sees the same data nor draws the same numbers.
+:class:`ResumableCheckpointCallback` saves between two iterations of ``learn`` (at the start of a rollout, after
+the previous update): the model zip, the replay buffer and the random states the learner owns. Each file is
+written to a temporary name and renamed, so a kill during a write leaves the previous checkpoint intact, and only
+the newest ``keep`` checkpoints are kept. :func:`load_checkpoint` restores all of it, so that
+``model.learn(n, reset_num_timesteps=False)`` continues the run.
+
+Files of the checkpoint at ``step`` (the model name is SB3's and rl-zoo3's)::
+
+    <prefix>_<step>_steps.zip                    model (``num_timesteps``, optimisers, schedules' progress)
+    <prefix>_replay_buffer_<step>_steps.pkl      replay buffer (optional)
+    <prefix>_rng_<step>_steps.pkl                random states: torch (CPU, CUDA), NumPy's global generator, Python's
+                                                 ``random``, the action space's sampler, the action noise and the
+                                                 envs' ``np_random``
+
+The envs' generators are recorded one agent step before the checkpoint, before the env reset that ends an episode
+there; a resumed run resets its envs from them. A resumed run therefore repeats the uninterrupted one exactly when
+the checkpoint falls on an episode boundary of every env and the env draws random numbers only in ``reset``
+(simulator state inside the env is never saved).
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import random
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+import torch as th
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.type_aliases import GymEnv
+
+ModelType = TypeVar("ModelType", bound=BaseAlgorithm)
+
+#: Version of the random-state file's layout.
+RNG_FORMAT = 1
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """The files of one checkpoint; ``replay_buffer_path`` and ``rng_path`` are ``None`` when not saved."""
+
+    step: int
+    model_path: Path
+    replay_buffer_path: Path | None
+    rng_path: Path | None
+
+
+def checkpoint_paths(save_path: str | os.PathLike, name_prefix: str, step: int) -> Checkpoint:
+    """Where the checkpoint at ``step`` lives (whether or not its files exist)."""
+    folder = Path(save_path)
+    return Checkpoint(
+        step,
+        folder / f"{name_prefix}_{step}_steps.zip",
+        folder / f"{name_prefix}_replay_buffer_{step}_steps.pkl",
+        folder / f"{name_prefix}_rng_{step}_steps.pkl",
+    )
+
+
+def list_checkpoints(run_dir: str | os.PathLike, name_prefix: str = "rl_model") -> list[Checkpoint]:
+    """The complete checkpoints in ``run_dir``, oldest first. A checkpoint is complete once its model zip exists
+    (written last); its buffer and random states are listed when present."""
+    pattern = re.compile(rf"{re.escape(name_prefix)}_(\d+)_steps\.zip")
+    found = []
+    folder = Path(run_dir)
+    if not folder.is_dir():
+        return []
+    for path in folder.iterdir():
+        match = pattern.fullmatch(path.name)
+        if match is not None:
+            paths = checkpoint_paths(folder, name_prefix, int(match.group(1)))
+            found.append(
+                Checkpoint(
+                    paths.step,
+                    paths.model_path,
+                    paths.replay_buffer_path if paths.replay_buffer_path.is_file() else None,
+                    paths.rng_path if paths.rng_path.is_file() else None,
+                )
+            )
+    return sorted(found, key=lambda checkpoint: checkpoint.step)
+
+
+def latest_checkpoint(run_dir: str | os.PathLike, name_prefix: str = "rl_model") -> Checkpoint | None:
+    """The newest complete checkpoint in ``run_dir``, or ``None`` when there is none."""
+    checkpoints = list_checkpoints(run_dir, name_prefix)
+    return checkpoints[-1] if checkpoints else None
+
+
+def _write_atomically(path: Path, write: Any) -> None:
+    """``write(file)`` into a temporary file beside ``path``, flushed to disk, then renamed to ``path``."""
+    temporary = path.with_name(f"{path.name}.tmp")
+    with open(temporary, "wb") as file:
+        write(file)
+        file.flush()
+        os.fsync(file.fileno())
+    os.replace(temporary, path)
+
+
+def _env_generators(model: BaseAlgorithm) -> list[Any] | None:
+    """The bit-generator states of the envs' ``np_random``, or ``None`` when an env has none."""
+    env = model.get_env()
+    if env is None or not env.has_attr("np_random"):
+        return None
+    generators = env.get_attr("np_random")
+    if not all(isinstance(generator, np.random.Generator) for generator in generators):
+        return None
+    return [generator.bit_generator.state for generator in generators]
+
+
+def random_states(model: BaseAlgorithm, env_generators: list[Any] | None = None) -> dict[str, Any]:
+    """The random states the learner owns, as a picklable dict (see the module docstring)."""
+    return {
+        "format": RNG_FORMAT,
+        "num_timesteps": model.num_timesteps,
+        "torch": th.get_rng_state(),
+        "cuda": th.cuda.get_rng_state_all() if th.cuda.is_available() else None,
+        "numpy": np.random.get_state(),
+        "python": random.getstate(),
+        "action_space": model.action_space.np_random.bit_generator.state,
+        "action_noise": getattr(model, "action_noise", None),
+        "env_generators": env_generators,
+    }
+
+
+def restore_random_states(model: BaseAlgorithm, states: dict[str, Any]) -> None:
+    """Set the generators of :func:`random_states` back; the envs' are applied at their next reset (the model's
+    observation is cleared, so ``learn`` resets the envs)."""
+    if states.get("format") != RNG_FORMAT:
+        raise ValueError(f"Random-state file format {states.get('format')!r} is not supported: expected {RNG_FORMAT}")
+    if states["num_timesteps"] != model.num_timesteps:
+        raise ValueError(
+            f"Random states were saved at step {states['num_timesteps']} but the model is at step "
+            f"{model.num_timesteps}: the files come from different checkpoints"
+        )
+    env = model.get_env()
+    if env is not None:
+        # Consume the seeds loading left pending for the next reset, so that the reset in ``learn`` draws from the
+        # restored generators instead of re-seeding the envs.
+        env.reset()
+        if states["env_generators"] is not None:
+            if len(states["env_generators"]) != env.num_envs:
+                raise ValueError(
+                    f"The checkpoint was saved with {len(states['env_generators'])} envs, got {env.num_envs}"
+                )
+            generators = env.get_attr("np_random")
+            for index, (generator, state) in enumerate(zip(generators, states["env_generators"], strict=True)):
+                generator.bit_generator.state = state
+                env.set_attr("np_random", generator, indices=[index])
+    model._last_obs = None  # type: ignore[assignment]
+    th.set_rng_state(states["torch"])
+    if states["cuda"] is not None and th.cuda.is_available():
+        th.cuda.set_rng_state_all(states["cuda"])
+    np.random.set_state(states["numpy"])
+    random.setstate(states["python"])
+    model.action_space.np_random.bit_generator.state = states["action_space"]
+    if hasattr(model, "action_noise"):
+        model.action_noise = states["action_noise"]
+
+
+class ResumableCheckpointCallback(BaseCallback):
+    """Save a resumable checkpoint every ``save_freq`` calls (agent steps of all envs: ``save_freq * n_envs``
+    timesteps), counted on ``num_timesteps`` so the schedule carries on across a resume.
+
+    :param save_freq: calls between checkpoints, as in SB3's ``CheckpointCallback``.
+    :param save_path: folder of the checkpoints (created when missing).
+    :param name_prefix: file-name prefix.
+    :param save_replay_buffer: also save the replay buffer (off-policy algorithms).
+    :param keep: how many of the newest checkpoints to keep (older ones are deleted).
+    :param verbose: 1 to print each checkpoint's path.
+    """
+
+    def __init__(
+        self,
+        save_freq: int,
+        save_path: str,
+        name_prefix: str = "rl_model",
+        save_replay_buffer: bool = True,
+        keep: int = 2,
+        verbose: int = 0,
+    ):
+        super().__init__(verbose)
+        if save_freq < 1:
+            raise ValueError(f"save_freq must be >= 1, got {save_freq}")
+        if keep < 1:
+            raise ValueError(f"keep must be >= 1 (the newest checkpoint), got {keep}")
+        self.save_freq = save_freq
+        self.save_path = save_path
+        self.name_prefix = name_prefix
+        self.save_replay_buffer = save_replay_buffer
+        self.keep = keep
+        self._period = save_freq
+        self._next_save = save_freq
+        self._env_generators: dict[int, list[Any] | None] = {}
+
+    def _init_callback(self) -> None:
+        os.makedirs(self.save_path, exist_ok=True)
+        self._period = self.save_freq * self.training_env.num_envs
+        self._next_save = (self.num_timesteps // self._period + 1) * self._period
+        self._env_generators = {}
+
+    def _on_step(self) -> bool:
+        # The envs' generators before the step that reaches the next checkpoint (and its end-of-episode reset).
+        if self.num_timesteps + self.training_env.num_envs >= self._next_save:
+            self._env_generators[self.num_timesteps] = _env_generators(self.model)
+        return True
+
+    def _on_rollout_start(self) -> None:
+        if self.num_timesteps >= self._next_save:
+            self.save()
+            self._env_generators = {}
+            self._next_save = (self.num_timesteps // self._period + 1) * self._period
+
+    def save(self) -> Checkpoint:
+        """Write the checkpoint of the current step (buffer, random states, then the model zip), then prune."""
+        paths = checkpoint_paths(self.save_path, self.name_prefix, self.num_timesteps)
+        before = self.num_timesteps - self.training_env.num_envs
+        states = random_states(self.model, self._env_generators.get(before))
+        buffer_path = None
+        if self.save_replay_buffer and isinstance(self.model, OffPolicyAlgorithm):
+            buffer_path = paths.replay_buffer_path
+            _write_atomically(buffer_path, self.model.save_replay_buffer)
+        _write_atomically(paths.rng_path, lambda file: pickle.dump(states, file, protocol=pickle.HIGHEST_PROTOCOL))
+        _write_atomically(paths.model_path, self.model.save)
+        if self.verbose >= 1:
+            print(f"Saving checkpoint to {paths.model_path}")
+        self._prune()
+        return Checkpoint(paths.step, paths.model_path, buffer_path, paths.rng_path)
+
+    def _prune(self) -> None:
+        for old in list_checkpoints(self.save_path, self.name_prefix)[: -self.keep]:
+            for path in (old.replay_buffer_path, old.rng_path, old.model_path):
+                if path is not None:
+                    path.unlink(missing_ok=True)
+
+
+def load_checkpoint(
+    algo_class: type[ModelType], checkpoint: Checkpoint, env: GymEnv | None, **kwargs: Any
+) -> ModelType:
+    """Load ``checkpoint``'s model into ``env`` (``kwargs`` go to ``algo_class.load``), with its replay buffer and
+    random states when saved, so that ``model.learn(n, reset_num_timesteps=False)`` continues the run."""
+    model = algo_class.load(checkpoint.model_path, env=env, **kwargs)
+    if checkpoint.replay_buffer_path is not None:
+        if not isinstance(model, OffPolicyAlgorithm):
+            raise TypeError(f"{algo_class.__name__} has no replay buffer to load {checkpoint.replay_buffer_path} into")
+        model.load_replay_buffer(checkpoint.replay_buffer_path)
+    if checkpoint.rng_path is not None:
+        with open(checkpoint.rng_path, "rb") as file:
+            restore_random_states(model, pickle.load(file))
+    else:
+        model._last_obs = None  # type: ignore[assignment]  # the saved observation belongs to the old envs
+    return model
