@@ -20,14 +20,16 @@ def _score(result: RunResult) -> str:
 
 
 def progress_line(event: str, spec: RunSpec, detail: RunResult | BaseException | None, index: int, total: int) -> str:
-    """One line per event: ``[ 3/12] done   drqv2/dmc-cartpole-balance-v0_s0  812.3 s  return 803.1 at step 20000``."""
-    head = f"[{index:>{len(str(total))}}/{total}] {event:<6} {spec.run_id}"
+    """One line per event (start, retry, skip, done, failed), e.g.
+    ``[ 3/12] done   drqv2/dmc-cartpole-balance-v0_s0  812.3 s  return 803.1 at step 20000``."""
+    word = detail.status if isinstance(detail, RunResult) else event  # a finish reads "done" or "failed"
+    head = f"[{index:>{len(str(total))}}/{total}] {word:<6} {spec.run_id}"
     if isinstance(detail, BaseException):
         return f"{head}  {type(detail).__name__}: {detail} (retrying)"
     if detail is None:
         return head
     if detail.status == "failed":
-        return f"{head}  FAILED: {detail.error}"
+        return f"{head}  {detail.error}"
     if detail.status == "skipped":
         return f"{head}  finished earlier: {_score(detail)}"
     resumed = "" if detail.resumed_from is None else f" (resumed from step {detail.resumed_from})"

@@ -19,10 +19,10 @@ REPO = HERE.parents[1]
 def test_tiny_grid_expands_algorithms_x_tasks_x_seeds_over_the_zoo_entries():
     runs = load_grid(TINY_GRID)
     assert [run.run_id for run in runs] == [
-        "drqv2/toy-agent-v0_s0",
-        "drqv2/toy-agent-v0_s1",
-        "drqv2_ef/toy-agent-v0_s0",
-        "drqv2_ef/toy-agent-v0_s1",
+        "drqv2/dmc-cartpole-balance-v0_s0",
+        "drqv2/dmc-cartpole-balance-v0_s1",
+        "drqv2_ef/dmc-cartpole-balance-v0_s0",
+        "drqv2_ef/dmc-cartpole-balance-v0_s1",
     ]
     drqv2, ef = runs[0], runs[2]
     # The overrides replace the entry's values; the other values come from zoo_configs/<algo>.yml's default entry.
@@ -31,8 +31,10 @@ def test_tiny_grid_expands_algorithms_x_tasks_x_seeds_over_the_zoo_entries():
     assert ef.hyperparams["beta"] == 1.0 and ef.hyperparams["babbling_steps"] == 20
     assert "n_timesteps" not in drqv2.hyperparams  # the runner's key, not the constructor's
     assert (drqv2.n_timesteps, drqv2.eval_freq, drqv2.checkpoint_freq, drqv2.eval_episodes) == (200, 100, 100, 1)
-    assert drqv2.env_kwargs == {"size": 32, "max_episode_steps": 20}
-    assert drqv2.action_repeat == 1  # gym.make envs do not repeat actions
+    assert drqv2.env_kwargs == {"size": 32, "fast_render": True, "episode_length": 40}
+    assert drqv2.action_repeat == 2  # make_env's default
+    [toy] = grid_runs(["drqv2"], ["toy/agent-v0"], seeds=1, eval_freq=10, n_timesteps=20)
+    assert toy.action_repeat == 1  # gym.make envs do not repeat actions
 
 
 def test_entry_values_are_used_when_the_grid_does_not_override_them():
@@ -87,7 +89,10 @@ def _block(**changes) -> dict:
         ({"grids": [_block(tasks=["dmc/cartpole-balanse"])]}, "Unknown task 'dmc/cartpole-balanse'"),
         ({"grids": [_block(hyperparams={"batch_sise": 8})]}, "unknown key 'batch_sise'"),
         ({"grids": [_block(hyperparams={"normalize": True})]}, "['normalize'] are not supported by the runner"),
-        ({"grids": [_block(hyperparams={"policy_kwargs": "dict(net_arch=[32]"})]}, "drqv2 on toy/agent-v0: SyntaxError"),
+        (
+            {"grids": [_block(hyperparams={"policy_kwargs": "dict(net_arch=[32]"})]},
+            "drqv2 on toy/agent-v0: SyntaxError",
+        ),
         ({"grids": [_block(checkpoint_freq=15)]}, "checkpoint_freq (15) must be a multiple of eval_freq (10)"),
         ({"grids": [_block(eval_freq=40)]}, "eval_freq (40) exceeds n_timesteps (20)"),
         ({"grids": [_block(seeds=[0, "1"])]}, "'seeds' must be a positive count or a non-empty list of ints"),
@@ -99,7 +104,7 @@ def _block(**changes) -> dict:
     ],
 )
 def test_bad_grids_are_refused_with_the_cause_named(tmp_path, document, message):
-    with pytest.raises(ValueError, match="grids|Run|top-level") as error:
+    with pytest.raises(ValueError) as error:
         load_grid(_grid_file(tmp_path, document))
     assert message in str(error.value)
 
