@@ -1,6 +1,6 @@
 """``sb3-ef benchmark``: train a grid of runs (algorithms x tasks x seeds) locally or on a Ray cluster.
 
-sb3-ef benchmark GRID.yml --out DIR [--backend local|ray] [--workers N] [--threads T] [--address ADDR]
+sb3-ef benchmark GRID.yml --out DIR [--runs GLOB ...] [--backend local|ray] [--workers N] [--threads T] [--address ADDR]
                           [--gpus G] [--retries R] [--device auto] [--dry-run]
 """
 
@@ -16,6 +16,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="sb3-ef benchmark", description=__doc__.split("\n")[0])
     parser.add_argument("grid", help="grid file (YAML with a list 'grids' of blocks; see docs/benchmark.md)")
     parser.add_argument("--out", required=True, help="results folder: evaluation CSVs, checkpoints, run results")
+    parser.add_argument("--runs", nargs="+", metavar="GLOB", help="only the runs whose id matches, e.g. 'drqv2/*'")
     parser.add_argument("--backend", choices=BACKENDS, default="local", help="local process pool or Ray cluster")
     parser.add_argument("--workers", type=int, default=1, help="local backend: runs in parallel")
     parser.add_argument("--threads", type=int, default=1, help="torch threads per run (Ray: CPUs per task too)")
@@ -29,11 +30,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``sb3-ef benchmark``; returns 1 when a run failed, else 0."""
-    from sb3_ef.benchmark.grid import load_grid
+    from sb3_ef.benchmark.grid import load_grid, select_runs
     from sb3_ef.benchmark.runner import plan_table, run_benchmark
 
     args = build_parser().parse_args(argv)
     runs = load_grid(args.grid)
+    if args.runs:
+        runs = select_runs(runs, args.runs)
     if args.dry_run:
         print(plan_table(runs, args.out))
         return 0

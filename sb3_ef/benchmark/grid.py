@@ -21,6 +21,7 @@ A grid file holds one or more blocks; settings shared between blocks can be YAML
 
 from __future__ import annotations
 
+import fnmatch
 import os
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -204,7 +205,7 @@ def grid_runs(
     env_kwargs: Mapping[str, Any] | None = None,
     hyperparams: Mapping[str, Any] | None = None,
 ) -> list[RunSpec]:
-    """Expand algorithms x tasks x seeds into runs (in that nesting order).
+    """Expand algorithms x tasks x seeds into runs, ordered by seed, then algorithm, then task.
 
     :param algorithms: zoo keys, :class:`Algorithm` objects, or a mapping label -> :class:`Algorithm` options.
     :param tasks: gymnasium ids (``dmc/cartpole-swingup-v0``; the ``-v0`` may be left out).
@@ -224,7 +225,7 @@ def grid_runs(
     tasks = [resolve_task(task) for task in ([tasks] if isinstance(tasks, str) else tasks)]
     if not tasks:
         raise ValueError("'tasks' must name at least one task")
-    runs = []
+    runs_of_seed: list[dict[str, Any]] = []  # the runs of one seed, as RunSpec arguments without the seed
     for algorithm in _algorithms(algorithms):
         for task in tasks:
             entry = _entry(algorithm, task, {**(hyperparams or {}), **algorithm.hyperparams})
@@ -233,15 +234,22 @@ def grid_runs(
                 raise ValueError(
                     f"eval_freq ({eval_freq}) exceeds n_timesteps ({steps}) of {algorithm.label} on {task}"
                 )
-            merged_env_kwargs = {**(entry.get("env_kwargs") or {}), **(env_kwargs or {}), **algorithm.env_kwargs}
-            constructor = {key: value for key, value in entry.items() if key not in RUNNER_KEYS}
-            for seed in _seeds(seeds):
-                runs.append(
-                    RunSpec(
-                        algorithm.label, algorithm.algo, task, seed, steps, eval_freq, eval_episodes, checkpoint_freq,
-                        constructor, merged_env_kwargs, algorithm.steps_per_second,
-                    )
-                )  # fmt: skip
+            runs_of_seed.append(
+                {
+                    "label": algorithm.label,
+                    "algo": algorithm.algo,
+                    "task": task,
+                    "n_timesteps": steps,
+                    "eval_freq": eval_freq,
+                    "eval_episodes": eval_episodes,
+                    "checkpoint_freq": checkpoint_freq,
+                    "hyperparams": {key: value for key, value in entry.items() if key not in RUNNER_KEYS},
+                    "env_kwargs": {**(entry.get("env_kwargs") or {}), **(env_kwargs or {}), **algorithm.env_kwargs},
+                    "steps_per_second": algorithm.steps_per_second,
+                }
+            )
+    # Seed-major order: a grid stopped part-way has whole seeds of every algorithm and task, comparable already.
+    runs = [RunSpec(seed=seed, **arguments) for seed in _seeds(seeds) for arguments in runs_of_seed]
     return runs
 
 
@@ -252,6 +260,14 @@ def check_unique(runs: Sequence[RunSpec]) -> None:
         if run.run_id in seen:
             raise ValueError(f"Run {run.run_id} occurs twice in the grid: give the algorithms distinct labels")
         seen.add(run.run_id)
+
+
+def select_runs(runs: Sequence[RunSpec], patterns: Sequence[str]) -> list[RunSpec]:
+    """The runs whose id matches one of the shell-style ``patterns`` (``drqv2_ef/*``, ``*_s0``), in grid order."""
+    selected = [run for run in runs if any(fnmatch.fnmatchcase(run.run_id, pattern) for pattern in patterns)]
+    if not selected:
+        raise ValueError(f"No run id matches {list(patterns)}; ids look like {runs[0].run_id!r}")
+    return selected
 
 
 def load_grid(path: str | os.PathLike) -> list[RunSpec]:

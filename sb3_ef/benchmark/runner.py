@@ -23,7 +23,7 @@ def progress_line(event: str, spec: RunSpec, detail: RunResult | BaseException |
     """One line per event (start, retry, skip, done, failed), e.g.
     ``[ 3/12] done   drqv2/dmc-cartpole-balance-v0_s0  812.3 s  return 803.1 at step 20000``."""
     word = detail.status if isinstance(detail, RunResult) else event  # a finish reads "done" or "failed"
-    head = f"[{index:>{len(str(total))}}/{total}] {word:<6} {spec.run_id}"
+    head = f"[{index:>{len(str(total))}}/{total}] {word:<7} {spec.run_id}"
     if isinstance(detail, BaseException):
         return f"{head}  {type(detail).__name__}: {detail} (retrying)"
     if detail is None:

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from sb3_ef.benchmark.grid import Algorithm, grid_runs, load_grid
+from sb3_ef.benchmark.grid import Algorithm, grid_runs, load_grid, select_runs
 from sb3_ef.benchmark.runner import plan_table
 from sb3_ef.envs.tasks import DMC_PAPER_TASKS, METAWORLD_PAPER_TASKS
 
@@ -16,15 +16,15 @@ TINY_GRID = HERE / "tiny_grid.yml"
 REPO = HERE.parents[1]
 
 
-def test_tiny_grid_expands_algorithms_x_tasks_x_seeds_over_the_zoo_entries():
+def test_tiny_grid_expands_seeds_x_algorithms_x_tasks_over_the_zoo_entries():
     runs = load_grid(TINY_GRID)
     assert [run.run_id for run in runs] == [
         "drqv2/dmc-cartpole-balance-v0_s0",
-        "drqv2/dmc-cartpole-balance-v0_s1",
         "drqv2_ef/dmc-cartpole-balance-v0_s0",
+        "drqv2/dmc-cartpole-balance-v0_s1",
         "drqv2_ef/dmc-cartpole-balance-v0_s1",
-    ]
-    drqv2, ef = runs[0], runs[2]
+    ]  # seed-major: a grid stopped part-way holds whole seeds
+    drqv2, ef = runs[0], runs[1]
     # The overrides replace the entry's values; the other values come from zoo_configs/<algo>.yml's default entry.
     assert drqv2.hyperparams["batch_size"] == 8 and drqv2.hyperparams["learning_rate"] == 1e-4
     assert drqv2.hyperparams["exploration_std"] == "linear(1.0,0.1,500000)"
@@ -109,6 +109,14 @@ def test_bad_grids_are_refused_with_the_cause_named(tmp_path, document, message)
     assert message in str(error.value)
 
 
+def test_runs_are_selected_by_shell_patterns_on_their_ids():
+    runs = load_grid(TINY_GRID)
+    assert [run.run_id for run in select_runs(runs, ["*_s1"])] == [runs[2].run_id, runs[3].run_id]
+    assert select_runs(runs, ["drqv2_ef/*", "drqv2/*_s0"]) == [runs[0], runs[1], runs[3]]
+    with pytest.raises(ValueError, match="No run id matches \\['ppo/\\*'\\]; ids look like 'drqv2/dmc-cartpole"):
+        select_runs(runs, ["ppo/*"])
+
+
 def test_an_algorithm_label_cannot_be_a_path():
     with pytest.raises(ValueError, match="without '/'"):
         Algorithm("drqv2/ef", algo="drqv2_ef")
@@ -131,3 +139,17 @@ def test_paper_grid_covers_the_papers_tasks_at_its_budgets_with_expected_hours(t
     # The dry-run table sums n_timesteps / steps_per_second over the runs.
     expected = sum(run.n_timesteps / run.steps_per_second for run in runs) / 3600
     assert plan_table(runs, tmp_path).splitlines()[-1].split()[-1] == f"{expected:.1f}"
+
+
+def test_cpu_grid_states_the_reduced_settings_of_the_learning_evidence():
+    runs = load_grid(REPO / "benchmarks" / "cpu_grid.yml")
+    assert {run.label for run in runs} == {"drqv2", "drqv2_ef", "drqv2_ef_beta1e-3"}
+    assert {run.task for run in runs} == {"dmc/cartpole-balance-v0", "dmc/cartpole-swingup-v0"}
+    assert {run.seed for run in runs} == {0, 1, 2} and len(runs) == 18
+    for run in runs:
+        assert (run.n_timesteps, run.eval_freq, run.eval_episodes, run.checkpoint_freq) == (20000, 2000, 5, 2000)
+        assert run.env_kwargs["size"] == 64 and run.hyperparams["batch_size"] == 64
+        assert run.hyperparams["exploration_std"] == "linear(1.0,0.1,10000)"
+    ef = {run.label: run.hyperparams for run in runs if run.algo == "drqv2_ef"}
+    assert ef["drqv2_ef"]["beta"] == 1.0 and ef["drqv2_ef_beta1e-3"]["beta"] == 1e-3
+    assert ef["drqv2_ef"]["babbling_steps"] == 1000
