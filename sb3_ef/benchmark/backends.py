@@ -24,7 +24,8 @@ Event = tuple[str, RunSpec, Any]
 
 
 def _failure(spec: RunSpec, error: BaseException) -> RunResult:
-    message = "".join(traceback.format_exception_only(type(error), error)).strip()
+    # The last line names the error (a Ray task error's message holds the remote traceback before it).
+    message = "".join(traceback.format_exception_only(type(error), error)).strip().splitlines()[-1]
     return RunResult(spec.run_id, "failed", error=message)
 
 
@@ -96,9 +97,9 @@ class RayBackend:
     ):
         if threads < 1 or gpus < 0 or retries < 0:
             raise ValueError(f"threads must be >= 1, gpus >= 0 and retries >= 0, got {threads}, {gpus}, {retries}")
-        self.out, self.address, self.threads, self.gpus, self.device, self.retries = (
-            out, address, threads, gpus, device, retries
-        )  # fmt: skip
+        # Absolute, so that workers whose working directory differs find the same folder (a shared filesystem).
+        self.out = os.path.abspath(out)
+        self.address, self.threads, self.gpus, self.device, self.retries = address, threads, gpus, device, retries
 
     def capacity(self, resources: dict[str, float]) -> int:
         """How many runs the cluster holds at once with each run's CPU and GPU request (at least one)."""

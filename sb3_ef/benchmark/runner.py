@@ -14,9 +14,9 @@ BACKENDS = ("local", "ray")
 
 
 def _score(result: RunResult) -> str:
-    if result.final_return is None:
+    if result.final_return is None or not result.records:
         return "no evaluation"
-    return f"return {result.final_return:.1f} at step {result.steps}"
+    return f"return {result.final_return:.1f} at step {result.records[-1]['step']}"
 
 
 def progress_line(event: str, spec: RunSpec, detail: RunResult | BaseException | None, index: int, total: int) -> str:

@@ -16,7 +16,7 @@ import pytest
 import yaml
 
 from sb3_ef.analysis.records import RECORD_COLUMNS
-from sb3_ef.benchmark import load_grid, run_benchmark
+from sb3_ef.benchmark import grid_runs, load_grid, run_benchmark
 from sb3_ef.benchmark.run import RunPaths
 from sb3_ef.cli import main as sb3_ef_main
 
@@ -90,6 +90,20 @@ def test_analyze_results_reads_the_benchmark_folder(trained, tmp_path, capsys):
     scores = read_csv(tmp_path / "scores.csv")
     assert {(row["algo"], row["seed"]) for row in scores} == {(a, s) for a in ("drqv2", "drqv2_ef") for s in "01"}
     assert (tmp_path / "ens.csv").is_file() and (tmp_path / "rliable.csv").is_file()
+
+
+def test_a_failing_run_is_retried_then_reported_and_the_others_finish(tmp_path):
+    [good, *_] = load_grid(TINY_GRID)
+    [bad] = grid_runs(
+        {"broken": {"algo": "drqv2"}}, ["toy/agent-v0"], seeds=[0], eval_freq=100, n_timesteps=200,
+        env_kwargs={"size": 4}, hyperparams=dict(good.hyperparams),
+    )  # fmt: skip
+    lines: list[str] = []
+    results = run_benchmark([good, bad], tmp_path, workers=2, retries=1, log=lines.append)
+    assert [result.status for result in results] == ["done", "failed"]
+    assert results[1].error == "ValueError: size must be >= 8 pixels, got 4"
+    assert sum(" retry " in line and "broken/" in line for line in lines) == 1
+    assert not RunPaths.of(tmp_path, bad).result.exists()  # a failed run is tried again by the next invocation
 
 
 def test_a_run_killed_midway_is_completed_from_its_checkpoint_by_the_rerun(tmp_path):
