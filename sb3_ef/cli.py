@@ -43,11 +43,18 @@ def _analyze(argv: list[str]) -> int:
     return main(argv)
 
 
+def _benchmark(argv: list[str]) -> int:
+    from sb3_ef.benchmark.cli import main
+
+    return main(argv)
+
+
 COMMANDS: dict[str, tuple[Callable[[list[str]], int | None], str]] = {
     "train": (_train, "train an agent from a zoo config (rl-zoo3 train arguments)"),
     "enjoy": (_enjoy, "run a trained agent (rl-zoo3 enjoy arguments)"),
     "optimize": (_optimize, "tune hyperparameters with Optuna (rl-zoo3 train arguments, -optimize implied)"),
     "analyze": (_analyze, "predictions, saliency, ENS and rliable plots (sb3_ef.analysis)"),
+    "benchmark": (_benchmark, "train a grid of runs locally or on a Ray cluster (sb3_ef.benchmark)"),
 }
 
 

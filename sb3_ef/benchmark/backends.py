@@ -1,0 +1,142 @@
+"""Where runs execute: a local process pool, or a Ray cluster (the optional ``ray`` extra).
+
+Both backends share one contract: :meth:`execute` takes the runs to train and yields events as they happen,
+``("start", spec, None)``, ``("retry", spec, error)`` and ``("finish", spec, result)``. At most ``capacity`` runs are
+in flight, so a ``start`` event is the moment the run gets its worker. A failed run is retried ``retries`` times
+(resuming from its last checkpoint); after that it finishes with status ``failed``.
+"""
+
+from __future__ import annotations
+
+import os
+import traceback
+from collections import deque
+from collections.abc import Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from multiprocessing import get_context
+from typing import Any
+
+from sb3_ef.benchmark.grid import RunSpec
+from sb3_ef.benchmark.run import RunPaths, RunResult, execute_run, store_result
+
+Event = tuple[str, RunSpec, Any]
+
+
+def _failure(spec: RunSpec, error: BaseException) -> RunResult:
+    # The last line names the error (a Ray task error's message holds the remote traceback before it).
+    message = "".join(traceback.format_exception_only(type(error), error)).strip().splitlines()[-1]
+    return RunResult(spec.run_id, "failed", error=message)
+
+
+class LocalBackend:
+    """Runs in a pool of ``workers`` processes (spawned, one fresh process per run), ``threads`` torch threads each.
+
+    A worker that dies (killed, out of memory) breaks the pool: the runs in flight count a failed attempt and the
+    pool is rebuilt.
+    """
+
+    def __init__(
+        self, out: str | os.PathLike, workers: int = 1, threads: int = 1, device: str = "auto", retries: int = 1
+    ):
+        if workers < 1 or threads < 1 or retries < 0:
+            raise ValueError(f"workers and threads must be >= 1 and retries >= 0, got {workers}, {threads}, {retries}")
+        self.out, self.workers, self.threads, self.device, self.retries = out, workers, threads, device, retries
+
+    def _pool(self) -> ProcessPoolExecutor:
+        return ProcessPoolExecutor(self.workers, mp_context=get_context("spawn"), max_tasks_per_child=1)
+
+    def execute(self, specs: Sequence[RunSpec]) -> Iterator[Event]:
+        queue, attempts = deque(specs), dict.fromkeys((spec.run_id for spec in specs), 0)
+        running: dict[Future, RunSpec] = {}
+        pool = self._pool()
+        try:
+            while queue or running:
+                while queue and len(running) < self.workers:
+                    spec = queue.popleft()
+                    running[pool.submit(execute_run, spec, self.out, self.threads, self.device)] = spec
+                    yield "start", spec, None
+                done, _ = wait(running, return_when=FIRST_COMPLETED)
+                broken = False
+                for future in done:
+                    spec = running.pop(future)
+                    try:
+                        yield "finish", spec, future.result()
+                    except Exception as error:  # the run's own error, or its worker died
+                        broken |= isinstance(error, BrokenProcessPool)
+                        attempts[spec.run_id] += 1
+                        if attempts[spec.run_id] > self.retries:
+                            yield "finish", spec, _failure(spec, error)
+                        else:
+                            queue.appendleft(spec)
+                            yield "retry", spec, error
+                if broken:
+                    pool.shutdown(cancel_futures=True)
+                    pool = self._pool()
+        finally:
+            pool.shutdown(cancel_futures=True)
+
+
+class RayBackend:
+    """One Ray task per run with ``threads`` CPUs (also its torch threads) and ``gpus`` GPUs.
+
+    Connects to ``address`` (``auto``, ``host:port`` or ``ray://host:10001``) or, without one, starts Ray on this
+    machine; a Ray session already initialised by the caller is used as is. Ray reruns a task whose worker crashed
+    or raised up to ``retries`` times. The driver writes each finished run's records into its own results folder
+    too, so the results are gathered even when the workers' ``out`` is not a shared filesystem.
+    """
+
+    def __init__(
+        self,
+        out: str | os.PathLike,
+        address: str | None = None,
+        threads: int = 1,
+        gpus: float = 0.0,
+        device: str = "auto",
+        retries: int = 1,
+    ):
+        if threads < 1 or gpus < 0 or retries < 0:
+            raise ValueError(f"threads must be >= 1, gpus >= 0 and retries >= 0, got {threads}, {gpus}, {retries}")
+        # Absolute, so that workers whose working directory differs find the same folder (a shared filesystem).
+        self.out = os.path.abspath(out)
+        self.address, self.threads, self.gpus, self.device, self.retries = address, threads, gpus, device, retries
+
+    def capacity(self, resources: dict[str, float]) -> int:
+        """How many runs the cluster holds at once with each run's CPU and GPU request (at least one)."""
+        slots = resources.get("CPU", 0) // self.threads
+        if self.gpus > 0:
+            slots = min(slots, resources.get("GPU", 0) // self.gpus)
+        return max(1, int(slots))
+
+    def execute(self, specs: Sequence[RunSpec]) -> Iterator[Event]:
+        import ray
+
+        started_here = not ray.is_initialized()
+        if started_here:
+            ray.init(address=self.address, log_to_driver=False)
+        task = ray.remote(num_cpus=self.threads, num_gpus=self.gpus, max_retries=self.retries, retry_exceptions=True)(
+            execute_run
+        )
+        capacity = self.capacity(ray.cluster_resources())
+        queue: deque[RunSpec] = deque(specs)
+        running: dict[Any, RunSpec] = {}
+        try:
+            while queue or running:
+                while queue and len(running) < capacity:
+                    spec = queue.popleft()
+                    running[task.remote(spec, self.out, self.threads, self.device)] = spec
+                    yield "start", spec, None
+                [ref], _ = ray.wait(list(running), num_returns=1)
+                spec = running.pop(ref)
+                try:
+                    result = ray.get(ref)
+                except Exception as error:  # RayTaskError (the run raised) or a crashed worker, after the retries
+                    result = _failure(spec, error)
+                else:
+                    store_result(RunPaths.of(self.out, spec), result)
+                yield "finish", spec, result
+        finally:
+            for ref in running:
+                ray.cancel(ref, force=True)
+            if started_here:
+                ray.shutdown()

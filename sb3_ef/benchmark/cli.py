@@ -1,0 +1,58 @@
+"""``sb3-ef benchmark``: train a grid of runs (algorithms x tasks x seeds) locally or on a Ray cluster.
+
+sb3-ef benchmark GRID.yml --out DIR [--runs GLOB ...] [--backend local|ray] [--workers N] [--threads T] [--address ADDR]
+                          [--gpus G] [--retries R] [--device auto] [--dry-run]
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+
+from sb3_ef.benchmark.runner import BACKENDS
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="sb3-ef benchmark", description=__doc__.split("\n")[0])
+    parser.add_argument("grid", help="grid file (YAML with a list 'grids' of blocks; see docs/benchmark.md)")
+    parser.add_argument("--out", required=True, help="results folder: evaluation CSVs, checkpoints, run results")
+    parser.add_argument("--runs", nargs="+", metavar="GLOB", help="only the runs whose id matches, e.g. 'drqv2/*'")
+    parser.add_argument("--backend", choices=BACKENDS, default="local", help="local process pool or Ray cluster")
+    parser.add_argument("--workers", type=int, default=1, help="local backend: runs in parallel")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads per run (Ray: CPUs per task too)")
+    parser.add_argument("--address", help="Ray: cluster address ('auto', host:port); default: start Ray here")
+    parser.add_argument("--gpus", type=float, default=0.0, help="Ray: GPUs per task (fractions share a GPU)")
+    parser.add_argument("--retries", type=int, default=1, help="attempts after a failure (each resumes)")
+    parser.add_argument("--device", default="auto", help="torch device of each run")
+    parser.add_argument("--dry-run", action="store_true", help="list the runs, their status and expected hours")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``sb3-ef benchmark``; returns 1 when a run failed, else 0."""
+    from sb3_ef.benchmark.grid import load_grid, select_runs
+    from sb3_ef.benchmark.runner import plan_table, run_benchmark
+
+    args = build_parser().parse_args(argv)
+    runs = load_grid(args.grid)
+    if args.runs:
+        runs = select_runs(runs, args.runs)
+    if args.dry_run:
+        print(plan_table(runs, args.out))
+        return 0
+    results = run_benchmark(
+        runs,
+        args.out,
+        backend=args.backend,
+        workers=args.workers,
+        threads=args.threads,
+        device=args.device,
+        retries=args.retries,
+        address=args.address,
+        gpus=args.gpus,
+    )
+    return int(any(result.status == "failed" for result in results))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,297 @@
+"""A benchmark grid: algorithms x tasks x seeds, expanded into fully specified runs.
+
+Each run's hyperparameters are the zoo config entry of its task (``zoo_configs/<algo>.yml`` or another file in
+that format), then the grid's overrides, then the algorithm's own overrides. Everything is resolved and checked
+here, in the process that reads the grid, so a bad key or task fails before any run starts.
+
+A grid file holds one or more blocks; settings shared between blocks can be YAML anchors under ``anchors``::
+
+    anchors:
+      small: &small {batch_size: 64, buffer_size: 100000}
+    grids:
+      - algorithms: [drqv2, drqv2_ef]                    # zoo keys, or label -> {algo, conf_file, hyperparams, ...}
+        tasks: [dmc/cartpole-balance-v0]
+        seeds: [0, 1, 2]                                 # or a count: 3 -> 0, 1, 2
+        n_timesteps: 20000                               # optional: overrides the entries' n_timesteps
+        eval_freq: 2000
+        eval_episodes: 5
+        env_kwargs: {size: 64}                           # merged over the entries' env_kwargs
+        hyperparams: *small                              # applied to every algorithm of the block
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import os
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import gymnasium as gym
+import yaml
+
+import sb3_ef  # noqa: F401  (registers the environments)
+from sb3_ef.zoo import config as zoo_config
+
+#: Top-level keys of a grid file: the blocks, and a free-form place for YAML anchors the blocks refer to.
+FILE_KEYS = frozenset({"grids", "anchors"})
+#: Keys of a grid block and of an algorithm's mapping.
+BLOCK_KEYS = frozenset(
+    {"algorithms", "tasks", "seeds", "n_timesteps", "eval_freq", "eval_episodes", "checkpoint_freq", "env_kwargs",
+     "hyperparams"}
+)  # fmt: skip
+ALGORITHM_KEYS = frozenset({"algo", "conf_file", "hyperparams", "env_kwargs", "steps_per_second"})
+
+#: Zoo-config keys the runner reads itself; the rest go to the algorithm constructor.
+RUNNER_KEYS = frozenset({"n_timesteps", "env_kwargs", "n_envs"})
+
+#: Zoo-config values rl-zoo3 evaluates when they are strings (``policy_kwargs: dict(...)``).
+EVALUATED_KEYS = ("policy_kwargs", "replay_buffer_class", "replay_buffer_kwargs")
+
+#: Suites built with :func:`sb3_ef.make_env` (which repeats actions); other ids go through ``gym.make``.
+MAKE_ENV_SUITES = ("dmc/", "metaworld/")
+
+
+@dataclass(frozen=True)
+class Algorithm:
+    """One algorithm column of a grid.
+
+    :param label: its name in the records, folders and tables (e.g. ``drqv2_ef`` or ``drqv2_ef_beta1e-3``).
+    :param algo: the zoo key of the class (``drqv2``, ``drqv2_ef``, ``tdmpc2``, ``tdmpc2_ef``); default ``label``.
+    :param conf_file: zoo-format YAML the entries come from; default ``zoo_configs/<algo>.yml``.
+    :param hyperparams: overrides of the entries' values (zoo syntax: strings such as ``dict(...)`` are evaluated).
+    :param env_kwargs: env options merged over the entries' and the grid's ``env_kwargs``.
+    :param steps_per_second: expected agent steps per second, for time estimates only.
+    """
+
+    label: str
+    algo: str = ""
+    conf_file: str | None = None
+    hyperparams: Mapping[str, Any] = field(default_factory=dict)
+    env_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    steps_per_second: float | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "algo", self.algo or self.label)
+        if self.algo not in zoo_config.ZOO_ALGORITHMS:
+            raise ValueError(f"Algorithm {self.label!r}: algo {self.algo!r} is not one of {zoo_config.ZOO_ALGORITHMS}")
+        if not self.label or "/" in self.label or self.label != self.label.strip():
+            raise ValueError(
+                f"Algorithm label must be a non-empty name without '/' or spaces around, got {self.label!r}"
+            )
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """Everything one run needs; picklable, so it travels to a worker process or a Ray task.
+
+    ``hyperparams`` are the algorithm's constructor arguments in zoo syntax (strings evaluated by the worker);
+    ``env_kwargs`` go to ``make_env`` (or ``gym.make``); ``checkpoint_freq`` is a multiple of ``eval_freq``.
+    """
+
+    label: str
+    algo: str
+    task: str
+    seed: int
+    n_timesteps: int
+    eval_freq: int
+    eval_episodes: int
+    checkpoint_freq: int
+    hyperparams: Mapping[str, Any] = field(default_factory=dict)
+    env_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    steps_per_second: float | None = None
+
+    @property
+    def run_id(self) -> str:
+        """``<label>/<task with '/' as '-'>_s<seed>``: unique in a grid, and the run's path below the results."""
+        return f"{self.label}/{self.task.replace('/', '-')}_s{self.seed}"
+
+    @property
+    def action_repeat(self) -> int:
+        """Env frames per agent step (``make_env``'s default 2 unless ``env_kwargs`` says otherwise)."""
+        if self.task.startswith(MAKE_ENV_SUITES):
+            return int(self.env_kwargs.get("action_repeat", 2))
+        return 1
+
+
+def resolve_task(task: str) -> str:
+    """The registered gymnasium id for ``task``: itself, or with ``-v0`` appended (``dmc/cartpole-balance``)."""
+    for candidate in (task, f"{task}-v0"):
+        if candidate in gym.envs.registry:
+            return candidate
+    raise ValueError(
+        f"Unknown task {task!r}: expected a registered id such as 'dmc/cartpole-balance-v0' or 'toy/agent-v0'"
+    )
+
+
+def _algorithms(value: Any) -> list[Algorithm]:
+    if isinstance(value, str) or not isinstance(value, (Sequence, Mapping)) or not value:
+        raise ValueError(
+            f"'algorithms' must be a non-empty list of zoo keys or a mapping label -> options, got {value!r}"
+        )
+    if not isinstance(value, Mapping):
+        return [item if isinstance(item, Algorithm) else Algorithm(str(item)) for item in value]
+    algorithms = []
+    for label, options in value.items():
+        options = options or {}
+        unknown = set(options) - ALGORITHM_KEYS
+        if unknown:
+            raise ValueError(
+                f"Algorithm {label!r}: unknown key(s) {sorted(unknown)}; expected {sorted(ALGORITHM_KEYS)}"
+            )
+        algorithms.append(Algorithm(str(label), **options))
+    return algorithms
+
+
+def _seeds(value: Any) -> list[int]:
+    if isinstance(value, int) and not isinstance(value, bool) and value > 0:
+        return list(range(value))
+    if isinstance(value, Sequence) and value and all(isinstance(s, int) and not isinstance(s, bool) for s in value):
+        return list(value)
+    raise ValueError(f"'seeds' must be a positive count or a non-empty list of ints, got {value!r}")
+
+
+def _positive(name: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or int(value) != value or value < 1:
+        raise ValueError(f"{name!r} must be a positive integer, got {value!r}")
+    return int(value)
+
+
+def _entry(algorithm: Algorithm, task: str, overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """The zoo entry for ``task`` with ``overrides`` applied, every key checked against the algorithm class."""
+    from sb3_ef.zoo.registration import algorithm_classes
+
+    algo_class = algorithm_classes()[algorithm.algo]
+    path = algorithm.conf_file or zoo_config.default_config_path(algorithm.algo)
+    entries = zoo_config.load_config(path)
+    zoo_config.validate_config(algorithm.algo, algo_class, entries, source=os.fspath(path))
+    zoo_config.check_keys(algorithm.algo, algo_class, overrides, where=f"hyperparams of {algorithm.label!r}")
+    entry = {**zoo_config.select_entry(entries, task), **overrides}
+    unsupported = set(entry) & (zoo_config.ZOO_KEYS - RUNNER_KEYS)
+    if unsupported:
+        raise ValueError(f"{algorithm.label} on {task}: key(s) {sorted(unsupported)} are not supported by the runner")
+    if entry.get("n_envs", 1) != 1:
+        raise ValueError(f"{algorithm.label} on {task}: the runner trains on one env, got n_envs={entry['n_envs']}")
+    try:
+        constructor_kwargs(entry)
+    except Exception as error:  # a zoo string that does not evaluate: name the run it belongs to
+        raise ValueError(f"{algorithm.label} on {task}: {type(error).__name__}: {error}") from error
+    return entry
+
+
+def constructor_kwargs(hyperparams: Mapping[str, Any]) -> dict[str, Any]:
+    """A zoo entry's values as constructor arguments: strings of :data:`EVALUATED_KEYS` evaluated the way
+    rl-zoo3 does (in its namespace plus sb3-ef's names, e.g. ``SequenceReplayBuffer``), runner keys left out."""
+    from rl_zoo3 import exp_manager
+
+    from sb3_ef.zoo.registration import config_namespace
+
+    namespace = {**vars(exp_manager), **config_namespace()}
+    return {
+        key: eval(value, namespace) if key in EVALUATED_KEYS and isinstance(value, str) else value
+        for key, value in hyperparams.items()
+        if key not in RUNNER_KEYS
+    }
+
+
+def grid_runs(
+    algorithms: Iterable[str | Algorithm] | Mapping[str, Mapping[str, Any]],
+    tasks: Iterable[str],
+    seeds: int | Sequence[int],
+    eval_freq: int,
+    eval_episodes: int = 10,
+    n_timesteps: int | None = None,
+    checkpoint_freq: int | None = None,
+    env_kwargs: Mapping[str, Any] | None = None,
+    hyperparams: Mapping[str, Any] | None = None,
+) -> list[RunSpec]:
+    """Expand algorithms x tasks x seeds into runs, ordered by seed, then algorithm, then task.
+
+    :param algorithms: zoo keys, :class:`Algorithm` objects, or a mapping label -> :class:`Algorithm` options.
+    :param tasks: gymnasium ids (``dmc/cartpole-swingup-v0``; the ``-v0`` may be left out).
+    :param seeds: a count n (seeds 0..n-1) or the list of seeds.
+    :param eval_freq: agent steps between evaluations.
+    :param eval_episodes: episodes per evaluation.
+    :param n_timesteps: agent steps per run; default each entry's ``n_timesteps``.
+    :param checkpoint_freq: agent steps between checkpoints, a multiple of ``eval_freq`` (default ``eval_freq``).
+    :param env_kwargs: env options merged over each entry's ``env_kwargs``.
+    :param hyperparams: overrides for every algorithm (before each algorithm's own).
+    """
+    eval_freq = _positive("eval_freq", eval_freq)
+    eval_episodes = _positive("eval_episodes", eval_episodes)
+    checkpoint_freq = _positive("checkpoint_freq", checkpoint_freq or eval_freq)
+    if checkpoint_freq % eval_freq:
+        raise ValueError(f"checkpoint_freq ({checkpoint_freq}) must be a multiple of eval_freq ({eval_freq})")
+    tasks = [resolve_task(task) for task in ([tasks] if isinstance(tasks, str) else tasks)]
+    if not tasks:
+        raise ValueError("'tasks' must name at least one task")
+    runs_of_seed: list[dict[str, Any]] = []  # the runs of one seed, as RunSpec arguments without the seed
+    for algorithm in _algorithms(algorithms):
+        for task in tasks:
+            entry = _entry(algorithm, task, {**(hyperparams or {}), **algorithm.hyperparams})
+            steps = _positive("n_timesteps", n_timesteps if n_timesteps is not None else entry["n_timesteps"])
+            if eval_freq > steps:
+                raise ValueError(
+                    f"eval_freq ({eval_freq}) exceeds n_timesteps ({steps}) of {algorithm.label} on {task}"
+                )
+            runs_of_seed.append(
+                {
+                    "label": algorithm.label,
+                    "algo": algorithm.algo,
+                    "task": task,
+                    "n_timesteps": steps,
+                    "eval_freq": eval_freq,
+                    "eval_episodes": eval_episodes,
+                    "checkpoint_freq": checkpoint_freq,
+                    "hyperparams": {key: value for key, value in entry.items() if key not in RUNNER_KEYS},
+                    "env_kwargs": {**(entry.get("env_kwargs") or {}), **(env_kwargs or {}), **algorithm.env_kwargs},
+                    "steps_per_second": algorithm.steps_per_second,
+                }
+            )
+    # Seed-major order: a grid stopped part-way has whole seeds of every algorithm and task, comparable already.
+    runs = [RunSpec(seed=seed, **arguments) for seed in _seeds(seeds) for arguments in runs_of_seed]
+    return runs
+
+
+def check_unique(runs: Sequence[RunSpec]) -> None:
+    """Raise ``ValueError`` naming a run id that occurs twice (two runs would share one results file)."""
+    seen: set[str] = set()
+    for run in runs:
+        if run.run_id in seen:
+            raise ValueError(f"Run {run.run_id} occurs twice in the grid: give the algorithms distinct labels")
+        seen.add(run.run_id)
+
+
+def select_runs(runs: Sequence[RunSpec], patterns: Sequence[str]) -> list[RunSpec]:
+    """The runs whose id matches one of the shell-style ``patterns`` (``drqv2_ef/*``, ``*_s0``), in grid order."""
+    selected = [run for run in runs if any(fnmatch.fnmatchcase(run.run_id, pattern) for pattern in patterns)]
+    if not selected:
+        raise ValueError(f"No run id matches {list(patterns)}; ids look like {runs[0].run_id!r}")
+    return selected
+
+
+def load_grid(path: str | os.PathLike) -> list[RunSpec]:
+    """Read a grid file (see the module docstring) and expand every block; run ids must be unique."""
+    with open(path) as file:
+        document = yaml.safe_load(file)
+    if not isinstance(document, dict) or not isinstance(document.get("grids"), list) or not document["grids"]:
+        raise ValueError(f"{path}: expected a mapping with a non-empty list 'grids' of blocks")
+    if set(document) - FILE_KEYS:
+        raise ValueError(
+            f"{path}: unknown top-level key(s) {sorted(set(document) - FILE_KEYS)}; expected {sorted(FILE_KEYS)}"
+        )
+    runs = []
+    for index, block in enumerate(document["grids"]):
+        where = f"{path}, grids[{index}]"
+        if not isinstance(block, dict):
+            raise ValueError(f"{where}: expected a mapping, got {block!r}")
+        unknown = set(block) - BLOCK_KEYS
+        missing = {"algorithms", "tasks", "seeds", "eval_freq"} - set(block)
+        if unknown or missing:
+            raise ValueError(f"{where}: unknown key(s) {sorted(unknown)}, missing key(s) {sorted(missing)}")
+        try:
+            runs += grid_runs(**block)
+        except ValueError as error:
+            raise ValueError(f"{where}: {error}") from error
+    check_unique(runs)
+    return runs

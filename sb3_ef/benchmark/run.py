@@ -1,0 +1,187 @@
+"""One benchmark run: build the env and the algorithm, train with periodic evaluation, record, checkpoint.
+
+Files of a run below the results folder ``out`` (``<run_id>`` is ``<label>/<task>_s<seed>``)::
+
+    out/<run_id>.csv                evaluation records (sb3_ef.analysis.records format), what `analyze results` reads
+    out/<run_id>/checkpoints/       model + replay buffer every checkpoint_freq steps (removed when the run finishes)
+    out/<run_id>/model.zip          the final model (no replay buffer)
+    out/<run_id>/result.json        written last: the run is finished (a rerun skips it)
+
+A run that finds checkpoints resumes from the newest one; evaluation rows after that checkpoint's step are
+dropped first, so the records never hold an evaluation twice.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shutil
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+
+from sb3_ef.analysis.records import RECORD_COLUMNS, EvalRecorderCallback, append_records
+from sb3_ef.benchmark.grid import MAKE_ENV_SUITES, RunSpec, constructor_kwargs
+
+#: Offset added to a run's seed for its evaluation env, so evaluation episodes differ from training ones.
+EVAL_SEED_OFFSET = 10_000
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """How a run ended. ``status`` is ``done`` (trained now), ``skipped`` (finished before) or ``failed``;
+    ``records`` are its evaluation rows (so a driver on another machine can write them)."""
+
+    run_id: str
+    status: str
+    steps: int = 0
+    duration_s: float = 0.0
+    final_return: float | None = None
+    resumed_from: int | None = None
+    records: list[dict[str, Any]] = field(default_factory=list)
+    error: str | None = None
+
+
+@dataclass(frozen=True)
+class RunPaths:
+    """Where a run's files live below the results folder."""
+
+    records: Path
+    folder: Path
+
+    @classmethod
+    def of(cls, out: str | os.PathLike, spec: RunSpec) -> RunPaths:
+        base = Path(out) / spec.run_id
+        return cls(records=base.with_name(base.name + ".csv"), folder=base)
+
+    @property
+    def checkpoints(self) -> Path:
+        return self.folder / "checkpoints"
+
+    @property
+    def result(self) -> Path:
+        return self.folder / "result.json"
+
+    @property
+    def model(self) -> Path:
+        return self.folder / "model.zip"
+
+
+def read_result(paths: RunPaths) -> RunResult | None:
+    """The stored result of a finished run, as ``skipped``; ``None`` if the run has not finished."""
+    if not paths.result.is_file():
+        return None
+    stored = json.loads(paths.result.read_text())
+    return RunResult(**{**stored, "status": "skipped"})
+
+
+def store_result(paths: RunPaths, result: RunResult) -> None:
+    """Write a finished run's records (unless present) and then its ``result.json``; a run that already has its
+    ``result.json`` is left as it is."""
+    if paths.result.is_file():
+        return
+    if not paths.records.is_file():
+        append_records(paths.records, result.records)
+    paths.folder.mkdir(parents=True, exist_ok=True)
+    temporary = paths.result.with_suffix(".tmp")
+    temporary.write_text(json.dumps(asdict(result), indent=1))
+    temporary.replace(paths.result)  # atomic: a result file is always complete
+
+
+def read_records(path: Path) -> list[dict[str, Any]]:
+    """The rows of an evaluation CSV (empty if it does not exist), with numbers parsed."""
+    if not path.is_file():
+        return []
+    with open(path, newline="") as file:
+        rows = list(csv.DictReader(file))
+    return [
+        {**row, "step": int(row["step"]), "frame": int(row["frame"]), "return": float(row["return"])} for row in rows
+    ]
+
+
+def truncate_records(path: Path, last_step: int) -> None:
+    """Keep only the evaluation rows up to ``last_step`` (those a resumed run will not repeat)."""
+    kept = [row for row in read_records(path) if row["step"] <= last_step]
+    path.unlink(missing_ok=True)
+    if kept:
+        append_records(path, kept)
+
+
+def build_env(spec: RunSpec, seed: int) -> gym.Env:
+    """The run's env: :func:`sb3_ef.make_env` for ``dmc/`` and ``metaworld/`` tasks, ``gym.make`` otherwise."""
+    if spec.task.startswith(MAKE_ENV_SUITES):
+        from sb3_ef.envs import make_env
+
+        return make_env(spec.task, seed=seed, **spec.env_kwargs)
+    return gym.make(spec.task, **spec.env_kwargs)
+
+
+def execute_run(spec: RunSpec, out: str | os.PathLike, threads: int = 1, device: str = "auto") -> RunResult:
+    """Train one run to ``spec.n_timesteps`` agent steps (resuming from its newest checkpoint) and record it.
+
+    A finished run (``result.json`` present) is not trained again: its stored result comes back as ``skipped``.
+    """
+    import torch as th
+    from stable_baselines3.common.callbacks import EvalCallback
+    from stable_baselines3.common.monitor import Monitor
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from sb3_ef.common.checkpoints import ResumableCheckpointCallback, latest_checkpoint, load_checkpoint
+    from sb3_ef.zoo.registration import algorithm_classes
+
+    paths = RunPaths.of(out, spec)
+    finished = read_result(paths)
+    if finished is not None:
+        return finished
+    th.set_num_threads(threads)
+    start = time.perf_counter()
+    env = build_env(spec, seed=spec.seed)
+    eval_env = DummyVecEnv([lambda: Monitor(build_env(spec, seed=spec.seed + EVAL_SEED_OFFSET))])
+    eval_env.seed(spec.seed + EVAL_SEED_OFFSET)
+    algo_class = algorithm_classes()[spec.algo]
+    checkpoint = latest_checkpoint(paths.checkpoints)
+    if checkpoint is None:
+        paths.records.unlink(missing_ok=True)
+        model = algo_class(env=env, seed=spec.seed, device=device, **constructor_kwargs(dict(spec.hyperparams)))
+        resumed_from = None
+    else:
+        model = load_checkpoint(algo_class, checkpoint, env, device=device)
+        resumed_from = model.num_timesteps
+        truncate_records(paths.records, resumed_from)
+    recorder = EvalRecorderCallback(
+        paths.records, algo=spec.label, task=spec.task, seed=spec.seed, action_repeat=spec.action_repeat
+    )
+    # Checkpoints are written at the start of the rollout after their step, so after that step's evaluation.
+    callbacks = [
+        EvalCallback(
+            eval_env,
+            eval_freq=spec.eval_freq,
+            n_eval_episodes=spec.eval_episodes,
+            callback_after_eval=recorder,
+            verbose=0,
+        ),
+        ResumableCheckpointCallback(spec.checkpoint_freq, paths.checkpoints),
+    ]
+    remaining = spec.n_timesteps - model.num_timesteps
+    if remaining > 0:
+        model.learn(remaining, callback=callbacks, reset_num_timesteps=resumed_from is None)
+    model.save(paths.model)  # without the replay buffer (SB3 excludes it)
+    env.close()
+    eval_env.close()
+    records = read_records(paths.records)
+    result = RunResult(
+        run_id=spec.run_id,
+        status="done",
+        steps=model.num_timesteps,
+        duration_s=time.perf_counter() - start,
+        final_return=records[-1]["return"] if records else None,
+        resumed_from=resumed_from,
+        records=[{key: row[key] for key in RECORD_COLUMNS} for row in records],
+    )
+    store_result(paths, result)
+    shutil.rmtree(paths.checkpoints, ignore_errors=True)
+    return result
