@@ -57,17 +57,19 @@ def test_effective_discount_of_the_authors_protocol(runs):
         buffer.add(
             observations[t][None],
             observations[t + 1][None],
-            np.zeros((1, 4)),
+            np.full((1, 4), t / STEPS),  # the stored action labels the transition with its step
             np.array([rewards[t]]),
             np.array([False]),
             [{}],
         )
-    first = buffer._get_samples(np.flatnonzero(buffer._has_step[0])[:1])  # the transition at t = 0
+    batch = buffer.sample(256)
+    at_start = batch.actions[:, 0] == 0.0
+    assert at_start.any(), "the transition at t = 0 was never drawn"
     # Simulator step j of agent step t = j // 2 is weighted 0.99^(3t + j % 2): 0.99 per simulator step, and 0.99
     # more at each agent step.
     expected = sum(0.99 ** (3 * (j // 2) + j % 2) * simulator_rewards[j] for j in range(6))
-    assert first.rewards.item() == pytest.approx(expected, rel=1e-5)
-    assert first.discounts.item() == pytest.approx(0.9135172474836408, rel=1e-6)
+    assert batch.rewards[at_start][0].item() == pytest.approx(expected, rel=1e-5)
+    assert batch.discounts[at_start][0].item() == pytest.approx(0.9135172474836408, rel=1e-6)
 
 
 def test_default_sums_the_repeats_and_bad_values_are_rejected():
