@@ -30,7 +30,8 @@ class AuxiliaryEFMixin(EFHostMixin):
 
     EF's arguments are keyword-only; every other argument is the host's own and goes to it unchanged.
 
-    :param beta: weight of the EF loss in its step (it scales EF's gradient on the encoder).
+    :param beta: weight of the EF loss in its step. EF's optimiser is its own Adam, which normalises the gradient's
+        scale, so ``beta`` barely changes the step: ``ef_learning_rate`` sets how strongly EF moves the encoder.
     :param ef_horizon: EF's prediction horizon H (the rollout length k is drawn in [1, H]).
     :param agent_dim: size of the agent features, the first ``agent_dim`` features of the critic's encoder.
     :param ef_kwargs: extra arguments of :class:`sb3_ef.ef.EgoForesight` (decoder / rollout options).
