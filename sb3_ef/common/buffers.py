@@ -709,9 +709,9 @@ class SequenceReplayBuffer(ReplayBuffer):
         ):
             state.pop(name, None)
         written = int(min(self._head.max() + 1, self.buffer_size))
-        rows = [slice(env * self.buffer_size, env * self.buffer_size + written) for env in range(self.n_envs)]
         state["_stored"] = None
         if written > 0:
+            rows = [slice(env * self.buffer_size, env * self.buffer_size + written) for env in range(self.n_envs)]
             state["_stored"] = {
                 "frames": [self._frames[env_rows].cpu().numpy() for env_rows in rows],  # no copies in host storage
                 "steps": {name: getattr(self, name).cpu().numpy() for name in ("_actions", "_rewards", "_terminals")},
