@@ -7,7 +7,9 @@ observations are rebuilt at sample time from consecutive frames, so they equal w
 starts included, whatever padding the env used.
 
 Frames and per-step arrays are torch tensors on a storage device (host memory or the training GPU), and sampling
-gathers there with indices drawn by the buffer's own generator. See docs/buffer.md for the layout and the rules.
+gathers there with indices drawn by the buffer's own generator. The storage is allocated (and its size checked
+against the memory available) at the first ``add()``, so a model loaded only to act never reserves it. See
+docs/buffer.md for the layout and the rules.
 """
 
 from __future__ import annotations
@@ -173,7 +175,9 @@ class SequenceReplayBuffer(ReplayBuffer):
         the pickle.
     :param storage_device: where frames and per-step arrays live and are gathered: ``"cpu"`` (host memory), a CUDA
         device (``"cuda"``, a ``torch.device``), or ``"auto"``: the training device when the whole buffer plus a
-        margin (a quarter of the GPU's memory, at least 4 GiB) fits its free memory, else host memory.
+        margin (a quarter of the GPU's memory, at least 4 GiB) fits its free memory, else host memory. The storage
+        is allocated at the first ``add()``, which raises ``MemoryError`` before storing anything when it does not
+        fit; host memory is zeroed lazily by the OS (pages are committed as frames are written).
     :param prefetch: gather the next batch in a background thread while the caller uses this one. ``None``: on
         when the training device is CUDA and the storage is host memory.
     """
@@ -250,7 +254,8 @@ class SequenceReplayBuffer(ReplayBuffer):
         self._last_obs = np.zeros((n_envs, *self.obs_shape), dtype=np.uint8)  # the stack whose newest frame is head
         self._n_transitions = 0
         self._n_adds = 0
-        self._allocate_storage(self._resolve_storage())
+        # Chosen now, allocated at the first add(): SB3's load rebuilds this buffer for models loaded only to act.
+        self.storage_device = self._resolve_storage()
         self._init_runtime()
 
     # ----------------------------------------------------------------- storage
@@ -263,10 +268,18 @@ class SequenceReplayBuffer(ReplayBuffer):
     @device.setter
     def device(self, device: th.device | str) -> None:
         self._device = get_device(device)
-        if "_frames" in self.__dict__:
-            storage = self._resolve_storage()
-            if storage != self.storage_device:
-                self._move_storage(storage)
+        if "storage_device" not in self.__dict__:  # BaseBuffer.__init__ sets the device before the storage exists
+            return
+        storage = self._resolve_storage()
+        if not self._allocated:
+            self.storage_device = storage
+        elif storage != self.storage_device:
+            self._move_storage(storage)
+
+    @property
+    def _allocated(self) -> bool:
+        """The storage exists (it is allocated at the first ``add()``, or when a pickle with frames is loaded)."""
+        return "_frames" in self.__dict__
 
     @property
     def _has_step(self) -> np.ndarray:
@@ -280,7 +293,8 @@ class SequenceReplayBuffer(ReplayBuffer):
 
     @property
     def nbytes(self) -> int:
-        """Bytes allocated for the whole capacity (frames on disk included when memory-mapped)."""
+        """Bytes the whole capacity takes once allocated at the first ``add()`` (frames on disk included when
+        memory-mapped)."""
         host = self._has_step_rows.nbytes + self._head.nbytes + self._episode_open.nbytes + self._last_obs.nbytes
         return sum(self._storage_bytes()) + host
 
@@ -303,8 +317,8 @@ class SequenceReplayBuffer(ReplayBuffer):
         """Raise before allocating when the storage cannot hold the buffer, naming the ways out."""
         frame_bytes, step_bytes = self._storage_bytes()
         ways_out = [
-            f"a smaller buffer_size (an episode of T steps takes T + {self.frame_stack} frames; to load a model only "
-            "to act, Model.load(path, buffer_size=1000))"
+            f"a smaller buffer_size (an episode of T steps takes T + {self.frame_stack} frames; to go on training a "
+            "saved model, Model.load(path, buffer_size=...))"
         ]
         if storage.type == "cuda":
             needed, available, where = frame_bytes + step_bytes, th.cuda.mem_get_info(storage)[0], f"{storage} memory"
@@ -329,20 +343,23 @@ class SequenceReplayBuffer(ReplayBuffer):
         )
 
     def _allocate_storage(self, storage: th.device) -> None:
-        """Zeroed frames (in RAM, in an unnamed temporary file under ``memmap_dir``, or on a GPU) and step arrays."""
+        """Zeroed frames (in RAM, in an unnamed temporary file under ``memmap_dir``, or on a GPU) and step arrays.
+
+        Host arrays come from ``np.zeros`` (calloc): the OS commits their pages when they are first written, so RAM
+        grows with the frames stored rather than with the capacity (``th.zeros`` would write every page now)."""
         self._check_memory(storage)
         rows = self.n_envs * self.buffer_size + 1  # the last row stays zero: masked reads point at it
         self._frame_map = None
-        if self.memmap_dir is None:
-            self._frames = th.zeros((rows, *self.frame_shape), dtype=th.uint8, device=storage)
-        else:
+        if self.memmap_dir is not None:
             # The file has no name and the mapping keeps it alive: it is freed with the array, even after a crash.
             with tempfile.TemporaryFile(dir=self.memmap_dir, prefix="sb3_ef_frames_") as file:
                 self._frame_map = np.memmap(file, dtype=np.uint8, mode="w+", shape=(rows, *self.frame_shape))
             self._frames = th.from_numpy(self._frame_map)
-        self._actions = th.zeros((rows, self.action_dim), dtype=th.float32, device=storage)
-        self._rewards = th.zeros(rows, dtype=th.float32, device=storage)
-        self._terminals = th.zeros(rows, dtype=th.bool, device=storage)
+        else:
+            self._frames = _zeros((rows, *self.frame_shape), th.uint8, storage)
+        self._actions = _zeros((rows, self.action_dim), th.float32, storage)
+        self._rewards = _zeros((rows,), th.float32, storage)
+        self._terminals = _zeros((rows,), th.bool, storage)
         self.storage_device = storage
         self._share_step_flags()
 
@@ -377,7 +394,8 @@ class SequenceReplayBuffer(ReplayBuffer):
         self._drop_pending()
         super().reset()
         self._has_step_rows[:] = False
-        self._step_flags.zero_()
+        if self._allocated:
+            self._step_flags.zero_()
         self._head[:] = -1
         self._episode_open[:] = False
         self._n_transitions = 0
@@ -414,6 +432,8 @@ class SequenceReplayBuffer(ReplayBuffer):
         reward = np.asarray(reward, dtype=np.float32).reshape(self.n_envs)
         done = np.asarray(done, dtype=bool).reshape(self.n_envs)
         self._check_step(obs, next_obs, action, reward)
+        if not self._allocated:
+            self._allocate_storage(self.storage_device)
         self._wait_for_prefetch()
 
         channels, capacity = self.frame_channels, self.buffer_size
@@ -670,7 +690,8 @@ class SequenceReplayBuffer(ReplayBuffer):
     # ------------------------------------------------------------- save / load
     def __getstate__(self) -> dict[str, Any]:
         """Pickle the written frames themselves (memory-mapped or not, from any device) as NumPy arrays, so a saved
-        buffer is self-contained and loads on any machine; a prefetched batch is kept as its drawn indices."""
+        buffer is self-contained and loads on any machine; a prefetched batch is kept as its drawn indices. A buffer
+        with nothing written pickles no storage (``_stored`` is None) and is allocated again at its first add()."""
         self._wait_for_prefetch()
         state = self.__dict__.copy()
         for name in (
@@ -686,20 +707,22 @@ class SequenceReplayBuffer(ReplayBuffer):
             "_executor",
             "_copy_stream",
         ):
-            del state[name]
+            state.pop(name, None)
         written = int(min(self._head.max() + 1, self.buffer_size))
-        rows = [slice(env * self.buffer_size, env * self.buffer_size + written) for env in range(self.n_envs)]
-        state["_stored"] = {
-            "frames": [self._frames[env_rows].cpu().numpy() for env_rows in rows],  # no copies in host storage
-            "steps": {name: getattr(self, name).cpu().numpy() for name in ("_actions", "_rewards", "_terminals")},
-        }
+        state["_stored"] = None
+        if written > 0:
+            rows = [slice(env * self.buffer_size, env * self.buffer_size + written) for env in range(self.n_envs)]
+            state["_stored"] = {
+                "frames": [self._frames[env_rows].cpu().numpy() for env_rows in rows],  # no copies in host storage
+                "steps": {name: getattr(self, name).cpu().numpy() for name in ("_actions", "_rewards", "_terminals")},
+            }
         pending = self._pending
         state["_pending_draw"] = None if pending is None else (pending.batch_size, pending.indices)
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         """Rebuild the storage where it belongs on this machine (a fresh memmap file when ``memmap_dir`` is set) and
-        copy the frames in."""
+        copy the frames in; a pickle without frames leaves the allocation to the first add()."""
         if "_stored" not in state:
             raise ValueError(
                 "SequenceReplayBuffer expects a pickle with torch storage (written since storage_device exists), got "
@@ -709,12 +732,14 @@ class SequenceReplayBuffer(ReplayBuffer):
         self.__dict__.update(state)
         if self._device.type == "cuda" and not th.cuda.is_available():
             self._device = th.device("cpu")
-        self._allocate_storage(self._resolve_storage())
-        for env, frames in enumerate(stored["frames"]):
-            start = env * self.buffer_size
-            self._frames[start : start + len(frames)] = th.from_numpy(frames)
-        for name, values in stored["steps"].items():
-            getattr(self, name).copy_(th.from_numpy(values))
+        self.storage_device = self._resolve_storage()
+        if stored is not None:
+            self._allocate_storage(self.storage_device)
+            for env, frames in enumerate(stored["frames"]):
+                start = env * self.buffer_size
+                self._frames[start : start + len(frames)] = th.from_numpy(frames)
+            for name, values in stored["steps"].items():
+                getattr(self, name).copy_(th.from_numpy(values))
         self._init_runtime()
         if pending is not None:
             self._pending = _Pending(pending[0], pending[1], self._take_slot())
@@ -726,6 +751,14 @@ def _normalize_device(device: th.device | str) -> th.device:
     if device.type == "cuda" and device.index is None:
         return th.device("cuda", th.cuda.current_device())
     return device
+
+
+def _zeros(shape: tuple[int, ...], dtype: th.dtype, device: th.device) -> th.Tensor:
+    """Zeros on ``device``; in host memory through ``np.zeros`` (calloc), whose pages the OS commits when written."""
+    if device.type != "cpu":
+        return th.zeros(shape, dtype=dtype, device=device)
+    numpy_dtype = th.empty(0, dtype=dtype).numpy().dtype
+    return th.from_numpy(np.zeros(shape, dtype=numpy_dtype))
 
 
 def _write_rows(target: th.Tensor, rows: list[int] | np.ndarray, values: np.ndarray) -> None:

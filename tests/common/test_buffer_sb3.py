@@ -4,13 +4,17 @@ from __future__ import annotations
 
 import gymnasium as gym
 import numpy as np
+import pytest
 import torch as th
 from gymnasium import spaces
 from stable_baselines3 import TD3
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
+from sb3_ef import DrQv2EF
+from sb3_ef.common import buffers
 from sb3_ef.common.buffers import SequenceReplayBuffer
+from sb3_ef.envs.toy import ToyAgentEnv
 
 FRAME_STACK = 2
 SIZE = 8
@@ -96,3 +100,25 @@ def test_td3_learns_from_sequence_buffer(tmp_path):
     got = other.replay_buffer.sample(16)
     for name in expected._fields:
         assert th.equal(getattr(got, name), getattr(expected, name)), name
+
+
+def test_a_model_whose_buffer_does_not_fit_in_ram_loads_and_acts(tmp_path, monkeypatch):
+    """SB3's load rebuilds the saved 1M-frame buffer (3.1 GB at 32x32): it is only reserved by the first add()."""
+    monkeypatch.setattr(buffers, "available_host_memory", lambda: 10**8)  # 0.1 GB of RAM left
+    env = ToyAgentEnv(size=32, max_episode_steps=10)
+    policy_kwargs = {"net_arch": [16], "trunk_dim": 8, "features_dim": 32, "agent_dim": 4}
+    policy_kwargs["ef_kwargs"] = {"rollout_hidden_dims": (8,), "decoder_channels": 4}
+    model = DrQv2EF(
+        "CnnPolicy", env, buffer_size=1_000_000, learning_starts=4, ef_horizon=3, policy_kwargs=policy_kwargs, seed=0
+    )
+    assert model.replay_buffer.nbytes > 3 * 10**9
+    model.save(tmp_path / "model.zip")
+
+    loaded = DrQv2EF.load(tmp_path / "model.zip", env=env, device="cpu")
+    obs, _ = env.reset(seed=1)
+    action, _ = loaded.predict(obs, deterministic=True)
+    np.testing.assert_allclose(action, model.predict(obs, deterministic=True)[0])
+    assert loaded.replay_buffer.buffer_size == 1_000_000
+    with pytest.raises(MemoryError, match=r"needs 3\.\d\d GB .* but only 0\.10 GB of RAM are available"):
+        loaded.learn(2)  # training refuses at the first add(), before any frame is stored
+    assert loaded.replay_buffer.size() == 0

@@ -17,7 +17,7 @@ import torch as th
 from gymnasium import spaces
 from test_buffers import ACTION_DIM, GAMMA, STORAGES, Streams, check_against_reference, make_buffer
 
-from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
+from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples, available_host_memory
 
 
 def as_numpy(batch: SequenceReplayBufferSamples) -> dict[str, np.ndarray]:
@@ -228,18 +228,83 @@ BIG = spaces.Box(0, 255, (9, 84, 84), np.uint8)
 ACTIONS = spaces.Box(-1, 1, (ACTION_DIM,), np.float32)
 
 
-def test_a_buffer_larger_than_the_ram_is_refused_before_allocating():
-    """10M frames at 84x84 (212 GB): the error names the size, what is available and the ways out."""
+def first_step() -> tuple:
+    """One add() of a single env with BIG frames."""
+    obs = np.zeros((1, *BIG.shape), np.uint8)
+    return obs, obs.copy(), np.zeros((1, ACTION_DIM), np.float32), np.zeros(1, np.float32), np.zeros(1, bool), [{}]
+
+
+def test_a_buffer_larger_than_the_ram_is_refused_at_the_first_add_before_storing():
+    """10M frames at 84x84 (212 GB): construction reserves nothing; the first add() names the size, what is
+    available and the ways out, and stores nothing."""
+    buffer = SequenceReplayBuffer(10_000_000, BIG, ACTIONS, device="cpu")
     with pytest.raises(MemoryError, match=r"needs 211\.\d\d GB .* but only \d+\.\d\d GB of RAM") as error:
-        SequenceReplayBuffer(10_000_000, BIG, ACTIONS, device="cpu")
+        buffer.add(*first_step())
     assert "a smaller buffer_size" in str(error.value) and "memmap_dir=<a folder on a disk with 211.7" in str(
         error.value
     )
+    assert buffer.size() == 0 and (buffer._head == -1).all()
+    with pytest.raises(MemoryError):  # refused again, not half-allocated
+        buffer.add(*first_step())
 
 
-def test_a_memmap_larger_than_the_disk_is_refused(tmp_path):
+def test_a_memmap_larger_than_the_disk_is_refused_at_the_first_add(tmp_path):
+    buffer = SequenceReplayBuffer(10**9, BIG, ACTIONS, device="cpu", memmap_dir=tmp_path)
     with pytest.raises(MemoryError, match=f"GB of disk space in memmap_dir={tmp_path} are available"):
-        SequenceReplayBuffer(10**9, BIG, ACTIONS, device="cpu", memmap_dir=tmp_path)
+        buffer.add(*first_step())
+    assert buffer.size() == 0
+
+
+def resident_bytes() -> int:
+    """This process's resident memory (``VmRSS`` in /proc/self/status)."""
+    with open("/proc/self/status") as status:
+        return next(int(line.split()[1]) * 1024 for line in status if line.startswith("VmRSS:"))
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/status"), reason="reads resident memory from Linux's /proc")
+def test_host_storage_commits_ram_only_as_frames_are_written():
+    """A 2.1 GB host buffer (100k frames at 3x84x84) adds far less than its size to RSS when built and at its first
+    add(), which allocates it: the OS commits pages as frames are written."""
+    before = resident_bytes()
+    buffer = SequenceReplayBuffer(100_000, BIG, ACTIONS, device="cpu", storage_device="cpu")
+    after_construction = resident_bytes()
+    if (available_host_memory() or 0) < 2 * buffer.nbytes:
+        pytest.skip("the first add() needs the buffer's size in available RAM, with room to spare")
+    buffer.add(*first_step())
+    after_first_add = resident_bytes()
+    assert buffer.size() == 1 and buffer.sample(2).observations.shape == (2, *BIG.shape)
+    assert after_construction - before < 0.02 * buffer.nbytes
+    assert after_first_add - before < 0.02 * buffer.nbytes
+
+
+def test_an_empty_buffer_pickles_without_storage():
+    buffer = SequenceReplayBuffer(100_000, BIG, ACTIONS, device="cpu", storage_device="cpu")
+    data = pickle.dumps(buffer)
+    # Spaces and bookkeeping take 0.42 MB; the step arrays would add 1.3 MB, the frames 2.1 GB.
+    assert len(data) < 1_000_000
+    loaded = pickle.loads(data)
+    with pytest.raises(ValueError, match="at least one transition, got none"):
+        loaded.sample(4)
+    loaded.device = "cpu"
+    loaded.reset()
+    assert loaded.nbytes == buffer.nbytes and loaded.storage_device == th.device("cpu")
+
+
+@pytest.mark.parametrize("storage", STORAGES)
+def test_an_empty_buffer_is_allocated_at_its_first_add_after_any_round_trip(storage):
+    """Every path that meets the storage before the first add(): sample, reset, device, nbytes, pickling."""
+    buffer = make_buffer(2, 3, 30, storage=storage, n_steps=3, gamma=GAMMA, horizon=5)
+    with pytest.raises(ValueError, match="at least one transition, got none"):
+        buffer.sample(4)
+    buffer.reset()
+    buffer.device = buffer.device
+    loaded = pickle.loads(pickle.dumps(buffer))
+    assert loaded.nbytes == buffer.nbytes and loaded.storage_device == buffer.storage_device
+    streams = Streams(2, 3, 9, "distinct", True, seed=0)
+    for _ in range(40):
+        streams.step(loaded)
+    check_against_reference(loaded, streams)
+    assert loaded._frames.device == buffer.storage_device
 
 
 def test_a_pickle_of_the_old_format_is_refused_clearly():
