@@ -43,5 +43,3 @@ def maybe_compile(function: F, compile: CompileOption) -> F:
     """``function`` compiled as ``compile`` says (unchanged when it is ``False``)."""
     kwargs = compile_kwargs(compile)
     return function if kwargs is None else th.compile(function, **kwargs)  # type: ignore[return-value]
-
-
