@@ -95,10 +95,10 @@ def assert_compiled_equals_eager(algorithm, compile, samples) -> None:
     for eager_logs, compiled_logs in zip(updates(eager, samples), updates(compiled, samples), strict=True):
         assert eager_logs.keys() == compiled_logs.keys()
         for key, value in eager_logs.items():
-            th.testing.assert_close(compiled_logs[key], value, rtol=1e-5, atol=1e-6, msg=key)
+            th.testing.assert_close(compiled_logs[key], value, rtol=1e-5, atol=1e-6, msg=lambda m, k=key: f"{k}: {m}")
     compiled_state = compiled.policy.state_dict()
     for name, value in eager.policy.state_dict().items():
-        th.testing.assert_close(compiled_state[name], value, rtol=1e-5, atol=1e-6, msg=name)
+        th.testing.assert_close(compiled_state[name], value, rtol=1e-5, atol=1e-6, msg=lambda m, n=name: f"{n}: {m}")
 
 
 @pytest.mark.parametrize("algorithm", [DrQv2EF, DrQv2, TDMPC2EF, TDMPC2])
