@@ -90,7 +90,7 @@ def fallback_random():
     th._dynamo.reset()
 
 
-def assert_compiled_equals_eager(algorithm, compile, samples) -> None:
+def assert_compiled_equals_eager(algorithm, compile, samples, parameter_atol: float = 1e-6) -> None:
     eager, compiled = make(algorithm), make(algorithm, compile=compile)
     for eager_logs, compiled_logs in zip(updates(eager, samples), updates(compiled, samples), strict=True):
         assert eager_logs.keys() == compiled_logs.keys()
@@ -98,7 +98,9 @@ def assert_compiled_equals_eager(algorithm, compile, samples) -> None:
             th.testing.assert_close(compiled_logs[key], value, rtol=1e-5, atol=1e-6, msg=lambda m, k=key: f"{k}: {m}")
     compiled_state = compiled.policy.state_dict()
     for name, value in eager.policy.state_dict().items():
-        th.testing.assert_close(compiled_state[name], value, rtol=1e-5, atol=1e-6, msg=lambda m, n=name: f"{n}: {m}")
+        th.testing.assert_close(
+            compiled_state[name], value, rtol=1e-5, atol=parameter_atol, msg=lambda m, n=name: f"{n}: {m}"
+        )
 
 
 @pytest.mark.parametrize("algorithm", [DrQv2EF, DrQv2, TDMPC2EF, TDMPC2])
@@ -111,7 +113,10 @@ def test_compiled_updates_equal_eager_ones(algorithm, fallback_random):
 @pytest.mark.slow
 @pytest.mark.parametrize("algorithm", [DrQv2EF, DrQv2, TDMPC2EF, TDMPC2])
 def test_inductor_updates_equal_eager_ones(algorithm, fallback_random):
-    assert_compiled_equals_eager(algorithm, True, batches(algorithm, 3))
+    # Inductor fuses and reorders float sums. Where a gradient is zero in exact arithmetic (TD-MPC2's last conv bias:
+    # SimNorm's per-group softmax ignores it), Adam turns the rounding noise into steps of up to the learning rate,
+    # so the parameters get a few learning rates of tolerance; the losses of every update are still held tight.
+    assert_compiled_equals_eager(algorithm, True, batches(algorithm, 3), parameter_atol=1e-3)
 
 
 def test_changing_exploration_std_does_not_recompile(fallback_random):
