@@ -17,6 +17,7 @@ from torch.nn import functional as F
 
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBufferSamples
+from sb3_ef.common.compile import CompileOption, compile_kwargs, maybe_compile
 from sb3_ef.common.env_checks import check_box_actions, check_stacked_frames, episode_steps
 from sb3_ef.common.exploration import OwnExplorationMixin
 from sb3_ef.common.schedules import StepSchedule, get_step_schedule
@@ -68,6 +69,9 @@ class DrQv2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         Meta-World evaluation protocol).
     :param check_finite_losses: raise a ``ValueError`` naming the loss when one is NaN or infinite, before the
         optimiser step (one device sync per loss: for debugging).
+    :param compile: ``torch.compile`` the update's loss computations (forward and backward; the optimiser steps
+        stay eager): ``False`` (eager), ``True`` (default mode), a mode name (``"reduce-overhead"``: CUDA graphs) or
+        a dict of ``torch.compile`` arguments. Compiling takes minutes at the first update.
     :param replay_buffer_class: a :class:`SequenceReplayBuffer` (sub)class; ``None`` picks it.
     :param replay_buffer_kwargs: extra buffer arguments (``n_steps``, ``gamma`` and the horizon are filled in).
     :param stats_window_size: episodes averaged for the rollout logs.
@@ -107,6 +111,7 @@ class DrQv2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         babbling_mode: str = "sign",
         babbling_in_eval: bool = False,
         check_finite_losses: bool = False,
+        compile: CompileOption = False,
         replay_buffer_class: type[ReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
         stats_window_size: int = 100,
@@ -147,6 +152,8 @@ class DrQv2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         )
         self.exploration_std = exploration_std
         self.target_noise_clip = target_noise_clip
+        compile_kwargs(compile)
+        self.compile = compile
         self._init_ef(beta, ef_horizon, babbling_steps, babbling_mode, babbling_in_eval, check_finite_losses, "DrQv2")
 
         if _init_setup_model:
@@ -169,6 +176,8 @@ class DrQv2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         super()._setup_model()
         self.exploration_schedule = get_step_schedule(self.exploration_std)
         self._create_aliases()
+        self._critic_step_losses = maybe_compile(self._critic_and_ef_losses, self.compile)
+        self._actor_step_loss = maybe_compile(self._actor_objective, self.compile)
 
     def _create_aliases(self) -> None:
         self.actor = self.policy.actor
@@ -189,22 +198,15 @@ class DrQv2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     def _update(self, batch: SequenceReplayBufferSamples) -> dict[str, th.Tensor]:
         """One gradient update, EF's loss added to the critic's on the same encoder output: augment -> encode ->
         critic (+ beta * EF) step on encoder, critic, EF -> actor step -> critic target. Returns the (detached)
-        scalars to log, without a device sync."""
-        std = self.exploration_schedule(self.num_timesteps)
+        scalars to log, without a device sync. With ``compile``, the losses are computed by the compiled functions
+        (the exploration std is passed as a tensor, so that its schedule does not recompile them)."""
+        compiled = self.compile is not False
+        if compiled:
+            th.compiler.cudagraph_mark_step_begin()
+        std = th.tensor(self.exploration_schedule(self.num_timesteps), device=self.device)
         observations, next_observations, window = self._augment(batch)
-        features = self.policy.encoder(observations)
-        with th.no_grad():
-            next_features = self.policy.encoder(next_observations)
-
-        critic_loss, q_mean = self._critic_loss(features, batch, next_features, std)
-        logs = {"critic_loss": critic_loss.detach(), "q_values": q_mean}
-        self._check_finite(critic_loss=critic_loss)
-        loss = critic_loss
-        ef_loss = self._ef_loss(features, batch.future_actions, window)
-        if ef_loss is not None:
-            loss = loss + self.beta * ef_loss
-            logs["ef_loss"] = ef_loss.detach()
-            self._check_finite(ef_loss=ef_loss)
+        loss, features, logs = self._critic_step_losses(observations, next_observations, window, batch, std)
+        self._check_finite(**{name: logs[name] for name in ("critic_loss", "ef_loss") if name in logs})
         self.critic.optimizer.zero_grad()
         loss.backward()
         self.critic.optimizer.step()
@@ -217,7 +219,30 @@ class DrQv2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
 
         polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
         logs["actor_loss"] = actor_loss.detach()
-        return logs
+        # CUDA graph outputs are overwritten by the next replay: keep copies.
+        return {name: value.clone() for name, value in logs.items()} if compiled else logs
+
+    def _critic_and_ef_losses(
+        self,
+        observations: th.Tensor,
+        next_observations: th.Tensor,
+        window: EFWindow | None,
+        batch: SequenceReplayBufferSamples,
+        std: th.Tensor,
+    ) -> tuple[th.Tensor, th.Tensor, dict[str, th.Tensor]]:
+        """The loss of the encoder, critic and EF step (``critic_loss + beta * ef_loss``), the encoder features of
+        the augmented observations, and the (detached) scalars to log."""
+        features = self.policy.encoder(observations)
+        with th.no_grad():
+            next_features = self.policy.encoder(next_observations)
+        critic_loss, q_mean = self._critic_loss(features, batch, next_features, std)
+        logs = {"critic_loss": critic_loss.detach(), "q_values": q_mean}
+        loss = critic_loss
+        ef_loss = self._ef_loss(features, batch.future_actions, window)
+        if ef_loss is not None:
+            loss = loss + self.beta * ef_loss
+            logs["ef_loss"] = ef_loss.detach()
+        return loss, features, logs
 
     def _augment(self, batch: SequenceReplayBufferSamples) -> tuple[th.Tensor, th.Tensor, EFWindow | None]:
         """Random-shift the next observations, and the observations with EF's window (see ``_ef_window``)."""
@@ -225,7 +250,7 @@ class DrQv2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         observations, window = self._ef_window(batch, pad=SHIFT_PAD)
         return observations, next_observations, window
 
-    def _noisy_actions(self, features: th.Tensor, std: float) -> th.Tensor:
+    def _noisy_actions(self, features: th.Tensor, std: float | th.Tensor) -> th.Tensor:
         """Actor mean plus clipped Gaussian noise, clamped to the action bounds with a straight-through gradient
         (DrQ-v2's truncated normal sample)."""
         mean = self.actor(features)
@@ -235,7 +260,7 @@ class DrQv2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         return actions - actions.detach() + clamped.detach()
 
     def _critic_loss(
-        self, features: th.Tensor, batch: SequenceReplayBufferSamples, next_features: th.Tensor, std: float
+        self, features: th.Tensor, batch: SequenceReplayBufferSamples, next_features: th.Tensor, std: float | th.Tensor
     ) -> tuple[th.Tensor, th.Tensor]:
         """Clipped double-Q n-step TD loss against the critic target; returns the loss and the (detached) mean Q."""
         with th.no_grad():
@@ -247,15 +272,19 @@ class DrQv2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         assert isinstance(loss, th.Tensor)
         return loss, th.cat(current_q, dim=1).mean().detach()
 
-    def _actor_loss(self, features: th.Tensor, std: float) -> th.Tensor:
+    def _actor_loss(self, features: th.Tensor, std: float | th.Tensor) -> th.Tensor:
         """Deterministic policy gradient through the minimum of the Q heads, on detached features. The critic's
         weights are frozen meanwhile: only the actor learns from this loss (and no weight gradients are computed
-        for the critic)."""
+        for the critic). The freezing stays out of the compiled function (``_actor_objective``)."""
         self.critic.requires_grad_(False)
         try:
-            q_values = th.cat(self.critic(features, self._noisy_actions(features, std)), dim=1)
+            return self._actor_step_loss(features, std)
         finally:
             self.critic.requires_grad_(True)
+
+    def _actor_objective(self, features: th.Tensor, std: float | th.Tensor) -> th.Tensor:
+        """The actor's loss: minus the smaller Q of the noisy actor actions, averaged."""
+        q_values = th.cat(self.critic(features, self._noisy_actions(features, std)), dim=1)
         return -q_values.min(dim=1).values.mean()
 
     def _exploration_action(self, n_envs: int) -> np.ndarray:
@@ -267,7 +296,15 @@ class DrQv2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         return np.clip(noisy, -1.0 + _ACTION_EPS, 1.0 - _ACTION_EPS).astype(np.float32)
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "actor", "critic", "critic_target", "exploration_schedule"]
+        return [
+            *super()._excluded_save_params(),
+            "actor",
+            "critic",
+            "critic_target",
+            "exploration_schedule",
+            "_critic_step_losses",
+            "_actor_step_loss",
+        ]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         return ["policy", "actor.optimizer", "critic.optimizer"], []

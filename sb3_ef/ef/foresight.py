@@ -100,7 +100,8 @@ class EgoForesight(nn.Module):
     ) -> th.Tensor:
         """Squared error of the frame ``steps`` actions ahead, summed over pixels, averaged over valid samples.
 
-        Only max(steps) rollout steps are computed; each sample's prediction is gathered at its own k.
+        Only max(steps) rollout steps are computed (all of ``future_actions`` under ``torch.compile``, whose checks
+        of ``steps`` are skipped); each sample's prediction is gathered at its own k.
 
         :param h: (B, feature_dim) features of the context.
         :param future_actions: (B, T, action_dim) actions from the context on, T >= max(steps).
@@ -119,9 +120,13 @@ class EgoForesight(nn.Module):
                 f"Expected future_actions of shape ({batch}, steps, {self.action_dim}), "
                 f"got {tuple(future_actions.shape)}"
             )
-        min_step, max_step = th.stack(th.aminmax(steps)).tolist()  # one device sync for both bounds
-        if min_step < 1 or max_step > future_actions.shape[1]:
-            raise ValueError(f"steps must lie in [1, {future_actions.shape[1]}], got [{min_step}, {max_step}]")
+        if th.compiler.is_compiling():
+            # Static shapes, no device sync: roll out the whole window (the prediction at each k is the same).
+            max_step = future_actions.shape[1]
+        else:
+            min_step, max_step = th.stack(th.aminmax(steps)).tolist()  # one device sync for both bounds
+            if min_step < 1 or max_step > future_actions.shape[1]:
+                raise ValueError(f"steps must lie in [1, {future_actions.shape[1]}], got [{min_step}, {max_step}]")
         if valid is not None and valid.shape != (batch,):
             raise ValueError(f"Expected valid of shape ({batch},), got {tuple(valid.shape)}")
         target = self._target_to_float(target, batch)

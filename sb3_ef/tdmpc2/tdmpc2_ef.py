@@ -15,6 +15,7 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedul
 
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBufferSamples
+from sb3_ef.common.compile import CompileOption, compile_kwargs, maybe_compile
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_box_actions, episode_steps
 from sb3_ef.common.exploration import OwnExplorationMixin
 from sb3_ef.ef.host import (
@@ -84,6 +85,10 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         Meta-World evaluation protocol).
     :param check_finite_losses: raise a ``ValueError`` naming the loss when one is NaN or infinite, before the
         optimiser step (one device sync per loss: for debugging).
+    :param compile: ``torch.compile`` the update's loss computations (world model and policy prior, forward and
+        backward; gradient clipping and the optimiser steps stay eager): ``False`` (eager), ``True`` (default mode),
+        a mode name (``"reduce-overhead"``: CUDA graphs) or a dict of ``torch.compile`` arguments. Compiling takes
+        minutes at the first update.
     :param replay_buffer_class: a :class:`SequenceReplayBuffer` (sub)class; ``None`` picks it.
     :param replay_buffer_kwargs: extra buffer arguments (``n_steps`` and the window horizon are filled in).
     :param stats_window_size: episodes averaged for the rollout logs.
@@ -123,6 +128,7 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         babbling_mode: str = "sign",
         babbling_in_eval: bool = False,
         check_finite_losses: bool = False,
+        compile: CompileOption = False,
         replay_buffer_class: type[ReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
         stats_window_size: int = 100,
@@ -169,6 +175,8 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         self.rho = rho
         self.max_grad_norm = max_grad_norm
         self.seed_burst = seed_burst
+        compile_kwargs(compile)
+        self.compile = compile
         self._init_ef(beta, ef_horizon, babbling_steps, babbling_mode, babbling_in_eval, check_finite_losses, "TDMPC2")
         self._rollout_plan: th.Tensor | None = None
 
@@ -183,6 +191,8 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         self._use_sequence_buffer("TD-MPC2 trains on consecutive steps", horizon=self.window, n_steps=1)
         self.policy_kwargs.update(horizon=self.horizon, gamma=self.gamma, ef_horizon=self.ef_horizon)
         super()._setup_model()
+        self._model_losses = maybe_compile(self._sequence_losses, self.compile)
+        self._policy_step_loss = maybe_compile(self._policy_objective, self.compile)
 
     def _check_episode_length(self) -> None:
         """Derive ``gamma`` from the episode length when it is ``None``, and check that EF's window fits in an
@@ -230,6 +240,9 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
 
     def _update(self, batch: SequenceReplayBufferSamples) -> dict[str, th.Tensor]:
         """One gradient update from one batch; returns the (detached) scalars to log, without a device sync."""
+        compiled = self.compile is not False
+        if compiled:
+            th.compiler.cudagraph_mark_step_begin()
         losses, latents, valid = self.losses(batch)
         self._check_finite(**losses)
         host_loss = (
@@ -255,7 +268,8 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         logs.update(total_loss=loss.detach(), pi_loss=pi_loss.detach())
         logs.update(grad_norms)
         logs["q_scale"] = self.policy.q_scale.clone()
-        return logs
+        # CUDA graph outputs are overwritten by the next replay: keep copies.
+        return {name: value.clone() for name, value in logs.items()} if compiled else logs
 
     def _world_model_gradients(self, host_loss: th.Tensor, ef_loss: th.Tensor | None) -> dict[str, th.Tensor]:
         """Backpropagate the world-model losses and clip; returns the gradient norms before clipping.
@@ -277,14 +291,25 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
             ef_norm = th.nn.utils.get_total_norm([grad for _, grad in pairs])
             scale = (self.max_grad_norm / (ef_norm + 1e-6)).clamp(max=1.0)
             for param, grad in pairs:
-                param.grad = grad * scale if param.grad is None else param.grad.add_(grad * scale)
+                if param.grad is None:
+                    # In the parameter's memory layout (autograd.grad's may differ: channels-last decoder weights),
+                    # which the fused Adam step assumes.
+                    param.grad = th.empty_like(param).copy_(grad).mul_(scale)
+                else:
+                    param.grad.add_(grad * scale)
             norms["ef_grad_norm"] = ef_norm
         return norms
 
     def losses(self, batch: SequenceReplayBufferSamples) -> tuple[dict[str, th.Tensor], th.Tensor, th.Tensor]:
         """World-model losses of one batch: ``consistency_loss``, ``reward_loss``, ``value_loss`` (and ``ef_loss``
-        with EF), unweighted; also the latents ``(H+1, B, L)`` of the model rollout and their validity."""
-        sequence = self._sequence(batch)
+        with EF), unweighted; also the latents ``(H+1, B, L)`` of the model rollout and their validity. The
+        augmentation and EF's draws run eagerly, the rest in :meth:`_sequence_losses` (compiled with ``compile``)."""
+        return self._model_losses(self._sequence(batch), batch.future_actions)
+
+    def _sequence_losses(
+        self, sequence: Sequence, future_actions: th.Tensor
+    ) -> tuple[dict[str, th.Tensor], th.Tensor, th.Tensor]:
+        """The world-model losses, rollout latents and validity of :meth:`losses` from an augmented sequence."""
         model, horizon = self.world_model, self.horizon
         weights = self.rho ** th.arange(horizon, device=self.device, dtype=th.float32)
         with th.no_grad():
@@ -309,7 +334,7 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
             "reward_loss": (weights * _masked_mean(reward_ce, sequence.valid)).sum() / horizon,
             "value_loss": (weights * _masked_mean(value_ce, sequence.valid)).sum() / horizon,
         }
-        ef_loss = self._ef_loss(first_latent, batch.future_actions, sequence.ef_window)
+        ef_loss = self._ef_loss(first_latent, future_actions, sequence.ef_window)
         if ef_loss is not None:
             losses["ef_loss"] = ef_loss
         first_valid = th.ones_like(sequence.valid[:1])
@@ -340,14 +365,19 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
 
     def _policy_loss(self, latents: th.Tensor, valid: th.Tensor) -> th.Tensor:
         """Max-entropy policy prior: maximise Q (scaled by its running 5-95% range) plus the entropy bonus, with the
-        Q-ensemble frozen so that only the prior learns."""
+        Q-ensemble frozen so that only the prior learns (the freezing stays out of the compiled function,
+        ``_policy_objective``)."""
+        self.world_model.q_heads.requires_grad_(False)
+        try:
+            return self._policy_step_loss(latents, valid)
+        finally:
+            self.world_model.q_heads.requires_grad_(True)
+
+    def _policy_objective(self, latents: th.Tensor, valid: th.Tensor) -> th.Tensor:
+        """The policy prior's loss, and the running Q scale's update."""
         model = self.world_model
         sample = model.pi(latents)
-        model.q_heads.requires_grad_(False)
-        try:
-            q_values = model.q_value(latents, sample.action, reduce="avg")
-        finally:
-            model.q_heads.requires_grad_(True)
+        q_values = model.q_value(latents, sample.action, reduce="avg")
         self._update_q_scale(q_values[0].detach())
         objective = _masked_mean(self.entropy_coef * sample.scaled_entropy + q_values / self.policy.q_scale, valid)
         weights = self.rho ** th.arange(latents.shape[0], device=latents.device, dtype=th.float32)
@@ -394,7 +424,7 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         return super()._setup_learn(total_timesteps, callback, *args, **kwargs)
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_rollout_plan"]
+        return [*super()._excluded_save_params(), "_rollout_plan", "_model_losses", "_policy_step_loss"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         return ["policy", "policy.optimizer", "policy.pi_optimizer"], []

@@ -140,10 +140,10 @@ class WorldModel(nn.Module):
         """Scalar Q from two random heads, their ``"min"`` (TD targets) or ``"avg"`` (planning, policy)."""
         if reduce not in ("min", "avg"):
             raise ValueError(f"reduce must be 'min' or 'avg', got {reduce!r}")
-        heads = self.target_q_heads if target else self.q_heads
-        za = th.cat([z, action], dim=-1)
-        chosen = th.randperm(self.num_q)[:2].tolist()
-        values = th.stack([self.two_hot.decode(heads[i](za)) for i in chosen])
+        # Every head is evaluated and two are picked by a tensor index, as the reference does: one graph under
+        # torch.compile whichever heads are drawn, and the compiled update draws the random numbers the eager one
+        # draws (Q dropout in every head, then the pick).
+        values = self.two_hot.decode(self.q(z, action, target)[th.randperm(self.num_q, device=z.device)[:2]])
         return values.min(0).values if reduce == "min" else values.mean(0)
 
     @th.no_grad()

@@ -1,0 +1,79 @@
+"""Updates/s of eager and compiled (``compile=...``) updates of DrQv2EF and TDMPC2EF, measured side by side.
+
+Both models of an algorithm are built alike (fast-rendering cartpole, buffer filled by warm-up steps, first updates
+done, which for the compiled model includes compiling: its build time is reported); then ``train()`` is timed in
+interleaved rounds and the medians are reported.
+
+Usage (headless rendering needs EGL)::
+
+    MUJOCO_GL=egl python benchmarks/compile.py --threads 1
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+from typing import Any
+
+import torch as th
+from throughput import Setting, build, timed
+
+from sb3_ef.common.compile import COMPILE_MODES
+from sb3_ef.drqv2 import DrQv2EF
+from sb3_ef.tdmpc2 import TDMPC2EF
+
+# (name, class, frame size, algorithm kwargs).
+ALGORITHMS: list[tuple[str, type, int, dict[str, Any]]] = [
+    ("DrQv2EF", DrQv2EF, 84, {}),
+    ("TDMPC2EF", TDMPC2EF, 64, {"seed_burst": False}),  # the warm-up's burst of updates is not measured
+]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--algorithm", choices=[name for name, *_ in ALGORITHMS] + ["all"], default="all")
+    parser.add_argument("--mode", choices=["True", *COMPILE_MODES], default="True", help="the compile option")
+    parser.add_argument("--batch-size", type=int, default=32)
+    parser.add_argument("--updates", type=int, default=10, help="updates per timed round")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
+    args = parser.parse_args()
+    th.set_num_threads(args.threads)
+    compile_option = True if args.mode == "True" else args.mode
+
+    device = "CUDA " + th.cuda.get_device_name() if th.cuda.is_available() else f"CPU, {args.threads} torch threads"
+    print(f"{device}, compile={compile_option!r}, load average before: {os.getloadavg()[0]:.1f}")
+    print(
+        "| algorithm | frames, batch | updates/s eager | updates/s compiled | compiled/eager "
+        "| build s (eager, compiled) |"
+    )
+    print("|---|---|---|---|---|---|")
+    for name, algorithm, size, kwargs in ALGORITHMS:
+        if args.algorithm not in ("all", name):
+            continue
+        setting = Setting(size=size, batch_size=args.batch_size, warmup_steps=300, loop_steps=0, updates=args.updates)
+        models, build_seconds = {}, {}
+        for variant, option in (("eager", False), ("compiled", compile_option)):
+            start = time.perf_counter()
+            models[variant] = build(algorithm, setting, {**kwargs, "babbling_steps": 0, "compile": option})
+            build_seconds[variant] = time.perf_counter() - start
+        rates: dict[str, list[float]] = {variant: [] for variant in models}
+        for _ in range(args.repeats):
+            for variant, model in models.items():
+                wall, _ = timed(lambda m=model: m.train(args.updates, args.batch_size))
+                rates[variant].append(args.updates / wall)
+        eager, compiled = (statistics.median(rates[variant]) for variant in ("eager", "compiled"))
+        print(
+            f"| {name} | {size}x{size}, {args.batch_size} | {eager:.2f} | {compiled:.2f} | {compiled / eager:.2f} "
+            f"| {build_seconds['eager']:.0f}, {build_seconds['compiled']:.0f} |",
+            flush=True,
+        )
+        for model in models.values():
+            model.env.close()
+    print(f"load average after: {os.getloadavg()[0]:.1f}")
+
+
+if __name__ == "__main__":
+    main()
