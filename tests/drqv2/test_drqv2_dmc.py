@@ -1,7 +1,9 @@
 """DrQv2EF on a real pixel env (DMC cartpole through sb3_ef.envs), kept tiny."""
 
+import gymnasium as gym
 import numpy as np
 import pytest
+import torch as th
 from drqv2_fakes import TINY_POLICY
 
 from sb3_ef.drqv2 import DrQv2EF
@@ -41,3 +43,35 @@ def test_horizon_is_checked_against_the_dmc_episode_length():
             DrQv2EF("CnnPolicy", env, buffer_size=100, ef_horizon=6, policy_kwargs=TINY_POLICY)
     finally:
         env.close()
+
+
+class NaNRewardAfter(gym.RewardWrapper):
+    """A faulty reward wrapper, as users write them: NaN from step ``after`` on."""
+
+    def __init__(self, env: gym.Env, after: int):
+        super().__init__(env)
+        self.after, self.steps = after, 0
+
+    def reward(self, reward: float) -> float:
+        self.steps += 1
+        return float("nan") if self.steps > self.after else reward
+
+
+def test_nan_reward_from_a_real_env_is_refused_before_any_weight_changes(cartpole):
+    model = DrQv2EF(
+        "CnnPolicy",
+        NaNRewardAfter(cartpole, after=25),
+        buffer_size=500,
+        batch_size=8,
+        learning_starts=20,
+        babbling_steps=10,
+        ef_horizon=3,
+        policy_kwargs=TINY_POLICY,
+        seed=0,
+        check_finite_losses=True,
+    )
+    with pytest.raises(ValueError, match="finite rewards, got nan for env 0 at step 25"):
+        model.learn(40)
+    # The steps before the faulty one are kept, and nothing non-finite reached the weights.
+    assert model.replay_buffer.size() > 0
+    assert all(th.isfinite(param).all() for param in model.policy.parameters())
