@@ -5,8 +5,9 @@ Run on purpose (not a test), e.g. in the background on a shared machine::
     MUJOCO_GL=egl nice -n 10 python benchmarks/offline.py --out /tmp/offline_bench --minutes 45
 
 Collects ``--episodes`` babbling episodes of ``--env`` at 64x64 (skipped when OUT/data already holds them), then
-pretrains in chunks of ``--chunk`` updates (resuming from the checkpoint) until ``--minutes`` of training have
-passed, writing the held-out scores after every chunk to OUT/results.jsonl: agent-pixel and full-frame error
+pretrains in chunks of ``--chunk`` updates (resuming from OUT/run/checkpoint.pt, also across runs of this script)
+while another chunk fits in ``--minutes`` of training, writing the held-out scores after every chunk to
+OUT/results.jsonl: agent-pixel and full-frame error
 against copying the last context frame over k = 1..H, and h_a saliency precision against chance.
 """
 
@@ -18,8 +19,10 @@ import json
 import os
 import time
 
+import torch as th
+
 from sb3_ef.offline.collect import collect
-from sb3_ef.offline.pretrain import pretrain
+from sb3_ef.offline.pretrain import CHECKPOINT, pretrain
 
 
 def main() -> None:
@@ -43,8 +46,11 @@ def main() -> None:
     print(json.dumps({"collect_seconds": collect_seconds}), flush=True)
 
     run = os.path.join(args.out, "run")
-    train_start, steps = time.perf_counter(), 0
-    while time.perf_counter() - train_start < 60 * args.minutes:
+    checkpoint = os.path.join(run, CHECKPOINT)
+    steps = th.load(checkpoint, weights_only=False)["step"] if os.path.isfile(checkpoint) else 0
+    train_start, chunk_seconds = time.perf_counter(), 0.0
+    while time.perf_counter() - train_start + chunk_seconds < 60 * args.minutes:
+        chunk_start = time.perf_counter()
         steps += args.chunk
         _, scores = pretrain(
             data,
@@ -59,6 +65,7 @@ def main() -> None:
             ef_kwargs={"decoder_channels": args.decoder_channels},
             progress_bar=False,
         )
+        chunk_seconds = time.perf_counter() - chunk_start
         row = {"updates": steps, "train_minutes": (time.perf_counter() - train_start) / 60, **scores}
         with open(os.path.join(args.out, "results.jsonl"), "a") as file:
             file.write(json.dumps(row) + "\n")

@@ -35,11 +35,32 @@ def _analyze(argv: list[str]) -> int:
     return main(argv)
 
 
+def _collect(argv: list[str]) -> int:
+    from sb3_ef.offline.cli import collect_main
+
+    return collect_main(argv)
+
+
+def _pretrain(argv: list[str]) -> int:
+    from sb3_ef.offline.cli import pretrain_main
+
+    return pretrain_main(argv)
+
+
+def _predict(argv: list[str]) -> int:
+    from sb3_ef.offline.cli import predict_main
+
+    return predict_main(argv)
+
+
 COMMANDS: dict[str, tuple[Callable[[list[str]], int | None], str]] = {
     "train": (_train, "train an agent from a zoo config (rl-zoo3 train arguments)"),
     "enjoy": (_enjoy, "run a trained agent (rl-zoo3 enjoy arguments)"),
     "optimize": (_optimize, "tune hyperparameters with Optuna (rl-zoo3 train arguments, -optimize implied)"),
     "analyze": (_analyze, "predictions, saliency, ENS and rliable plots (sb3_ef.analysis)"),
+    "collect": (_collect, "record babbling or policy episodes (frames, actions, agent masks) (sb3_ef.offline)"),
+    "pretrain": (_pretrain, "train an encoder + Ego-Foresight offline on episodes (sb3_ef.offline)"),
+    "predict": (_predict, "open-loop predictions of a pretrained model as PNG and GIF/MP4 (sb3_ef.offline)"),
 }
 
 

@@ -65,8 +65,8 @@ def pretrain_parser() -> argparse.ArgumentParser:
     parser.add_argument("--holdout", type=float, default=0.1, help="held-out episodes: a count, or a fraction < 1")
     parser.add_argument("--eval-every", type=int, default=1000)
     parser.add_argument("--checkpoint-every", type=int, default=500)
-    parser.add_argument("--encoder-kwargs", type=json.loads, default={}, help='JSON, e.g. \'{"width": 32}\'')
-    parser.add_argument("--ef-kwargs", type=json.loads, default={}, help='JSON, e.g. \'{"decoder_channels": 32}\'')
+    parser.add_argument("--encoder-kwargs", type=json.loads, default={}, help="JSON, e.g. '{\"width\": 32}'")
+    parser.add_argument("--ef-kwargs", type=json.loads, default={}, help="JSON, e.g. '{\"decoder_channels\": 32}'")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--no-resume", action="store_true", help="start over even if OUT/checkpoint.pt exists")
@@ -101,4 +101,30 @@ def pretrain_main(argv: list[str] | None = None) -> int:
         progress_bar=not args.no_progress,
     )
     print(json.dumps({key: value for key, value in scores.items() if not isinstance(value, list)}, indent=2))
+    return 0
+
+
+def predict_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="sb3-ef predict", description="open-loop predictions of a pretrained model")
+    parser.add_argument("model", help="model.pt or checkpoint.pt written by sb3-ef pretrain")
+    parser.add_argument("out", help="output folder: prediction.png and prediction.gif / .mp4")
+    parser.add_argument("--dataset", required=True, help="where the context frames come from (as for pretrain)")
+    parser.add_argument("--episode", type=int, default=0)
+    parser.add_argument("--start", type=int, help="last context frame (default: context - 1)")
+    parser.add_argument("--actions", choices=("dataset", "figure8"), default="dataset")
+    parser.add_argument("--steps", type=int, help="frames to predict (default: the horizon)")
+    parser.add_argument("--video", choices=("gif", "mp4"), default="gif")
+    return parser
+
+
+def predict_main(argv: list[str] | None = None) -> int:
+    from sb3_ef.offline.model import load_pretrained
+    from sb3_ef.offline.predict import predict_episode
+    from sb3_ef.offline.readers import open_dataset
+
+    args = predict_parser().parse_args(argv)
+    model, _ = load_pretrained(args.model)
+    episode = open_dataset(args.dataset, min_frames=model.config.context + 1)[args.episode]
+    written = predict_episode(model, episode, args.out, args.start, args.actions, args.steps, args.video)
+    print(json.dumps(written, indent=2))
     return 0

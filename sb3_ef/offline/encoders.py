@@ -78,7 +78,7 @@ def build_encoder(
     kwargs: ``features_dim`` (128) / ``width`` (32) / ``skip_block`` (1) for ``"dcgan-unet"``; ``features_dim``
     (2048) for ``"drqv2"``; ``num_channels`` (32, latent ``16 * num_channels``) / ``simnorm_dim`` (8) for ``"tdmpc2"``.
     """
-    channels, height, width = frame_shape
+    _, height, width = frame_shape
     in_channels = FRAME_CHANNELS * context
     if kind == "dcgan-unet":
         if (height, width) != (DCGAN_FRAME_SIZE, DCGAN_FRAME_SIZE):

@@ -86,6 +86,8 @@ def pretrain(
                 f"{checkpoint_path} was trained with {model.config}, not {config}: use another out_dir or resume=False"
             )
         start = checkpoint["step"]
+        if start > steps:
+            raise ValueError(f"{checkpoint_path} is already at step {start}, beyond steps={steps}")
     else:
         model, checkpoint = OfflineEF(config).to(device), None
     model.train()
@@ -113,8 +115,8 @@ def pretrain(
             bar.set_postfix(loss=f"{loss.item():.1f}")
         if writer is not None and (done % 50 == 0 or done == steps):
             writer.add_scalar("train/ef_loss", loss.item(), done)
-        if held_out and writer is not None and (done % eval_every == 0 or done == steps):
-            _log_evaluation(writer, model, held_out, done)
+        if held_out and writer is not None and done % eval_every == 0 and done < steps:
+            _log_evaluation(writer, model, held_out, done, evaluate(model, held_out, saliency_windows=8))
             model.train()
         if done % checkpoint_every == 0 or done == steps:
             th.save(model.checkpoint(step=done, optimizer=optimizer.state_dict()), checkpoint_path)
@@ -122,18 +124,22 @@ def pretrain(
         bar.close()
     model.eval()
     scores = evaluate(model, held_out) if held_out else {}
+    if held_out and writer is not None:
+        _log_evaluation(writer, model, held_out, steps, scores)
     th.save(model.checkpoint(step=steps), os.path.join(out_dir, MODEL))
     with open(os.path.join(out_dir, METRICS), "w") as file:
-        json.dump({"steps": steps, "train_episodes": len(train_episodes), "held_out_episodes": len(held_out),
-                   **scores}, file, indent=2)
+        json.dump(
+            {"steps": steps, "train_episodes": len(train_episodes), "held_out_episodes": len(held_out), **scores},
+            file,
+            indent=2,
+        )
     if writer is not None:
         writer.close()
     return model, scores
 
 
-def _log_evaluation(writer: Any, model: OfflineEF, held_out: list[Episode], step: int) -> None:
+def _log_evaluation(writer: Any, model: OfflineEF, held_out: list[Episode], step: int, scores: dict) -> None:
     """Held-out scalars and one image grid: context frames, predicted frames t+1..t+H, true frames."""
-    scores = evaluate(model, held_out, saliency_windows=8)
     for name, value in scores.items():
         if isinstance(value, float):
             writer.add_scalar(f"eval/{name}", value, step)
@@ -160,4 +166,3 @@ def _progress(total: int, initial: int, enabled: bool) -> Any:
     except ImportError:
         return None
     return tqdm(total=total, initial=initial, desc="pretrain", unit="step")
-

@@ -17,7 +17,7 @@ from collections.abc import Iterator, Sequence
 import numpy as np
 
 from sb3_ef.offline.episodes import HDF5_SUFFIXES, NPZ_SUFFIXES, Episode, EpisodeError, make_episode
-from sb3_ef.offline.tfrecord import parse_example, read_records
+from sb3_ef.offline.tfrecord import parse_example
 
 TFRECORD_SUFFIXES = (".tfrecord", ".tfrecords")
 MINARI_PREFIX = "minari:"
@@ -57,9 +57,7 @@ class FolderDataset(EpisodeDataset):
         if not os.path.isdir(self.directory):
             raise FileNotFoundError(f"Episode folder {self.directory!r} does not exist")
         self.paths = sorted(
-            path
-            for path in glob.glob(os.path.join(self.directory, "*"))
-            if path.endswith(NPZ_SUFFIXES + HDF5_SUFFIXES)
+            path for path in glob.glob(os.path.join(self.directory, "*")) if path.endswith(NPZ_SUFFIXES + HDF5_SUFFIXES)
         )
         if not self.paths:
             raise FileNotFoundError(f"No .npz, .h5 or .hdf5 episode files in {self.directory!r}")
@@ -78,7 +76,7 @@ class FolderDataset(EpisodeDataset):
             import h5py
 
             with h5py.File(path, "r") as file:
-                arrays = {key: file[key][()] for key in file.keys()}
+                arrays = {key: file[key][()] for key in file}
         missing = [key for key in ("frames", "actions") if key not in arrays]
         if missing:
             raise EpisodeError(f"{source}: missing {missing}; expected keys 'frames', 'actions' and optionally 'masks'")
@@ -144,7 +142,9 @@ def _channels_first(images: np.ndarray, source: str) -> np.ndarray:
         return images.transpose(0, 3, 1, 2)
     if images.ndim == 4 and images.shape[1] % 3 == 0:
         return images[:, -3:]
-    raise EpisodeError(f"{source}: expected image observations (T + 1, H, W, 3) or (T + 1, 3 * k, H, W), got {images.shape}")
+    raise EpisodeError(
+        f"{source}: expected image observations (T + 1, H, W, 3) or (T + 1, 3 * k, H, W), got {images.shape}"
+    )
 
 
 class BAIRDataset(EpisodeDataset):

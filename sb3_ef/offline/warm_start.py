@@ -54,7 +54,9 @@ def load_ef(model: Any, pretrained: str | os.PathLike | OfflineEF) -> Any:
     source = pretrained if isinstance(pretrained, OfflineEF) else load_pretrained(pretrained)[0]
     name = os.fspath(pretrained) if not isinstance(pretrained, OfflineEF) else "the pretrained model"
     if getattr(model, "ef", None) is None:
-        raise ValueError(f"{type(model).__name__} has no Ego-Foresight module (model.ef is None): nothing to warm-start")
+        raise ValueError(
+            f"{type(model).__name__} has no Ego-Foresight module (model.ef is None): nothing to warm-start"
+        )
     kind, encoder = _host_encoder(model.policy)
     config = source.config
     problems = []
