@@ -31,7 +31,7 @@ def main() -> None:
     parser.add_argument("--env", default="metaworld/hammer")
     parser.add_argument("--episodes", type=int, default=82, help="82 episodes of 251 frames: 20582 frames")
     parser.add_argument("--holdout", type=int, default=8)
-    parser.add_argument("--chunk", type=int, default=500, help="updates between held-out evaluations")
+    parser.add_argument("--chunk", type=int, default=250, help="updates between held-out evaluations")
     parser.add_argument("--minutes", type=float, default=45.0, help="training time budget (wall clock)")
     parser.add_argument("--batch-size", type=int, default=32)
     parser.add_argument("--width", type=int, default=32, help="DCGAN encoder width")
@@ -41,7 +41,9 @@ def main() -> None:
     data = os.path.join(args.out, "data")
     start = time.perf_counter()
     if len(glob.glob(os.path.join(data, "*.npz"))) < args.episodes:
-        collect(args.env, data, episodes=args.episodes, size=64, seed=0)
+        # Agent masks are only scored on the held-out episodes (the last ones): the others skip that render.
+        held_out = range(args.episodes - args.holdout, args.episodes)
+        collect(args.env, data, episodes=args.episodes, size=64, seed=0, masks=held_out)
     collect_seconds = time.perf_counter() - start
     print(json.dumps({"collect_seconds": collect_seconds}), flush=True)
 

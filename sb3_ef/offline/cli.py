@@ -23,6 +23,7 @@ def collect_parser() -> argparse.ArgumentParser:
     parser.add_argument("--algo", choices=("drqv2_ef", "tdmpc2_ef"), help="algorithm of --policy")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--slow-render", action="store_true", help="render shadows and reflections (slower)")
+    parser.add_argument("--no-masks", action="store_true", help="skip the agent masks (one render less per step)")
     parser.add_argument("--format", choices=("npz", "h5"), default="npz")
     parser.add_argument("--no-progress", action="store_true")
     return parser
@@ -43,6 +44,7 @@ def collect_main(argv: list[str] | None = None) -> int:
         algo=args.algo,
         seed=args.seed,
         fast_render=not args.slow_render,
+        masks=not args.no_masks,
         file_format=args.format,
         progress_bar=not args.no_progress,
     )

@@ -4,6 +4,7 @@ with the simulator's agent masks."""
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -23,19 +24,21 @@ def babbling_actions(rng: np.random.Generator, shape: tuple[int, ...], mode: str
     return np.clip(rng.uniform(-4.0, 4.0, shape), -1.0, 1.0).astype(np.float32)
 
 
-def record_episode(env: Any, act: Any, seed: int | None = None, source: str = "") -> Episode:
-    """Play one episode; ``act(observation) -> action``. Frames are the newest frame of each stacked observation."""
+def record_episode(env: Any, act: Any, seed: int | None = None, source: str = "", masks: bool = True) -> Episode:
+    """Play one episode; ``act(observation) -> action``. Frames are the newest frame of each stacked observation;
+    ``masks=False`` skips the agent masks (one segmentation render less per step)."""
     observation, _ = env.reset(seed=seed)
-    frames, masks, actions = [observation[-FRAME_CHANNELS:]], [env.unwrapped.agent_mask()], []
+    agent_mask = env.unwrapped.agent_mask if masks else lambda: None
+    frames, agent_masks, actions = [observation[-FRAME_CHANNELS:]], [agent_mask()], []
     done = False
     while not done:
         action = np.asarray(act(observation), dtype=np.float32)
         observation, _, terminated, truncated, _ = env.step(action)
         actions.append(action)
         frames.append(observation[-FRAME_CHANNELS:])
-        masks.append(env.unwrapped.agent_mask())
+        agent_masks.append(agent_mask())
         done = terminated or truncated
-    return make_episode(np.stack(frames), np.stack(actions), np.stack(masks), source)
+    return make_episode(np.stack(frames), np.stack(actions), np.stack(agent_masks) if masks else None, source)
 
 
 def collect(
@@ -49,10 +52,15 @@ def collect(
     algo: str | None = None,
     seed: int = 0,
     fast_render: bool = True,
+    masks: bool | Sequence[int] = True,
     file_format: str = "npz",
     progress_bar: bool = True,
 ) -> list[str]:
     """Write ``episodes`` files ``episode_00000.<npz|h5>`` to ``out_dir`` and return their paths.
+
+    Files that already exist are kept (an interrupted collection continues where it stopped): episode ``i`` is
+    reset with seed ``seed + i`` and babbles from a generator seeded with ``(seed, i)``, so it does not depend on
+    the others.
 
     :param env_name: ``dmc/<domain>-<task>``, ``metaworld/<task>`` or another registered sb3-ef env (``toy/agent-v0``).
     :param mode: babbling mode when no ``policy`` is given (``"sign"`` as in the paper, or ``"clamped_uniform"``).
@@ -60,13 +68,14 @@ def collect(
     :param algo: ``drqv2_ef`` or ``tdmpc2_ef`` for ``policy`` (default: tried in turn).
     :param fast_render: render without shadows and reflections (several times faster on CPU); train an RL agent
         that is to start from these frames with the same setting.
-    :param seed: episode ``i`` is reset with ``seed + i``; babbling draws from a generator seeded with ``seed``.
+    :param masks: record agent masks for every episode (True), none (False), or the episodes of these indices
+        (masks are only needed to score held-out episodes; each costs a second render per step).
     """
     from sb3_ef.analysis.cli import load_ef_model
 
     if file_format not in ("npz", "h5"):
         raise ValueError(f"file_format must be 'npz' or 'h5', got {file_format!r}")
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(seed)  # re-seeded per episode below
     if policy is not None:
         model = load_ef_model(policy, algo)
         frame_shape, frame_stack = model.frame_shape, model.observation_space.shape[0] // FRAME_CHANNELS
@@ -82,11 +91,13 @@ def collect(
     try:
         for index in range(episodes):
             path = os.path.join(os.fspath(out_dir), f"episode_{index:05d}.{file_format}")
-            episode = record_episode(env, act, seed=seed + index, source=path)
-            paths.append(write_episode(path, episode))
+            if not os.path.exists(path):
+                rng = np.random.default_rng([seed, index])
+                with_masks = masks if isinstance(masks, bool) else index in masks
+                write_episode(path, record_episode(env, act, seed=seed + index, source=path, masks=with_masks))
+            paths.append(path)
             if bar is not None:
                 bar.update(1)
-                bar.set_postfix(frames=len(episode.frames))
     finally:
         env.close()
         if bar is not None:

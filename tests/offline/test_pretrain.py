@@ -30,7 +30,9 @@ def test_pretrain_writes_model_metrics_tensorboard_and_resumes(tmp_path):
     first, _ = load_pretrained(tmp_path / MODEL)
     model, scores = pretrain(data, tmp_path, steps=4, checkpoint_every=2, **arguments)
     assert th.load(tmp_path / CHECKPOINT, weights_only=False)["step"] == 4
-    assert any(not th.equal(a, b) for a, b in zip(first.state_dict().values(), model.state_dict().values()))
+    assert any(
+        not th.equal(a, b) for a, b in zip(first.state_dict().values(), model.state_dict().values(), strict=True)
+    )
     metrics = json.loads((tmp_path / METRICS).read_text())
     assert metrics["steps"] == 4 and metrics["held_out_episodes"] == 1 and metrics["train_episodes"] == 3
     assert {"frame_ratio", "agent_ratio", "saliency_precision", "saliency_recall"} <= metrics.keys()

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch as th
 
-from sb3_ef import DrQv2EF, TDMPC2EF
+from sb3_ef import TDMPC2EF, DrQv2EF
 from sb3_ef.envs.toy import ToyAgentEnv
 from sb3_ef.offline.model import OfflineEF, OfflineEFConfig
 from sb3_ef.offline.pretrain import MODEL, pretrain
