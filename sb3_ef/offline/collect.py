@@ -55,6 +55,7 @@ def collect(
     masks: bool | Sequence[int] = True,
     file_format: str = "npz",
     progress_bar: bool = True,
+    **env_kwargs: Any,
 ) -> list[str]:
     """Write ``episodes`` files ``episode_00000.<npz|h5>`` to ``out_dir`` and return their paths.
 
@@ -68,6 +69,7 @@ def collect(
     :param algo: ``drqv2_ef`` or ``tdmpc2_ef`` for ``policy`` (default: tried in turn).
     :param fast_render: render without shadows and reflections (several times faster on CPU); train an RL agent
         that is to start from these frames with the same setting.
+    :param env_kwargs: more ``make_env`` options, e.g. ``episode_length`` (simulator steps).
     :param masks: record agent masks for every episode (True), none (False), or the episodes of these indices
         (masks are only needed to score held-out episodes; each costs a second render per step).
     """
@@ -83,7 +85,7 @@ def collect(
     else:
         frame_shape, frame_stack = (FRAME_CHANNELS, size, size), 1
         act = None
-    env = _make_env(env_name, frame_shape[-1], frame_stack, action_repeat, fast_render)
+    env = _make_env(env_name, frame_shape[-1], frame_stack, action_repeat, fast_render, **env_kwargs)
     if act is None:
         act = lambda _observation: babbling_actions(rng, env.action_space.shape, mode)  # noqa: E731
     paths = []
@@ -105,17 +107,19 @@ def collect(
     return paths
 
 
-def _make_env(name: str, size: int, frame_stack: int, action_repeat: int, fast_render: bool) -> Any:
+def _make_env(name: str, size: int, frame_stack: int, action_repeat: int, fast_render: bool, **kwargs: Any) -> Any:
     """``make_env`` for dmc/ and metaworld/ names, ``gym.make`` for other registered sb3-ef envs."""
     if name.startswith(("dmc/", "metaworld/")):
         from sb3_ef.envs import make_env
 
-        return make_env(name, size=size, frame_stack=frame_stack, action_repeat=action_repeat, fast_render=fast_render)
+        return make_env(
+            name, size=size, frame_stack=frame_stack, action_repeat=action_repeat, fast_render=fast_render, **kwargs
+        )
     import gymnasium as gym
 
     import sb3_ef  # noqa: F401  (registers the envs)
 
-    return gym.make(name, size=size, frame_stack=frame_stack)
+    return gym.make(name, size=size, frame_stack=frame_stack, **kwargs)
 
 
 def _progress(total: int, enabled: bool) -> Any:

@@ -14,7 +14,7 @@ import torch as th
 
 from sb3_ef.analysis.masks import mask_scores, threshold_saliency
 from sb3_ef.analysis.prediction import eval_mode
-from sb3_ef.analysis.saliency import decoder_saliency
+from sb3_ef.analysis.saliency import Saliency, decoder_saliency
 from sb3_ef.offline.episodes import Episode
 from sb3_ef.offline.model import OfflineEF
 from sb3_ef.offline.windows import Windows, cut_windows, window_starts
@@ -90,6 +90,15 @@ def _add_errors(scores: dict, name: str, model_error: np.ndarray, copy_error: np
     scores[f"{name}_ratio"] = float(model_error.mean() / max(copy_error.mean(), 1e-12))
 
 
+def window_saliency(model: OfflineEF, windows: Windows, index: int, k: int) -> Saliency:
+    """h_a / h_s saliency (``sb3_ef.analysis.saliency``) of the frame predicted k steps after window ``index``."""
+    with eval_mode(model), th.no_grad():
+        h, skip = model.features(windows.observations[index : index + 1])
+        h_scene, h_agent = model.ef.split(h)
+        rolled = model.ef.rollout(h_agent, windows.actions[index : index + 1, :k].float())[:, -1]
+    return decoder_saliency(model.ef, h_scene, rolled, skip=skip)
+
+
 def saliency_scores(
     model: OfflineEF, episodes: list[Episode], picks: list[tuple[int, int]], count: int, seed: int = 0
 ) -> dict[str, float]:
@@ -98,25 +107,13 @@ def saliency_scores(
     config = model.config
     rng = np.random.default_rng(seed)
     chosen = [picks[i] for i in rng.choice(len(picks), size=min(count, len(picks)), replace=False)]
-    device = next(model.parameters()).device
-    windows = cut_windows(episodes, chosen, config.context, config.horizon, device)
-    steps = rng.integers(1, config.horizon + 1, len(chosen))
+    windows = cut_windows(episodes, chosen, config.context, config.horizon, next(model.parameters()).device)
     precision, recall, chance = [], [], []
-    with eval_mode(model), th.no_grad():
-        h, skip = model.features(windows.observations)
-        h_scene, h_agent = model.ef.split(h)
-        rolled = model.ef.rollout(h_agent, windows.actions.float())
-    for i, k in enumerate(steps):
-        saliency = decoder_saliency(
-            model.ef,
-            h_scene[i : i + 1],
-            rolled[i : i + 1, k - 1],
-            skip=None if skip is None else skip[i : i + 1],
-        )
+    for i, k in enumerate(rng.integers(1, config.horizon + 1, len(chosen))):
         truth = windows.masks[i, k].cpu().numpy()  # type: ignore[index]
         if not truth.any():
             continue
-        scores = mask_scores(threshold_saliency(saliency.agent), truth)
+        scores = mask_scores(threshold_saliency(window_saliency(model, windows, i, int(k)).agent), truth)
         precision.append(scores.precision)
         recall.append(scores.recall)
         chance.append(truth.mean())

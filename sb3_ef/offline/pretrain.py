@@ -44,6 +44,7 @@ def pretrain(
     holdout: int | float = 0.1,
     eval_every: int = 1000,
     checkpoint_every: int = 500,
+    saliency_windows: int = 32,
     encoder_kwargs: dict[str, Any] | None = None,
     ef_kwargs: dict[str, Any] | None = None,
     seed: int = 0,
@@ -61,6 +62,8 @@ def pretrain(
     :param dataset: a source for :func:`~sb3_ef.offline.readers.open_dataset`, a reader, or loaded episodes.
     :param encoder: ``"dcgan-unet"`` (64x64, U-Net skips), ``"drqv2"`` or ``"tdmpc2"`` (64x64).
     :param shift_pad: random-shift augmentation of context and target together (DrQ-v2's is 4), 0 for none.
+    :param saliency_windows: held-out windows whose h_a saliency is scored at the end (each costs one backward
+        pass per 4x4 patch of the frame).
     :param holdout: held-out episodes (count, or fraction when < 1), the last ones of the dataset.
     :return: the trained model (eval mode) and the final held-out scores.
     """
@@ -116,14 +119,16 @@ def pretrain(
         if writer is not None and (done % 50 == 0 or done == steps):
             writer.add_scalar("train/ef_loss", loss.item(), done)
         if held_out and writer is not None and done % eval_every == 0 and done < steps:
-            _log_evaluation(writer, model, held_out, done, evaluate(model, held_out, saliency_windows=8))
+            _log_evaluation(
+                writer, model, held_out, done, evaluate(model, held_out, saliency_windows=min(8, saliency_windows))
+            )
             model.train()
         if done % checkpoint_every == 0 or done == steps:
             th.save(model.checkpoint(step=done, optimizer=optimizer.state_dict()), checkpoint_path)
     if bar is not None:
         bar.close()
     model.eval()
-    scores = evaluate(model, held_out) if held_out else {}
+    scores = evaluate(model, held_out, saliency_windows=saliency_windows) if held_out else {}
     if held_out and writer is not None:
         _log_evaluation(writer, model, held_out, steps, scores)
     th.save(model.checkpoint(step=steps), os.path.join(out_dir, MODEL))
