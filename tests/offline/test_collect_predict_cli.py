@@ -14,6 +14,7 @@ from sb3_ef.offline.collect import babbling_actions, collect, record_episode
 from sb3_ef.offline.model import load_pretrained
 from sb3_ef.offline.predict import predict_frames
 from sb3_ef.offline.readers import FolderDataset
+from tests.offline.offline_data import tiny_pretrain
 
 
 def test_recorded_masks_are_the_env_agent_masks():
@@ -59,22 +60,7 @@ def test_collect_pretrain_predict_from_the_command_line(tmp_path, capsys):
 def test_predictions_go_beyond_the_horizon_and_check_their_input(tmp_path):
     data = tmp_path / "data"
     collect("toy/agent-v0", data, episodes=2, size=32, progress_bar=False)
-    from sb3_ef.offline.pretrain import pretrain
-
-    pretrain(
-        data,
-        tmp_path / "run",
-        encoder="drqv2",
-        context=2,
-        horizon=3,
-        agent_dim=8,
-        steps=1,
-        batch_size=2,
-        holdout=1,
-        encoder_kwargs={"features_dim": 64},
-        progress_bar=False,
-        tensorboard=False,
-    )
+    tiny_pretrain(data, tmp_path / "run", context=2, steps=1, batch_size=2)
     model, _ = load_pretrained(tmp_path / "run" / "model.pt")
     episode = FolderDataset(data)[0]
     frames = predict_frames(model, episode.frames[:2], np.zeros((9, 2), np.float32))

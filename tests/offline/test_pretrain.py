@@ -12,9 +12,8 @@ import torch as th
 from sb3_ef.offline.evaluate import evaluate, evaluation_picks
 from sb3_ef.offline.model import OfflineEF, OfflineEFConfig, load_pretrained
 from sb3_ef.offline.pretrain import CHECKPOINT, METRICS, MODEL, pretrain, split_holdout
-from tests.offline.offline_data import square_episode
+from tests.offline.offline_data import TINY_DRQV2, square_episode
 
-TINY = {"encoder": "drqv2", "agent_dim": 8, "encoder_kwargs": {"features_dim": 64}}
 TINY_EF = {"rollout_hidden_dims": (32,), "decoder_channels": 16}
 
 
@@ -24,7 +23,9 @@ def episodes(count: int = 4, steps: int = 16, size: int = 32) -> list:
 
 def test_pretrain_writes_model_metrics_tensorboard_and_resumes(tmp_path):
     data = episodes()
-    arguments = dict(horizon=3, batch_size=4, holdout=1, eval_every=2, ef_kwargs=TINY_EF, progress_bar=False, **TINY)
+    arguments = dict(
+        horizon=3, batch_size=4, holdout=1, eval_every=2, ef_kwargs=TINY_EF, progress_bar=False, **TINY_DRQV2
+    )
     pretrain(data, tmp_path, steps=2, checkpoint_every=2, **arguments)
     assert th.load(tmp_path / CHECKPOINT, weights_only=False)["step"] == 2
     first, _ = load_pretrained(tmp_path / MODEL)
@@ -104,7 +105,7 @@ def test_ef_beats_copying_the_last_frame_on_held_out_agent_pixels(tmp_path):
         ef_kwargs=TINY_EF,
         progress_bar=False,
         tensorboard=False,
-        **TINY,
+        **TINY_DRQV2,
     )
     assert scores["agent_ratio"] < 0.8, scores
     assert scores["saliency_precision_over_chance"] > 2, scores

@@ -8,9 +8,9 @@ import torch as th
 from sb3_ef import TDMPC2EF, DrQv2EF
 from sb3_ef.envs.toy import ToyAgentEnv
 from sb3_ef.offline.model import OfflineEF, OfflineEFConfig
-from sb3_ef.offline.pretrain import MODEL, pretrain
+from sb3_ef.offline.pretrain import MODEL
 from sb3_ef.offline.warm_start import load_ef
-from tests.offline.offline_data import square_episode
+from tests.offline.offline_data import square_episode, tiny_pretrain
 
 EF_KWARGS = {"rollout_hidden_dims": (16,), "decoder_channels": 8}
 
@@ -34,20 +34,7 @@ def assert_same_weights(source: th.nn.Module, target: th.nn.Module) -> None:
 
 def test_drqv2_ef_starts_from_a_pretrain_run_with_exactly_its_weights(tmp_path):
     episodes = [square_episode(steps=14, size=32, seed=seed) for seed in range(3)]
-    pretrain(
-        episodes,
-        tmp_path,
-        encoder="drqv2",
-        agent_dim=8,
-        horizon=3,
-        steps=2,
-        batch_size=4,
-        holdout=1,
-        encoder_kwargs={"features_dim": 64},
-        ef_kwargs=EF_KWARGS,
-        progress_bar=False,
-        tensorboard=False,
-    )
+    tiny_pretrain(episodes, tmp_path, ef_kwargs=EF_KWARGS)
     model = drqv2_ef()
     critic_before = {k: v.clone() for k, v in model.policy.critic.state_dict().items()}
     assert load_ef(model, tmp_path / MODEL) is model
