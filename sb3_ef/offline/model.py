@@ -33,6 +33,8 @@ class OfflineEF(nn.Module):
 
     def __init__(self, config: OfflineEFConfig):
         super().__init__()
+        if config.context < 1:
+            raise ValueError(f"context must be at least 1 frame, got {config.context}")
         self.config = config
         self.encoder = build_encoder(
             config.encoder, config.frame_shape, config.context, config.action_dim, **dict(config.encoder_kwargs)
