@@ -31,12 +31,15 @@ def main() -> None:
     parser.add_argument("--env", default="metaworld/hammer")
     parser.add_argument("--episodes", type=int, default=82, help="82 episodes of 251 frames: 20582 frames")
     parser.add_argument("--holdout", type=int, default=8)
-    parser.add_argument("--chunk", type=int, default=250, help="updates between held-out evaluations")
+    parser.add_argument("--chunk", type=int, default=500, help="updates between held-out evaluations")
     parser.add_argument("--minutes", type=float, default=45.0, help="training time budget (wall clock)")
-    parser.add_argument("--batch-size", type=int, default=32)
+    parser.add_argument("--batch-size", type=int, default=16)
     parser.add_argument("--width", type=int, default=32, help="DCGAN encoder width")
     parser.add_argument("--decoder-channels", type=int, default=32)
+    parser.add_argument("--saliency-windows", type=int, default=16, help="held-out windows scored for saliency")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (1 avoids spinning on a busy machine)")
     args = parser.parse_args()
+    th.set_num_threads(args.threads)
 
     data = os.path.join(args.out, "data")
     start = time.perf_counter()
@@ -65,6 +68,7 @@ def main() -> None:
             checkpoint_every=args.chunk,
             encoder_kwargs={"width": args.width},
             ef_kwargs={"decoder_channels": args.decoder_channels},
+            saliency_windows=args.saliency_windows,
             progress_bar=False,
         )
         chunk_seconds = time.perf_counter() - chunk_start
