@@ -71,6 +71,7 @@ def pretrain_parser() -> argparse.ArgumentParser:
     parser.add_argument("--ef-kwargs", type=json.loads, default={}, help="JSON, e.g. '{\"decoder_channels\": 32}'")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--device", default="cpu")
+    parser.add_argument("--threads", type=int, help="torch CPU threads (1 is fastest on a busy shared machine)")
     parser.add_argument("--no-resume", action="store_true", help="start over even if OUT/checkpoint.pt exists")
     parser.add_argument("--no-progress", action="store_true")
     return parser
@@ -80,6 +81,10 @@ def pretrain_main(argv: list[str] | None = None) -> int:
     from sb3_ef.offline.pretrain import pretrain
 
     args = pretrain_parser().parse_args(argv)
+    if args.threads:
+        import torch
+
+        torch.set_num_threads(args.threads)
     holdout = args.holdout if args.holdout < 1 else int(args.holdout)
     _, scores = pretrain(
         args.dataset,
