@@ -1,4 +1,5 @@
-"""The ``sb3-ef`` console script: ``train``, ``enjoy``, ``optimize`` (rl-zoo3) and ``analyze`` (sb3_ef.analysis).
+"""The ``sb3-ef`` console script: ``train``, ``enjoy``, ``optimize`` (rl-zoo3), ``analyze`` (sb3_ef.analysis),
+``benchmark`` (sb3_ef.benchmark) and ``collect``, ``pretrain``, ``predict`` (sb3_ef.offline).
 
 Each subcommand forwards the rest of the command line untouched, so ``sb3-ef train --help`` shows rl-zoo3's
 training options and ``sb3-ef analyze --help`` the analysis ones. A user error (bad argument, missing file, missing
@@ -9,9 +10,11 @@ package or rendering backend) is printed as one line, ``sb3-ef: error: ...``, wi
 from __future__ import annotations
 
 import argparse
+import importlib
 import os
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
+from typing import NamedTuple
 
 from sb3_ef.envs.backend import RenderingBackendError
 
@@ -19,42 +22,42 @@ from sb3_ef.envs.backend import RenderingBackendError
 USER_ERRORS = (ValueError, OSError, ImportError, RenderingBackendError)
 
 
-def _train(argv: list[str]) -> None:
-    from sb3_ef.zoo.train import main
+class Command(NamedTuple):
+    """A subcommand: the ``main(argv)`` it runs (``module:function``, imported only when used), arguments put in
+    front of the user's, and its help line."""
 
-    main(argv)
+    target: str
+    help: str
+    prefix: tuple[str, ...] = ()
 
-
-def _optimize(argv: list[str]) -> None:
-    from sb3_ef.zoo.train import main
-
-    main(["-optimize", *argv])
-
-
-def _enjoy(argv: list[str]) -> None:
-    from sb3_ef.zoo.enjoy import main
-
-    main(argv)
+    def __call__(self, argv: list[str]) -> int | None:
+        module, function = self.target.split(":")
+        return getattr(importlib.import_module(module), function)([*self.prefix, *argv])
 
 
-def _analyze(argv: list[str]) -> int:
-    from sb3_ef.analysis.cli import main
-
-    return main(argv)
-
-
-def _benchmark(argv: list[str]) -> int:
-    from sb3_ef.benchmark.cli import main
-
-    return main(argv)
-
-
-COMMANDS: dict[str, tuple[Callable[[list[str]], int | None], str]] = {
-    "train": (_train, "train an agent from a zoo config (rl-zoo3 train arguments)"),
-    "enjoy": (_enjoy, "run a trained agent (rl-zoo3 enjoy arguments)"),
-    "optimize": (_optimize, "tune hyperparameters with Optuna (rl-zoo3 train arguments, -optimize implied)"),
-    "analyze": (_analyze, "predictions, saliency, ENS and rliable plots (sb3_ef.analysis)"),
-    "benchmark": (_benchmark, "train a grid of runs locally or on a Ray cluster (sb3_ef.benchmark)"),
+COMMANDS: dict[str, Command] = {
+    "train": Command("sb3_ef.zoo.train:main", "train an agent from a zoo config (rl-zoo3 train arguments)"),
+    "enjoy": Command("sb3_ef.zoo.enjoy:main", "run a trained agent (rl-zoo3 enjoy arguments)"),
+    "optimize": Command(
+        "sb3_ef.zoo.train:main",
+        "tune hyperparameters with Optuna (rl-zoo3 train arguments, -optimize implied)",
+        prefix=("-optimize",),
+    ),
+    "analyze": Command("sb3_ef.analysis.cli:main", "predictions, saliency, ENS and rliable plots (sb3_ef.analysis)"),
+    "benchmark": Command(
+        "sb3_ef.benchmark.cli:main", "train a grid of runs locally or on a Ray cluster (sb3_ef.benchmark)"
+    ),
+    "collect": Command(
+        "sb3_ef.offline.cli:collect_main",
+        "record babbling or policy episodes (frames, actions, agent masks) (sb3_ef.offline)",
+    ),
+    "pretrain": Command(
+        "sb3_ef.offline.cli:pretrain_main", "train an encoder + Ego-Foresight offline on episodes (sb3_ef.offline)"
+    ),
+    "predict": Command(
+        "sb3_ef.offline.cli:predict_main",
+        "open-loop predictions of a pretrained model as PNG and GIF/MP4 (sb3_ef.offline)",
+    ),
 }
 
 
@@ -62,12 +65,13 @@ def _parser() -> argparse.ArgumentParser:
     from sb3_ef import __version__
 
     parser = argparse.ArgumentParser(
-        prog="sb3-ef", description="Ego-Foresight for Stable-Baselines3: rl-zoo3 training and analysis."
+        prog="sb3-ef",
+        description="Ego-Foresight for Stable-Baselines3: training, analysis, benchmark grids and offline EF.",
     )
     parser.add_argument("--version", action="version", version=f"sb3-ef {__version__}")
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="{" + ",".join(COMMANDS) + "}")
-    for name, (_, help_text) in COMMANDS.items():
-        subparsers.add_parser(name, help=help_text, add_help=False)
+    for name, command in COMMANDS.items():
+        subparsers.add_parser(name, help=command.help, add_help=False)
     return parser
 
 
@@ -78,7 +82,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         _parser().parse_args(argv)  # prints help or the version, or exits with an error naming the valid commands
         return 0
     try:
-        return COMMANDS[argv[0]][0](argv[1:]) or 0
+        return COMMANDS[argv[0]](argv[1:]) or 0
     except USER_ERRORS as error:
         if os.environ.get("SB3_EF_TRACEBACK") == "1":
             raise

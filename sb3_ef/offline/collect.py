@@ -1,0 +1,123 @@
+"""Record episodes of an sb3-ef env (motor babbling, or a saved DrQv2EF / TDMPC2EF policy) in the folder format,
+with the simulator's agent masks."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from sb3_ef.common.env_checks import FRAME_CHANNELS
+from sb3_ef.ef.babbling import babble, check_babbling
+from sb3_ef.offline.episodes import Episode, make_episode, write_episode
+
+
+def record_episode(env: Any, act: Any, seed: int | None = None, source: str = "", masks: bool = True) -> Episode:
+    """Play one episode; ``act(observation) -> action``. Frames are the newest frame of each stacked observation;
+    ``masks=False`` skips the agent masks (one segmentation render less per step)."""
+    observation, _ = env.reset(seed=seed)
+    agent_mask = env.unwrapped.agent_mask if masks else lambda: None
+    frames, agent_masks, actions = [observation[-FRAME_CHANNELS:]], [agent_mask()], []
+    done = False
+    while not done:
+        action = np.asarray(act(observation), dtype=np.float32)
+        observation, _, terminated, truncated, _ = env.step(action)
+        actions.append(action)
+        frames.append(observation[-FRAME_CHANNELS:])
+        agent_masks.append(agent_mask())
+        done = terminated or truncated
+    return make_episode(np.stack(frames), np.stack(actions), np.stack(agent_masks) if masks else None, source)
+
+
+def collect(
+    env_name: str,
+    out_dir: str | os.PathLike,
+    episodes: int = 10,
+    size: int = 64,
+    action_repeat: int = 2,
+    mode: str = "sign",
+    policy: str | None = None,
+    algo: str | None = None,
+    seed: int = 0,
+    fast_render: bool = True,
+    masks: bool | Sequence[int] = True,
+    file_format: str = "npz",
+    progress_bar: bool = True,
+    **env_kwargs: Any,
+) -> list[str]:
+    """Write ``episodes`` files ``episode_00000.<npz|h5>`` to ``out_dir`` and return their paths.
+
+    Files that already exist are kept (an interrupted collection continues where it stopped): episode ``i`` is
+    reset with seed ``seed + i`` and babbles from a generator seeded with ``(seed, i)``, so it does not depend on
+    the others.
+
+    :param env_name: ``dmc/<domain>-<task>``, ``metaworld/<task>`` or another registered sb3-ef env (``toy/agent-v0``).
+    :param mode: babbling mode when no ``policy`` is given (``"sign"`` as in the paper, or ``"clamped_uniform"``).
+    :param policy: path of a saved DrQv2EF / TDMPC2EF to act instead of babbling (its frame size and stack are used).
+    :param algo: ``drqv2_ef`` or ``tdmpc2_ef`` for ``policy`` (default: tried in turn).
+    :param fast_render: render without shadows and reflections (several times faster on CPU); train an RL agent
+        that is to start from these frames with the same setting.
+    :param env_kwargs: more ``make_env`` options, e.g. ``episode_length`` (simulator steps).
+    :param masks: record agent masks for every episode (True), none (False), or the episodes of these indices
+        (masks are only needed to score held-out episodes; each costs a second render per step).
+    """
+    from sb3_ef.analysis.cli import load_ef_model
+
+    if file_format not in ("npz", "h5"):
+        raise ValueError(f"file_format must be 'npz' or 'h5', got {file_format!r}")
+    check_babbling(0, mode)
+    rng = np.random.default_rng(seed)  # re-seeded per episode below
+    if policy is not None:
+        model = load_ef_model(policy, algo)
+        frame_shape, frame_stack = model.frame_shape, model.observation_space.shape[0] // FRAME_CHANNELS
+        act = lambda observation: model.predict(observation, deterministic=True)[0]  # noqa: E731
+    else:
+        frame_shape, frame_stack = (FRAME_CHANNELS, size, size), 1
+        act = None
+    env = _make_env(env_name, frame_shape[-1], frame_stack, action_repeat, fast_render, **env_kwargs)
+    if act is None:
+        act = lambda _observation: babble(rng, env.action_space.shape, mode)  # noqa: E731
+    paths = []
+    bar = _progress(episodes, progress_bar)
+    try:
+        for index in range(episodes):
+            path = os.path.join(os.fspath(out_dir), f"episode_{index:05d}.{file_format}")
+            if not os.path.exists(path):
+                rng = np.random.default_rng([seed, index])
+                with_masks = masks if isinstance(masks, bool) else index in masks
+                write_episode(path, record_episode(env, act, seed=seed + index, source=path, masks=with_masks))
+            paths.append(path)
+            if bar is not None:
+                bar.update(1)
+    finally:
+        env.close()
+        if bar is not None:
+            bar.close()
+    return paths
+
+
+def _make_env(name: str, size: int, frame_stack: int, action_repeat: int, fast_render: bool, **kwargs: Any) -> Any:
+    """``make_env`` for dmc/ and metaworld/ names, ``gym.make`` for other registered sb3-ef envs."""
+    if name.startswith(("dmc/", "metaworld/")):
+        from sb3_ef.envs import make_env
+
+        return make_env(
+            name, size=size, frame_stack=frame_stack, action_repeat=action_repeat, fast_render=fast_render, **kwargs
+        )
+    import gymnasium as gym
+
+    import sb3_ef  # noqa: F401  (registers the envs)
+
+    return gym.make(name, size=size, frame_stack=frame_stack, **kwargs)
+
+
+def _progress(total: int, enabled: bool) -> Any:
+    if not enabled:
+        return None
+    try:
+        from tqdm.auto import tqdm
+    except ImportError:
+        return None
+    return tqdm(total=total, desc="collect", unit="episode")

@@ -1,0 +1,82 @@
+"""Open-loop predictions of a pretrained model for any action sequence (dataset actions or the paper's hand-made
+figure-eight "infinity" trajectory), written as an image grid and a GIF / MP4 next to the true frames."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import torch as th
+
+from sb3_ef.analysis.prediction import (
+    eval_mode,
+    figure_eight_actions,
+    save_prediction_grid,
+    save_video,
+    to_uint8_frames,
+)
+from sb3_ef.offline.episodes import Episode
+from sb3_ef.offline.model import OfflineEF
+
+ACTION_SOURCES = ("dataset", "figure8")
+
+
+@th.no_grad()
+def predict_frames(model: OfflineEF, context: np.ndarray, actions: np.ndarray) -> np.ndarray:
+    """Frames after each of ``actions`` (T, action_dim) from ``context`` uint8 (context, 3, H, W), oldest first;
+    returns uint8 (T, H, W, 3). T may exceed the training horizon."""
+    config = model.config
+    context = np.asarray(context)
+    expected = (config.context, *config.frame_shape)
+    if context.shape != expected or context.dtype != np.uint8:
+        raise ValueError(f"Expected uint8 context frames of shape {expected}, got {context.dtype} {context.shape}")
+    actions = np.asarray(actions, dtype=np.float32)
+    if actions.ndim != 2 or actions.shape[1] != config.action_dim or len(actions) < 1:
+        raise ValueError(f"Expected actions of shape (steps, {config.action_dim}), got {actions.shape}")
+    device = next(model.parameters()).device
+    observation = th.as_tensor(context.reshape(1, -1, *context.shape[2:])).to(device)
+    with eval_mode(model):
+        h, skip = model.features(observation)
+        frames = model.ef.predict(h, th.as_tensor(actions).unsqueeze(0).to(device), skip)
+    return to_uint8_frames(frames[0])
+
+
+def predict_episode(
+    model: OfflineEF,
+    episode: Episode,
+    out_dir: str | os.PathLike,
+    start: int | None = None,
+    actions: str = "dataset",
+    steps: int | None = None,
+    video: str = "gif",
+) -> dict[str, str]:
+    """Predict from the context ending at frame ``start`` of ``episode`` and write ``prediction.png`` (context,
+    predicted and, for dataset actions, true rows) and ``prediction.gif`` / ``.mp4`` (predicted | true).
+
+    :param start: the last context frame (default: the first possible, ``context - 1``).
+    :param actions: ``"dataset"`` (the episode's own actions; true frames shown) or ``"figure8"`` (the paper's
+        hand-made trajectory on the first two action components; no true frames exist).
+    :param steps: frames to predict (default: the horizon; with dataset actions at most to the episode's end).
+    """
+    if actions not in ACTION_SOURCES:
+        raise ValueError(f"actions must be one of {ACTION_SOURCES}, got {actions!r}")
+    context = model.config.context
+    start = context - 1 if start is None else start
+    steps = steps or model.config.horizon
+    if not context - 1 <= start < episode.steps:
+        raise ValueError(f"start must lie in [{context - 1}, {episode.steps - 1}] for {episode.source}, got {start}")
+    if actions == "dataset":
+        steps = min(steps, episode.steps - start)
+        sequence = episode.actions[start : start + steps]
+        truth = episode.frames[start + 1 : start + steps + 1].transpose(0, 2, 3, 1)
+    else:
+        sequence, truth = figure_eight_actions(steps, model.config.action_dim), None
+    context_frames = episode.frames[start - context + 1 : start + 1]
+    predicted = predict_frames(model, context_frames, sequence)
+    os.makedirs(out_dir, exist_ok=True)
+    return {
+        "grid": save_prediction_grid(
+            os.path.join(out_dir, "prediction.png"), context_frames.transpose(0, 2, 3, 1), predicted, truth
+        ),
+        "video": save_video(os.path.join(out_dir, f"prediction.{video}"), predicted, truth),
+    }

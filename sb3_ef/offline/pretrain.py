@@ -1,0 +1,173 @@
+"""Offline pretraining of an encoder + Ego-Foresight on (frames, actions) episodes, as in the paper's BAIR
+experiment: held-out episodes, TensorBoard scalars and image grids, resumable checkpoints and a progress bar."""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Any
+
+import torch as th
+
+from sb3_ef.analysis.prediction import frame_grid, to_uint8_frames
+from sb3_ef.common.augmentation import random_shift
+from sb3_ef.offline.episodes import Episode
+from sb3_ef.offline.evaluate import evaluate, predict_windows
+from sb3_ef.offline.model import OfflineEF, OfflineEFConfig, load_pretrained
+from sb3_ef.offline.readers import EpisodeDataset, load_episodes, open_dataset
+from sb3_ef.offline.windows import WindowSampler, cut_windows
+
+CHECKPOINT = "checkpoint.pt"
+MODEL = "model.pt"
+METRICS = "metrics.json"
+
+
+def split_holdout(episodes: list[Episode], holdout: int | float) -> tuple[list[Episode], list[Episode]]:
+    """The last ``holdout`` episodes (a count, or a fraction when < 1) are held out; at least one stays for training."""
+    count = round(holdout * len(episodes)) if isinstance(holdout, float) and holdout < 1 else int(holdout)
+    if not 0 <= count < len(episodes):
+        raise ValueError(f"holdout must leave at least one of {len(episodes)} episodes for training, got {holdout}")
+    return episodes[: len(episodes) - count], episodes[len(episodes) - count :]
+
+
+def pretrain(
+    dataset: str | os.PathLike | EpisodeDataset | list[Episode],
+    out_dir: str | os.PathLike,
+    encoder: str = "dcgan-unet",
+    context: int = 3,
+    horizon: int = 10,
+    agent_dim: int = 32,
+    steps: int = 10_000,
+    batch_size: int = 32,
+    learning_rate: float = 1e-3,
+    shift_pad: int = 0,
+    holdout: int | float = 0.1,
+    eval_every: int = 1000,
+    checkpoint_every: int = 500,
+    saliency_windows: int = 32,
+    encoder_kwargs: dict[str, Any] | None = None,
+    ef_kwargs: dict[str, Any] | None = None,
+    seed: int = 0,
+    device: str = "cpu",
+    resume: bool = True,
+    progress_bar: bool = True,
+    tensorboard: bool = True,
+) -> tuple[OfflineEF, dict[str, Any]]:
+    """Train encoder + EF to predict frame t + k from ``context`` frames and k actions (k drawn in 1..``horizon``).
+
+    Writes to ``out_dir``: ``checkpoint.pt`` every ``checkpoint_every`` steps (training restarts from it when
+    ``resume``), ``model.pt`` at the end (load with :func:`~sb3_ef.offline.model.load_pretrained`), ``metrics.json``
+    with the held-out scores of :func:`~sb3_ef.offline.evaluate.evaluate`, and TensorBoard logs under ``tb/``.
+
+    :param dataset: a source for :func:`~sb3_ef.offline.readers.open_dataset`, a reader, or loaded episodes.
+    :param encoder: ``"dcgan-unet"`` (64x64, U-Net skips), ``"drqv2"`` or ``"tdmpc2"`` (64x64).
+    :param shift_pad: random-shift augmentation of context and target together (DrQ-v2's is 4), 0 for none.
+    :param saliency_windows: held-out windows whose h_a saliency is scored at the end (each costs one backward
+        pass per 4x4 patch of the frame).
+    :param holdout: held-out episodes (count, or fraction when < 1), the last ones of the dataset.
+    :return: the trained model (eval mode) and the final held-out scores.
+    """
+    th.manual_seed(seed)
+    if isinstance(dataset, list):
+        episodes = dataset
+    else:
+        reader = dataset if isinstance(dataset, EpisodeDataset) else open_dataset(dataset, context + horizon)
+        reader.min_frames = context + horizon
+        episodes = load_episodes(reader)
+    train_episodes, held_out = split_holdout(episodes, holdout)
+    first = episodes[0]
+    config = OfflineEFConfig(
+        encoder, first.frame_shape, first.action_dim, context, horizon, agent_dim, encoder_kwargs or {}, ef_kwargs or {}
+    )
+    os.makedirs(out_dir, exist_ok=True)
+    checkpoint_path = os.path.join(out_dir, CHECKPOINT)
+    start = 0
+    if resume and os.path.isfile(checkpoint_path):
+        model, checkpoint = load_pretrained(checkpoint_path, device)
+        if model.config != config:
+            raise ValueError(
+                f"{checkpoint_path} was trained with {model.config}, not {config}: use another out_dir or resume=False"
+            )
+        start = checkpoint["step"]
+        if start > steps:
+            raise ValueError(f"{checkpoint_path} is already at step {start}, beyond steps={steps}")
+    else:
+        model, checkpoint = OfflineEF(config).to(device), None
+    model.train()
+    optimizer = th.optim.Adam(model.parameters(), lr=learning_rate)
+    sampler = WindowSampler(train_episodes, context, horizon, seed=seed + start)
+    if checkpoint is not None:
+        optimizer.load_state_dict(checkpoint["optimizer"])
+    writer = _writer(os.path.join(out_dir, "tb")) if tensorboard else None
+    bar = _progress(steps, start, progress_bar)
+    for step in range(start, steps):
+        batch = sampler.sample(batch_size, device)
+        ef_steps = model.ef.draw_steps(th.ones(batch_size, horizon, dtype=th.bool, device=device))
+        target = batch.frames[th.arange(batch_size, device=device), ef_steps - 1]
+        observations = batch.observations
+        if shift_pad:
+            observations, target = random_shift(observations, target, pad=shift_pad)
+        h, skip = model.features(observations)
+        loss = model.ef.loss(h, batch.actions, ef_steps, target, skip=skip)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        done = step + 1
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(loss=f"{loss.item():.1f}")
+        if writer is not None and (done % 50 == 0 or done == steps):
+            writer.add_scalar("train/ef_loss", loss.item(), done)
+        if held_out and writer is not None and done % eval_every == 0 and done < steps:
+            _log_evaluation(
+                writer, model, held_out, done, evaluate(model, held_out, saliency_windows=min(8, saliency_windows))
+            )
+            model.train()
+        if done % checkpoint_every == 0 or done == steps:
+            th.save(model.checkpoint(step=done, optimizer=optimizer.state_dict()), checkpoint_path)
+    if bar is not None:
+        bar.close()
+    model.eval()
+    scores = evaluate(model, held_out, saliency_windows=saliency_windows) if held_out else {}
+    if held_out and writer is not None:
+        _log_evaluation(writer, model, held_out, steps, scores)
+    th.save(model.checkpoint(step=steps), os.path.join(out_dir, MODEL))
+    with open(os.path.join(out_dir, METRICS), "w") as file:
+        json.dump(
+            {"steps": steps, "train_episodes": len(train_episodes), "held_out_episodes": len(held_out), **scores},
+            file,
+            indent=2,
+        )
+    if writer is not None:
+        writer.close()
+    return model, scores
+
+
+def _log_evaluation(writer: Any, model: OfflineEF, held_out: list[Episode], step: int, scores: dict) -> None:
+    """Held-out scalars and one image grid: context frames, predicted frames t+1..t+H, true frames."""
+    for name, value in scores.items():
+        if isinstance(value, float):
+            writer.add_scalar(f"eval/{name}", value, step)
+    context, horizon = model.config.context, model.config.horizon
+    windows = cut_windows(held_out, [(0, context - 1)], context, horizon, next(model.parameters()).device)
+    predicted = to_uint8_frames(predict_windows(model, windows)[0])
+    truth = windows.frames[0].permute(0, 2, 3, 1).cpu().numpy()
+    context_frames = windows.observations[0].reshape(context, 3, *truth.shape[1:3]).permute(0, 2, 3, 1).cpu().numpy()
+    grid = frame_grid([context_frames, predicted, truth])
+    writer.add_image("eval/context_predicted_true", grid, step, dataformats="HWC")
+
+
+def _writer(log_dir: str) -> Any:
+    from torch.utils.tensorboard import SummaryWriter
+
+    return SummaryWriter(log_dir)
+
+
+def _progress(total: int, initial: int, enabled: bool) -> Any:
+    if not enabled:
+        return None
+    try:
+        from tqdm.auto import tqdm
+    except ImportError:
+        return None
+    return tqdm(total=total, initial=initial, desc="pretrain", unit="step")

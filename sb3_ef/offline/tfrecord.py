@@ -1,0 +1,188 @@
+"""TFRecord files of ``tf.train.Example`` records, read and written without TensorFlow.
+
+A TFRecord file is a sequence of records: ``length`` (uint64, little endian), the masked CRC-32C of those 8 bytes
+(uint32), ``length`` bytes of data and the masked CRC-32C of the data. Here the data is a serialised
+``tf.train.Example``: a map from feature names to a list of bytes, floats or int64s, decoded by the small protobuf
+reader below (only the fields of Example / Features / Feature exist for it).
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+from collections.abc import Iterator, Mapping, Sequence
+
+import numpy as np
+
+_CRC_TABLE: list[int] = []
+for _byte in range(256):
+    _crc = _byte
+    for _ in range(8):
+        _crc = (_crc >> 1) ^ 0x82F63B78 if _crc & 1 else _crc >> 1
+    _CRC_TABLE.append(_crc)
+
+#: A decoded Example: feature name -> list of bytes, float32 array or int64 array.
+Features = dict[str, "list[bytes] | np.ndarray"]
+
+
+def crc32c(data: bytes) -> int:
+    """CRC-32C (Castagnoli) of ``data``."""
+    crc = 0xFFFFFFFF
+    table = _CRC_TABLE
+    for byte in data:
+        crc = table[(crc ^ byte) & 0xFF] ^ (crc >> 8)
+    return crc ^ 0xFFFFFFFF
+
+
+def masked_crc32c(data: bytes) -> int:
+    """The masked CRC TFRecord stores: rotate right by 15 bits and add a constant."""
+    crc = crc32c(data)
+    return (((crc >> 15) | (crc << 17)) + 0xA282EAD8) & 0xFFFFFFFF
+
+
+def read_records(path: str | os.PathLike, check_crc: bool = True) -> Iterator[bytes]:
+    """Yield the data of every record of a TFRecord file; a truncated file or a wrong checksum raises ``ValueError``."""
+    with open(path, "rb") as file:
+        index = 0
+        while header := file.read(12):
+            if len(header) < 12:
+                raise ValueError(f"{os.fspath(path)}: record {index} is truncated (header of {len(header)} bytes)")
+            (length,) = struct.unpack("<Q", header[:8])
+            data = file.read(length)
+            footer = file.read(4)
+            if len(data) < length or len(footer) < 4:
+                raise ValueError(f"{os.fspath(path)}: record {index} is truncated (expected {length} data bytes)")
+            if check_crc and (
+                struct.unpack("<I", header[8:])[0] != masked_crc32c(header[:8])
+                or struct.unpack("<I", footer)[0] != masked_crc32c(data)
+            ):
+                raise ValueError(f"{os.fspath(path)}: record {index} has a wrong CRC-32C (corrupt file?)")
+            yield data
+            index += 1
+
+
+def write_records(path: str | os.PathLike, records: Sequence[bytes]) -> None:
+    """Write ``records`` (serialised data) as a TFRecord file."""
+    with open(path, "wb") as file:
+        for data in records:
+            header = struct.pack("<Q", len(data))
+            file.write(header + struct.pack("<I", masked_crc32c(header)))
+            file.write(data + struct.pack("<I", masked_crc32c(data)))
+
+
+# Protobuf wire format: tag = field number << 3 | wire type.
+_VARINT, _FIXED64, _LENGTH, _FIXED32 = 0, 1, 2, 5
+
+
+def _varint(buffer: bytes, position: int) -> tuple[int, int]:
+    result, shift = 0, 0
+    while True:
+        byte = buffer[position]
+        position += 1
+        result |= (byte & 0x7F) << shift
+        if not byte & 0x80:
+            return result, position
+        shift += 7
+
+
+def _fields(buffer: bytes) -> Iterator[tuple[int, int, bytes | int]]:
+    """Yield ``(field number, wire type, value)``: bytes for length-delimited fields, ints otherwise."""
+    position = 0
+    while position < len(buffer):
+        tag, position = _varint(buffer, position)
+        number, wire = tag >> 3, tag & 7
+        if wire == _VARINT:
+            value, position = _varint(buffer, position)
+        elif wire == _LENGTH:
+            length, position = _varint(buffer, position)
+            value = buffer[position : position + length]
+            position += length
+        elif wire == _FIXED32:
+            value = struct.unpack_from("<I", buffer, position)[0]
+            position += 4
+        elif wire == _FIXED64:
+            value = struct.unpack_from("<Q", buffer, position)[0]
+            position += 8
+        else:
+            raise ValueError(f"Unsupported protobuf wire type {wire} (field {number})")
+        yield number, wire, value
+
+
+def _decode_feature(buffer: bytes) -> list[bytes] | np.ndarray:
+    """A ``Feature``: field 1 BytesList, 2 FloatList, 3 Int64List; each list's values are its field 1."""
+    for kind, _, payload in _fields(buffer):
+        assert isinstance(payload, bytes)
+        if kind == 1:
+            return [value for _, _, value in _fields(payload)]  # type: ignore[misc]
+        if kind == 2:
+            floats = bytearray()
+            for _, wire, value in _fields(payload):
+                floats += value if wire == _LENGTH else struct.pack("<I", value)  # packed or one fixed32
+            return np.frombuffer(bytes(floats), dtype="<f4").astype(np.float32)
+        if kind == 3:
+            ints: list[int] = []
+            for _, wire, value in _fields(payload):
+                if wire == _LENGTH:
+                    position = 0
+                    while position < len(value):
+                        number, position = _varint(value, position)
+                        ints.append(number)
+                else:
+                    ints.append(value)
+            return np.array([n - (1 << 64) if n >= 1 << 63 else n for n in ints], dtype=np.int64)
+    return []
+
+
+def parse_example(data: bytes) -> Features:
+    """Decode a serialised ``tf.train.Example`` into ``{name: list of bytes | float32 array | int64 array}``."""
+    features: Features = {}
+    for number, _, features_message in _fields(data):
+        if number != 1:
+            continue
+        for entry_number, _, entry in _fields(features_message):  # type: ignore[arg-type]
+            if entry_number != 1:
+                continue
+            key, value = "", b""
+            for field, _, payload in _fields(entry):  # type: ignore[arg-type]
+                if field == 1:
+                    key = payload.decode()  # type: ignore[union-attr]
+                elif field == 2:
+                    value = payload
+            features[key] = _decode_feature(value)  # type: ignore[arg-type]
+    return features
+
+
+def _encode_varint(value: int) -> bytes:
+    value &= (1 << 64) - 1
+    out = bytearray()
+    while True:
+        byte = value & 0x7F
+        value >>= 7
+        if value:
+            out.append(byte | 0x80)
+        else:
+            out.append(byte)
+            return bytes(out)
+
+
+def _length_field(number: int, payload: bytes) -> bytes:
+    return _encode_varint(number << 3 | _LENGTH) + _encode_varint(len(payload)) + payload
+
+
+def serialize_example(features: Mapping[str, bytes | Sequence[bytes] | np.ndarray | Sequence[float]]) -> bytes:
+    """Encode ``{name: bytes, list of bytes, float array or int array}`` as a ``tf.train.Example``."""
+    entries = b""
+    for key, value in features.items():
+        if isinstance(value, bytes):
+            value = [value]
+        if isinstance(value, list) and all(isinstance(item, bytes) for item in value):
+            feature = _length_field(1, b"".join(_length_field(1, item) for item in value))
+        else:
+            array = np.asarray(value)
+            if np.issubdtype(array.dtype, np.integer):
+                packed = b"".join(_encode_varint(int(item)) for item in array.ravel())
+                feature = _length_field(3, _length_field(1, packed))
+            else:
+                feature = _length_field(2, _length_field(1, array.astype("<f4").ravel().tobytes()))
+        entries += _length_field(1, _length_field(1, key.encode()) + _length_field(2, feature))
+    return _length_field(1, entries)

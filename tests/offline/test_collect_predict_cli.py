@@ -1,0 +1,81 @@
+"""``sb3-ef collect``, ``pretrain`` and ``predict`` end to end on the MuJoCo-free toy world; Meta-World collection."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from sb3_ef.cli import main
+from sb3_ef.ef.babbling import babble
+from sb3_ef.envs.toy import ToyAgentEnv
+from sb3_ef.offline.collect import collect, record_episode
+from sb3_ef.offline.model import load_pretrained
+from sb3_ef.offline.predict import predict_frames
+from sb3_ef.offline.readers import FolderDataset
+from tests.offline.offline_data import tiny_pretrain
+
+
+def test_recorded_masks_are_the_env_agent_masks():
+    env = ToyAgentEnv(size=32, frame_stack=2, max_episode_steps=6)
+    rng = np.random.default_rng(0)
+    episode = record_episode(env, lambda _obs: babble(rng, (2,)), seed=3)
+    assert episode.frames.shape == (7, 3, 32, 32) and episode.actions.shape == (6, 2)
+    assert set(np.unique(episode.actions)) == {-1.0, 1.0}
+    replay = ToyAgentEnv(size=32, frame_stack=2, max_episode_steps=6)
+    observation, _ = replay.reset(seed=3)
+    np.testing.assert_array_equal(observation[-3:], episode.frames[0])
+    for t, action in enumerate(episode.actions, start=1):
+        observation, *_ = replay.step(action)
+        np.testing.assert_array_equal(observation[-3:], episode.frames[t])
+        np.testing.assert_array_equal(replay.agent_mask(), episode.masks[t])
+
+
+def test_collect_pretrain_predict_from_the_command_line(tmp_path, capsys):
+    data, run, out = tmp_path / "data", tmp_path / "run", tmp_path / "pred"
+    assert main(["collect", "toy/agent-v0", str(data), "--episodes", "3", "--size", "32", "--no-progress"]) == 0
+    assert len(FolderDataset(data)) == 3 and FolderDataset(data)[0].masks is not None
+    arguments = ["--encoder", "drqv2", "--context", "2", "--horizon", "3", "--steps", "2", "--batch-size", "4"]
+    arguments += ["--holdout", "1", "--encoder-kwargs", '{"features_dim": 64}', "--agent-dim", "8", "--no-progress"]
+    assert main(["pretrain", str(data), str(run), *arguments]) == 0
+    printed = capsys.readouterr().out
+    assert '"agent_ratio"' in printed and '"frame_ratio"' in printed
+    assert main(["predict", str(run / "model.pt"), str(out), "--dataset", str(data), "--steps", "4"]) == 0
+    grid = np.asarray(Image.open(out / "prediction.png"))
+    assert grid.shape == (3 * 32 + 2 * 2, 4 * 32 + 3 * 2, 3)  # context, predicted and true rows of 32x32 frames
+    gif = Image.open(out / "prediction.gif")
+    assert gif.n_frames == 4 and gif.size == (64, 32)  # predicted | true side by side
+    assert (
+        main(["predict", str(run / "model.pt"), str(out / "eight"), "--dataset", str(data), "--actions", "figure8"])
+        == 0
+    )
+    eight = Image.open(out / "eight" / "prediction.gif")
+    assert (
+        eight.size == (32, 32) and eight.n_frames == 3
+    )  # horizon frames; no true frames for a hand-made path  # no true frames for a hand-made path
+    assert json.loads((run / "metrics.json").read_text())["held_out_episodes"] == 1
+
+
+def test_predictions_go_beyond_the_horizon_and_check_their_input(tmp_path):
+    data = tmp_path / "data"
+    collect("toy/agent-v0", data, episodes=2, size=32, progress_bar=False)
+    tiny_pretrain(data, tmp_path / "run", context=2, steps=1, batch_size=2)
+    model, _ = load_pretrained(tmp_path / "run" / "model.pt")
+    episode = FolderDataset(data)[0]
+    frames = predict_frames(model, episode.frames[:2], np.zeros((9, 2), np.float32))
+    assert frames.shape == (9, 32, 32, 3) and frames.dtype == np.uint8
+    with pytest.raises(ValueError, match=r"context frames of shape \(2, 3, 32, 32\)"):
+        predict_frames(model, episode.frames[:3], np.zeros((4, 2)))
+    with pytest.raises(ValueError, match=r"actions of shape \(steps, 2\)"):
+        predict_frames(model, episode.frames[:2], np.zeros((4, 3)))
+
+
+@pytest.mark.slow  # one Meta-World episode: 250 rendered steps, ~15-60 s on 2 busy cores
+def test_collect_metaworld_hammer_babbling(tmp_path):
+    (path,) = collect("metaworld/hammer", tmp_path, episodes=1, size=64, progress_bar=False)
+    episode = FolderDataset(tmp_path)[0]
+    assert path.endswith("episode_00000.npz")
+    assert episode.frames.shape == (251, 3, 64, 64) and episode.actions.shape == (250, 4)
+    assert 0.02 < episode.masks.mean() < 0.5  # the arm fills part of the corner view

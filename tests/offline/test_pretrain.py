@@ -1,0 +1,111 @@
+"""Offline pretraining: files written, resuming, the copy baseline, and EF beating it on held-out episodes."""
+
+from __future__ import annotations
+
+import glob
+import json
+
+import numpy as np
+import pytest
+import torch as th
+
+from sb3_ef.offline.evaluate import evaluate, evaluation_picks
+from sb3_ef.offline.model import OfflineEF, OfflineEFConfig, load_pretrained
+from sb3_ef.offline.pretrain import CHECKPOINT, METRICS, MODEL, pretrain, split_holdout
+from tests.offline.offline_data import TINY_DRQV2, square_episode
+
+TINY_EF = {"rollout_hidden_dims": (32,), "decoder_channels": 16}
+
+
+def episodes(count: int = 4, steps: int = 16, size: int = 32) -> list:
+    return [square_episode(steps=steps, size=size, seed=seed) for seed in range(count)]
+
+
+def test_pretrain_writes_model_metrics_tensorboard_and_resumes(tmp_path):
+    data = episodes()
+    arguments = dict(
+        horizon=3, batch_size=4, holdout=1, eval_every=2, ef_kwargs=TINY_EF, progress_bar=False, **TINY_DRQV2
+    )
+    pretrain(data, tmp_path, steps=2, checkpoint_every=2, **arguments)
+    assert th.load(tmp_path / CHECKPOINT, weights_only=False)["step"] == 2
+    first, _ = load_pretrained(tmp_path / MODEL)
+    model, scores = pretrain(data, tmp_path, steps=4, checkpoint_every=2, **arguments)
+    assert th.load(tmp_path / CHECKPOINT, weights_only=False)["step"] == 4
+    assert any(
+        not th.equal(a, b) for a, b in zip(first.state_dict().values(), model.state_dict().values(), strict=True)
+    )
+    metrics = json.loads((tmp_path / METRICS).read_text())
+    assert metrics["steps"] == 4 and metrics["held_out_episodes"] == 1 and metrics["train_episodes"] == 3
+    assert {"frame_ratio", "agent_ratio", "saliency_precision", "saliency_recall"} <= metrics.keys()
+    assert len(metrics["agent_mse_per_k"]) == 3 and scores["agent_ratio"] == metrics["agent_ratio"]
+    assert glob.glob(str(tmp_path / "tb" / "events.out.tfevents.*"))
+    with pytest.raises(ValueError, match="was trained with"):
+        pretrain(data, tmp_path, steps=6, **{**arguments, "agent_dim": 16})
+
+
+def test_copy_baseline_is_the_error_of_repeating_the_last_context_frame():
+    data = episodes(count=2, steps=12)
+    model = OfflineEF(
+        OfflineEFConfig(
+            "drqv2",
+            (3, 32, 32),
+            2,
+            context=2,
+            horizon=3,
+            agent_dim=8,
+            encoder_kwargs={"features_dim": 64},
+            ef_kwargs=TINY_EF,
+        )
+    )
+    scores = evaluate(model, data, stride=1, saliency_windows=2)
+    picks = evaluation_picks(data, 2, 3, stride=1)
+    copy_frame, copy_agent = np.zeros(3), np.zeros(3)
+    agent_pixels = np.zeros(3)
+    for index, t in picks:
+        frames, masks = data[index].frames.astype(np.float64) / 255, data[index].masks
+        for k in range(1, 4):
+            error = ((frames[t] - frames[t + k]) ** 2).mean(axis=0)
+            region = masks[t] | masks[t + k]
+            copy_frame[k - 1] += error.mean() / len(picks)
+            copy_agent[k - 1] += error[region].sum()
+            agent_pixels[k - 1] += region.sum()
+    np.testing.assert_allclose(scores["copy_frame_mse_per_k"], copy_frame, rtol=1e-5)
+    np.testing.assert_allclose(scores["copy_agent_mse_per_k"], copy_agent / agent_pixels, rtol=1e-5)
+    assert scores["windows"] == len(picks) == 2 * (12 - 3 - 2 + 2)
+
+
+def test_holdout_must_leave_training_episodes():
+    data = episodes(count=3)
+    assert [len(part) for part in split_holdout(data, 0.34)] == [2, 1]
+    with pytest.raises(ValueError, match="at least one of 3 episodes"):
+        split_holdout(data, 3)
+
+
+def test_short_episodes_are_refused_before_training(tmp_path):
+    from sb3_ef.offline.episodes import write_episode
+
+    write_episode(tmp_path / "data" / "episode_0.npz", square_episode(steps=8))
+    with pytest.raises(ValueError, match=r"episode_0.npz \(episode 0\).*shorter than context \+ horizon = 13"):
+        pretrain(tmp_path / "data", tmp_path / "run", context=3, horizon=10, steps=1, progress_bar=False)
+
+
+@pytest.mark.slow  # about 5 minutes on 2 busy cores
+def test_ef_beats_copying_the_last_frame_on_held_out_agent_pixels(tmp_path):
+    th.set_num_threads(2)
+    data = episodes(count=12, steps=30)
+    _, scores = pretrain(
+        data,
+        tmp_path,
+        context=2,
+        horizon=4,
+        steps=300,
+        batch_size=16,
+        holdout=2,
+        learning_rate=2e-3,
+        ef_kwargs=TINY_EF,
+        progress_bar=False,
+        tensorboard=False,
+        **TINY_DRQV2,
+    )
+    assert scores["agent_ratio"] < 0.8, scores
+    assert scores["saliency_precision_over_chance"] > 2, scores
