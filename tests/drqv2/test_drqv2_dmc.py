@@ -17,10 +17,10 @@ def cartpole():
     env.close()
 
 
-def test_trains_on_dmc_cartpole_at_64(cartpole):
-    model = DrQv2EF(
+def tiny_model(env: gym.Env, **kwargs) -> DrQv2EF:
+    return DrQv2EF(
         "CnnPolicy",
-        cartpole,
+        env,
         buffer_size=500,
         batch_size=8,
         learning_starts=20,
@@ -28,7 +28,12 @@ def test_trains_on_dmc_cartpole_at_64(cartpole):
         ef_horizon=3,
         policy_kwargs=TINY_POLICY,
         seed=0,
+        **kwargs,
     )
+
+
+def test_trains_on_dmc_cartpole_at_64(cartpole):
+    model = tiny_model(cartpole)
     assert model.frame_shape == (3, 64, 64) and model.ef.decoder.frame_shape == (3, 64, 64)
     model.learn(30)
     logged = model.logger.name_to_value
@@ -58,18 +63,7 @@ class NaNRewardAfter(gym.RewardWrapper):
 
 
 def test_nan_reward_from_a_real_env_is_refused_before_any_weight_changes(cartpole):
-    model = DrQv2EF(
-        "CnnPolicy",
-        NaNRewardAfter(cartpole, after=25),
-        buffer_size=500,
-        batch_size=8,
-        learning_starts=20,
-        babbling_steps=10,
-        ef_horizon=3,
-        policy_kwargs=TINY_POLICY,
-        seed=0,
-        check_finite_losses=True,
-    )
+    model = tiny_model(NaNRewardAfter(cartpole, after=25), check_finite_losses=True)
     with pytest.raises(ValueError, match="finite rewards, got nan for env 0 at step 25"):
         model.learn(40)
     # The steps before the faulty one are kept, and nothing non-finite reached the weights.
