@@ -152,8 +152,11 @@ def execute_run(spec: RunSpec, out: str | os.PathLike, threads: int = 1, device:
         model = load_checkpoint(algo_class, checkpoint, env, device=device)
         resumed_from = model.num_timesteps
         truncate_records(paths.records, resumed_from)
+    # The records name an algorithm by its class, as every other record writer does (EvalRecorderCallback, the zoo
+    # export); a variant keeps its own label (e.g. drqv2_ef_beta1e-3), so it stays apart from the default.
+    record_name = algo_class.__name__ if spec.label == spec.algo else spec.label
     recorder = EvalRecorderCallback(
-        paths.records, algo=spec.label, task=spec.task, seed=spec.seed, action_repeat=spec.action_repeat
+        paths.records, algo=record_name, task=spec.task, seed=spec.seed, action_repeat=spec.action_repeat
     )
     # Checkpoints are written at the start of the rollout after their step, so after that step's evaluation.
     callbacks = [

@@ -88,7 +88,8 @@ def test_analyze_results_reads_the_benchmark_folder(trained, tmp_path, capsys):
     out, _ = trained
     assert sb3_ef_main(["analyze", "results", str(out), "--out", str(tmp_path), "--reps", "50"]) == 0
     scores = read_csv(tmp_path / "scores.csv")
-    assert {(row["algo"], row["seed"]) for row in scores} == {(a, s) for a in ("drqv2", "drqv2_ef") for s in "01"}
+    # Records name the algorithms by class, as EvalRecorderCallback and the zoo export do.
+    assert {(row["algo"], row["seed"]) for row in scores} == {(a, s) for a in ("DrQv2", "DrQv2EF") for s in "01"}
     assert (tmp_path / "ens.csv").is_file() and (tmp_path / "rliable.csv").is_file()
 
 
