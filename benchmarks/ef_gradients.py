@@ -20,11 +20,13 @@ from sb3_ef.zoo.registration import algorithm_classes
 
 
 def encoder_grad_norm(loss: th.Tensor, parameters: list[th.nn.Parameter]) -> float:
+    """L2 norm of ``loss``'s gradient over ``parameters`` (the graph is kept for the next loss)."""
     grads = th.autograd.grad(loss, parameters, retain_graph=True, allow_unused=True)
     return float(th.sqrt(sum((grad**2).sum() for grad in grads if grad is not None)))
 
 
 def diagnose(algo: str, model_path: str, buffer_path: str, batch_size: int, seed: int) -> dict[str, float]:
+    """The figures of the module docstring for one seeded batch of the checkpoint's buffer."""
     model = algorithm_classes()[algo].load(model_path, device="cpu", buffer_size=1000)
     with open(buffer_path, "rb") as file:
         model.replay_buffer = pickle.load(file)
