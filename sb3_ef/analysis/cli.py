@@ -36,6 +36,9 @@ def build_parser() -> argparse.ArgumentParser:
     results.add_argument("--out", help="output directory (default: DIR/analysis)")
     results.add_argument("--return-scale", type=float, default=1000.0, help="returns are divided by this (DMC: 1000)")
     results.add_argument("--reps", type=int, default=2000, help="bootstrap resamples for the confidence intervals")
+    results.add_argument(
+        "--at", type=int, nargs="+", metavar="STEP", help="also tabulate mean +- std return at these steps"
+    )
 
     model = commands.add_parser("model", help="open-loop prediction, saliency and mask scores of a saved model")
     model.add_argument("path", help="saved model (.zip)")
@@ -96,19 +99,24 @@ def run_env_kwargs(model_path: str | os.PathLike) -> dict[str, Any]:
     return dict(recorded)
 
 
-def analyze_results(directory: str, out: str, return_scale: float = 1000.0, reps: int = 2000) -> dict[str, Any]:
+def analyze_results(
+    directory: str, out: str, return_scale: float = 1000.0, reps: int = 2000, at: tuple[int, ...] = ()
+) -> dict[str, Any]:
     """Write ``scores.csv``, ``ens.csv``, ``ens_details.csv``, ``rliable.csv`` and the plots to ``out`` (created
-    only once the records have been read)."""
+    only once the records have been read), and ``returns_at.csv`` for the steps ``at``."""
     from sb3_ef.analysis.metrics import (
         efficiency_normalized_score,
         ens_table,
         load_records,
         records_to_scores,
+        returns_at,
         rliable_metrics,
     )
     from sb3_ef.analysis.plots import plot_ens, plot_intervals, plot_learning_curves
 
-    scores = records_to_scores(load_records(directory), return_scale=return_scale)
+    records = load_records(directory)
+    scores = records_to_scores(records, return_scale=return_scale)
+    at_steps = returns_at(records, tuple(at)) if at else None
     os.makedirs(out, exist_ok=True)
     scores.to_csv(os.path.join(out, "scores.csv"), index=False)
     written = {"curves": plot_learning_curves(scores, out)}
@@ -127,6 +135,9 @@ def analyze_results(directory: str, out: str, return_scale: float = 1000.0, reps
     else:
         print("ENS compares algorithms: skipped with a single algorithm")
     print(table.to_string(index=False))
+    if at_steps is not None:
+        at_steps.to_csv(os.path.join(out, "returns_at.csv"), index=False)
+        print(at_steps.to_string(index=False, float_format="%.1f"))
     return written
 
 
@@ -234,7 +245,11 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.command == "results":
         analyze_results(
-            args.directory, args.out or os.path.join(args.directory, "analysis"), args.return_scale, args.reps
+            args.directory,
+            args.out or os.path.join(args.directory, "analysis"),
+            args.return_scale,
+            args.reps,
+            tuple(args.at or ()),
         )
     else:
         out = args.out or os.path.splitext(args.path)[0] + "_analysis"

@@ -78,6 +78,23 @@ def performance_curves(scores: pd.DataFrame) -> pd.DataFrame:
     )
 
 
+def returns_at(records: pd.DataFrame, steps: tuple[int, ...]) -> pd.DataFrame:
+    """Evaluation return at given steps, over seeds: columns ``algo, task, step, mean, std, seeds, returns``.
+
+    ``std`` is the sample standard deviation (NaN for one seed); ``returns`` lists the seeds' returns in seed order.
+    Runs without an evaluation at a step (unfinished ones) are left out of that row, which ``seeds`` shows; a step
+    that no run reached has no row.
+    """
+    check_columns(records, RECORD_COLUMNS)
+    if not steps or any(step < 0 for step in steps):
+        raise ValueError(f"Expected one or more non-negative steps, got {steps}")
+    chosen = records[records["step"].isin(steps)].sort_values(["algo", "task", "step", "seed"])
+    grouped = chosen.groupby(["algo", "task", "step"])["return"]
+    table = grouped.agg(["mean", "std", "count"]).rename(columns={"count": "seeds"})
+    table["returns"] = grouped.agg(lambda column: [round(float(value), 1) for value in column])
+    return table.reset_index()
+
+
 def ens_table(scores: pd.DataFrame, thresholds: tuple[float, ...] = ENS_THRESHOLDS) -> pd.DataFrame:
     """Per task and threshold: the threshold step and each algorithm's normalised score there.
 

@@ -1,6 +1,7 @@
 import json
 
 import numpy as np
+import pandas as pd
 import pytest
 from PIL import Image
 
@@ -42,6 +43,17 @@ def test_results_command_writes_tables_and_plots(tmp_path, capsys):
     # the faster learner (slope 2) sets the thresholds and scores about 1; the slower one about half of that
     assert float(ens["DrQv2EF"]) > 0.9 and 0.3 < float(ens["DrQv2"]) < 0.7
     assert "IQM" in capsys.readouterr().out
+
+
+def test_results_command_tabulates_returns_at_steps(tmp_path):
+    write_results(tmp_path / "runs")
+    out = tmp_path / "out"
+    assert main(["results", str(tmp_path / "runs"), "--out", str(out), "--reps", "20", "--at", "200", "300"]) == 0
+    table = pd.read_csv(out / "returns_at.csv")
+    assert len(table) == 2 * 2 * 2  # algorithms x tasks x steps
+    assert set(table["seeds"]) == {2}
+    slow = table[(table.algo == "DrQv2") & (table.task == "dmc/reacher-easy") & (table.step == 300)]
+    assert 300 <= slow["mean"].item() <= 310  # slope 1 plus uniform(0, 10) noise
 
 
 def test_results_command_without_records_fails_clearly(tmp_path):

@@ -8,6 +8,7 @@ from sb3_ef.analysis.metrics import (
     ens_table,
     load_records,
     records_to_scores,
+    returns_at,
     rliable_metrics,
 )
 from sb3_ef.analysis.records import RECORD_COLUMNS
@@ -85,3 +86,19 @@ def test_rliable_on_best_scores():
     assert (table["lower"] <= table["estimate"] + 1e-9).all() and (table["estimate"] <= table["upper"] + 1e-9).all()
     with pytest.raises(ValueError, match="same number of seeds"):
         best_scores(hand_example()[lambda df: ~((df.task == "t2") & (df.seed == 1)) | (df.algo == "B")])
+
+
+def test_returns_at_steps_over_seeds():
+    rows = [
+        ("DrQv2", "dmc/cartpole-balance-v0", 0, 10, 20, 300.0, np.nan),
+        ("DrQv2", "dmc/cartpole-balance-v0", 1, 10, 20, 500.0, np.nan),
+        ("DrQv2", "dmc/cartpole-balance-v0", 0, 20, 40, 800.0, np.nan),  # seed 1 unfinished
+        ("DrQv2", "dmc/cartpole-balance-v0", 1, 15, 30, 900.0, np.nan),  # not a chosen step
+    ]
+    table = returns_at(pd.DataFrame(rows, columns=RECORD_COLUMNS), (10, 20, 30)).set_index("step")
+    assert list(table.index) == [10, 20]
+    assert table.loc[10, "mean"] == 400.0 and table.loc[10, "std"] == pytest.approx(np.sqrt(2) * 100)
+    assert table.loc[10, "seeds"] == 2 and table.loc[10, "returns"] == [300.0, 500.0]
+    assert table.loc[20, "seeds"] == 1 and np.isnan(table.loc[20, "std"])
+    with pytest.raises(ValueError, match="non-negative steps, got \\(\\)"):
+        returns_at(pd.DataFrame(rows, columns=RECORD_COLUMNS), ())
