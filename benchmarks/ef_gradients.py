@@ -74,7 +74,7 @@ def diagnose(algo: str, model_path: str, buffer_path: str, batch_size: int, seed
     encoder = list(model.policy.encoder.parameters())
     result = {
         "step": model.num_timesteps,
-        "critic_loss": float(critic_loss),
+        "critic_loss": float(critic_loss.detach()),
         "encoder_grad_norm_critic": encoder_grad_norm(critic_loss, encoder),
         "feature_norm_mean": float(features.norm(dim=1).mean()),
         "actions_saturated_share": float((actions.abs() > 0.99).float().mean()),
@@ -82,7 +82,7 @@ def diagnose(algo: str, model_path: str, buffer_path: str, batch_size: int, seed
     }
     ef_loss = model._ef_loss(features, batch.future_actions, window)
     if ef_loss is not None:
-        result["beta_ef_loss"] = float(model.beta * ef_loss)
+        result["beta_ef_loss"] = float(model.beta * ef_loss.detach())
         result["encoder_grad_norm_ef"] = encoder_grad_norm(model.beta * ef_loss, encoder)
     return result
 
