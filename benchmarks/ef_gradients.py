@@ -76,7 +76,7 @@ def diagnose(algo: str, model_path: str, buffer_path: str, batch_size: int, seed
         "step": model.num_timesteps,
         "critic_loss": float(critic_loss.detach()),
         "encoder_grad_norm_critic": encoder_grad_norm(critic_loss, encoder),
-        "feature_norm_mean": float(features.norm(dim=1).mean()),
+        "feature_norm_mean": float(features.detach().norm(dim=1).mean()),
         "actions_saturated_share": float((actions.abs() > 0.99).float().mean()),
         **state_dependence(model, features.detach(), actions),
     }
