@@ -62,6 +62,11 @@ def diagnose(algo: str, model_path: str, buffer_path: str, batch_size: int, seed
     with open(buffer_path, "rb") as file:
         model.replay_buffer = pickle.load(file)
     model.replay_buffer.device = "cpu"
+    return diagnose_model(model, batch_size, seed)
+
+
+def diagnose_model(model, batch_size: int, seed: int) -> dict[str, float]:
+    """The figures of the module docstring for one batch of ``model``'s replay buffer, its sampler seeded."""
     model.replay_buffer.seed(seed)
     batch = model.replay_buffer.sample(batch_size)
     std = model.exploration_schedule(model.num_timesteps)

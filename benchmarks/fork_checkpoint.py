@@ -1,15 +1,22 @@
-"""Continue one checkpoint of a benchmark-grid run under changed settings, a few times each, and evaluate.
+"""Train a benchmark-grid run's settings with changes (variants) next to the unchanged control, over seeds.
 
-An intervention test for a stalled run: from the same weights, replay buffer and step, does the run leave the
-stall sooner with ``beta=0`` (EF's gradient off) than with its own settings? Each continuation (a *fork*) loads the
-checkpoint afresh, reseeds everything random (``set_random_seed`` and the replay buffer's sampler) with its fork seed,
-trains ``--steps`` more agent steps and is evaluated like the grid evaluates (deterministic actions, the run's
-evaluation env seed). The run's own settings are always forked too, as the control.
+An intervention test for a stalled run. With a checkpoint: from the same weights, replay buffer and step, does the
+run leave the stall sooner with ``beta=0`` (EF's gradient off) than with its own settings? Each continuation (a
+*fork*) loads the checkpoint afresh, sets the variant's values as attributes, reseeds everything random
+(``set_random_seed`` and the replay buffer's sampler) with its fork seed, and trains ``--steps`` more agent steps.
+Without a checkpoint, each fork is a new model built from the run's settings, its seed (model and env) the fork
+seed, so the control of seed k repeats the grid's seed-k run, and the variant's values are set on it as
+attributes before it trains (so ``beta=0`` is allowed, which the constructor refuses). Forks are evaluated as the
+grid evaluates (deterministic actions, evaluation env seed + 10000) and, with ``--diagnose``, measured by
+``ef_gradients.py`` (state dependence of actor and critic, gradient norms).
 
     python benchmarks/fork_checkpoint.py benchmarks/cpu_grid.yml drqv2_ef/dmc-cartpole-balance-v0_s1 \\
-        CHECKPOINT.zip --set beta=0 --steps 2000 --seeds 0 1 2 [--eval-episodes 5]
+        --checkpoint CHECKPOINT.zip --variant beta=0 --steps 2000 --seeds 0 1 [--eval-episodes 5]
+    python benchmarks/fork_checkpoint.py benchmarks/cpu_grid.yml drqv2_ef/dmc-cartpole-balance-v0_s0 \\
+        --variant beta=0 --variant babbling_steps=0 --steps 2000 --seeds 0 1 2 --diagnose
 
-Prints one JSON line per fork: the changed settings, the fork seed, the step reached and the evaluation return.
+Prints one JSON line per fork: the variant's settings ({} for the control), the fork seed, the steps, the
+evaluation return and the diagnostics.
 """
 
 from __future__ import annotations
@@ -20,11 +27,12 @@ import json
 from typing import Any
 
 import torch as th
+from ef_gradients import diagnose_model  # this folder is on sys.path when a script of it runs
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv
 
-from sb3_ef.benchmark.grid import RunSpec, load_grid
+from sb3_ef.benchmark.grid import RunSpec, constructor_kwargs, load_grid
 from sb3_ef.benchmark.run import EVAL_SEED_OFFSET, build_env
 from sb3_ef.common.checkpoints import checkpoint_for, load_checkpoint
 from sb3_ef.zoo.registration import algorithm_classes
@@ -50,49 +58,74 @@ def find_run(grid: str, run_id: str) -> RunSpec:
 
 
 def fork(
-    spec: RunSpec, model_path: str, settings: dict[str, Any], seed: int, steps: int, eval_episodes: int
+    spec: RunSpec,
+    checkpoint: str | None,
+    settings: dict[str, Any],
+    seed: int,
+    steps: int,
+    eval_episodes: int,
+    diagnose: bool = False,
 ) -> dict[str, Any]:
-    """Load the checkpoint, apply ``settings`` as attributes, reseed with ``seed``, train ``steps`` and evaluate."""
+    """One fork (module docstring): train ``steps`` agent steps, evaluate, and diagnose if asked."""
     algo_class = algorithm_classes()[spec.algo]
-    model = load_checkpoint(algo_class, checkpoint_for(model_path), build_env(spec, seed=spec.seed), device="cpu")
+    if checkpoint is None:
+        env_seed = seed
+        hyperparams = constructor_kwargs(dict(spec.hyperparams))
+        model = algo_class(env=build_env(spec, seed=seed), seed=seed, device="cpu", **hyperparams)
+    else:
+        env_seed = spec.seed
+        model = load_checkpoint(algo_class, checkpoint_for(checkpoint), build_env(spec, seed=spec.seed), device="cpu")
+        model.set_random_seed(seed)
+        model.replay_buffer.seed(seed)
     for name, value in settings.items():
         if not hasattr(model, name):
             raise SystemExit(f"{algo_class.__name__} has no attribute {name!r} to set")
         setattr(model, name, value)
-    model.set_random_seed(seed)
-    model.replay_buffer.seed(seed)
     start = model.num_timesteps
-    model.learn(steps, reset_num_timesteps=False)
-    eval_env = DummyVecEnv([lambda: Monitor(build_env(spec, seed=spec.seed + EVAL_SEED_OFFSET))])
-    eval_env.seed(spec.seed + EVAL_SEED_OFFSET)
+    model.learn(steps, reset_num_timesteps=checkpoint is None)
+    eval_env = DummyVecEnv([lambda: Monitor(build_env(spec, seed=env_seed + EVAL_SEED_OFFSET))])
+    eval_env.seed(env_seed + EVAL_SEED_OFFSET)
     returns, _ = evaluate_policy(model, eval_env, n_eval_episodes=eval_episodes, return_episode_rewards=True)
     eval_env.close()
-    return {
+    result = {
         "settings": settings,
         "fork_seed": seed,
         "from_step": start,
         "step": model.num_timesteps,
         "return": round(float(sum(returns) / len(returns)), 1),
     }
+    if diagnose:
+        result.update({key: round(value, 4) for key, value in diagnose_model(model, 64, seed=0).items()})
+    return result
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("grid", help="the grid file the run belongs to")
     parser.add_argument("run_id", help="e.g. drqv2_ef/dmc-cartpole-balance-v0_s1")
-    parser.add_argument("checkpoint", help="the checkpoint's model .zip (replay buffer and random states beside it)")
-    parser.add_argument("--set", type=parse_setting, action="append", default=[], metavar="NAME=VALUE")
+    parser.add_argument("--checkpoint", help="a checkpoint's model .zip (replay buffer, random states beside it)")
+    parser.add_argument(
+        "--variant",
+        type=parse_setting,
+        nargs="+",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="one variant's changed settings (repeat the flag for more variants)",
+    )
     parser.add_argument("--steps", type=int, default=2000, help="agent steps of each fork")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="one fork per seed and variant")
     parser.add_argument("--eval-episodes", type=int, default=5)
+    parser.add_argument("--diagnose", action="store_true", help="add ef_gradients.py's figures (DrQ-v2 hosts)")
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args(argv)
     th.set_num_threads(args.threads)
     spec = find_run(args.grid, args.run_id)
-    variants = [{}] + ([dict(args.set)] if args.set else [])
+    variants = [{}] + [dict(variant) for variant in args.variant]
     for seed in args.seeds:
         for settings in variants:
-            print(json.dumps(fork(spec, args.checkpoint, settings, seed, args.steps, args.eval_episodes)), flush=True)
+            result = fork(spec, args.checkpoint, settings, seed, args.steps, args.eval_episodes, args.diagnose)
+            print(json.dumps(result), flush=True)
 
 
 if __name__ == "__main__":

@@ -19,6 +19,7 @@ TINY_GRID = REPO / "tests" / "benchmark" / "tiny_grid.yml"
 
 
 def load_script():
+    sys.path.insert(0, str(SCRIPT.parent))  # as when the script runs: it imports ef_gradients beside it
     spec = importlib.util.spec_from_file_location("fork_checkpoint", SCRIPT)
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module
@@ -32,12 +33,24 @@ def test_forks_continue_the_checkpoint_with_and_without_the_change(tmp_path, cap
     model = DrQv2EF(env=build_env(spec, seed=0), seed=0, **constructor_kwargs(dict(spec.hyperparams)))
     model.learn(70, callback=ResumableCheckpointCallback(60, str(tmp_path)))
     checkpoint = str(tmp_path / "rl_model_60_steps.zip")
-    script.main([str(TINY_GRID), spec.run_id, checkpoint, "--set", "beta=0", "--steps", "20", "--seeds", "3",
-                 "--eval-episodes", "1"])  # fmt: skip
+    script.main([str(TINY_GRID), spec.run_id, "--checkpoint", checkpoint, "--variant", "beta=0", "--steps", "20",
+                 "--seeds", "3", "--eval-episodes", "1"])  # fmt: skip
     lines = [script.json.loads(line) for line in capsys.readouterr().out.splitlines()]
     assert [line["settings"] for line in lines] == [{}, {"beta": 0}]  # the control first
     assert all(line["from_step"] == 60 and line["step"] == 80 and line["fork_seed"] == 3 for line in lines)
     assert all(0 <= line["return"] <= 40 for line in lines)  # 40-step episodes, rewards in [0, 1]
+
+
+def test_fresh_forks_build_each_variant_and_diagnose_it(capsys):
+    script = load_script()
+    run_id = "drqv2_ef/dmc-cartpole-balance-v0_s0"
+    script.main([str(TINY_GRID), run_id, "--variant", "beta=0", "babbling_steps=0", "--variant", "ef_horizon=2",
+                 "--steps", "60", "--seeds", "1", "--eval-episodes", "1", "--diagnose"])  # fmt: skip
+    lines = [script.json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert [line["settings"] for line in lines] == [{}, {"beta": 0, "babbling_steps": 0}, {"ef_horizon": 2}]
+    assert all(line["from_step"] == 0 and line["step"] == 60 for line in lines)
+    assert all(0.5 <= line["action_majority"] <= 1 and line["encoder_grad_norm_critic"] > 0 for line in lines)
+    assert lines[1]["beta_ef_loss"] == 0 and lines[0]["beta_ef_loss"] > 0  # the variant was set before training
 
 
 def test_bad_input_is_named():
