@@ -116,12 +116,17 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--steps", type=int, default=2000, help="agent steps of each fork")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="one fork per seed and variant")
     parser.add_argument("--eval-episodes", type=int, default=5)
+    parser.add_argument(
+        "--skip-control", action="store_true", help="only the variants (the control is known: the grid run itself)"
+    )
     parser.add_argument("--diagnose", action="store_true", help="add ef_gradients.py's figures (DrQ-v2 hosts)")
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args(argv)
     th.set_num_threads(args.threads)
     spec = find_run(args.grid, args.run_id)
-    variants = [{}] + [dict(variant) for variant in args.variant]
+    variants = ([] if args.skip_control else [{}]) + [dict(variant) for variant in args.variant]
+    if not variants:
+        parser.error("--skip-control needs at least one --variant")
     for seed in args.seeds:
         for settings in variants:
             result = fork(spec, args.checkpoint, settings, seed, args.steps, args.eval_episodes, args.diagnose)

@@ -53,10 +53,13 @@ def test_fresh_forks_build_each_variant_and_diagnose_it(capsys):
     assert lines[1]["beta_ef_loss"] == 0 and lines[0]["beta_ef_loss"] > 0  # the variant was set before training
 
 
-def test_bad_input_is_named():
+def test_bad_input_is_named(capsys):
     script = load_script()
     with pytest.raises(SystemExit, match="has no run 'drqv2_ef/nope_s0'"):
         script.find_run(str(TINY_GRID), "drqv2_ef/nope_s0")
+    with pytest.raises(SystemExit):
+        script.main([str(TINY_GRID), "drqv2_ef/dmc-cartpole-balance-v0_s0", "--skip-control"])
+    assert "--skip-control needs at least one --variant" in capsys.readouterr().err
     with pytest.raises(script.argparse.ArgumentTypeError, match="Expected NAME=VALUE"):
         script.parse_setting("beta")
     with pytest.raises(script.argparse.ArgumentTypeError, match="Python literal"):
