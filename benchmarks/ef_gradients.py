@@ -66,7 +66,12 @@ def diagnose(algo: str, model_path: str, buffer_path: str, batch_size: int, seed
 
 
 def diagnose_model(model, batch_size: int, seed: int) -> dict[str, float]:
-    """The figures of the module docstring for one batch of ``model``'s replay buffer, its sampler seeded."""
+    """The figures of the module docstring for one batch of ``model``'s replay buffer, its sampler seeded.
+
+    The policy is put in training mode first, as an update does: EF's decoder has BatchNorm, whose batch statistics
+    (training) and running ones (evaluation, a loaded model's mode) give different losses and gradients.
+    """
+    model.policy.set_training_mode(True)
     model.replay_buffer.seed(seed)
     batch = model.replay_buffer.sample(batch_size)
     std = model.exploration_schedule(model.num_timesteps)
