@@ -103,7 +103,11 @@ def analyze_results(
     directory: str, out: str, return_scale: float = 1000.0, reps: int = 2000, at: tuple[int, ...] = ()
 ) -> dict[str, Any]:
     """Write ``scores.csv``, ``ens.csv``, ``ens_details.csv``, ``rliable.csv`` and the plots to ``out`` (created
-    only once the records have been read), and ``returns_at.csv`` for the steps ``at``."""
+    only once the records have been read), and ``returns_at.csv`` for the steps ``at``.
+
+    A grid part-way through is analysed as far as it allows: ENS over the tasks that every algorithm has results
+    on, rliable metrics only when each algorithm has as many seeds on every task; what is left out is printed.
+    """
     from sb3_ef.analysis.metrics import (
         efficiency_normalized_score,
         ens_table,
@@ -111,6 +115,8 @@ def analyze_results(
         records_to_scores,
         returns_at,
         rliable_metrics,
+        tasks_with_every_algorithm,
+        uneven_seed_counts,
     )
     from sb3_ef.analysis.plots import plot_ens, plot_intervals, plot_learning_curves
 
@@ -120,21 +126,30 @@ def analyze_results(
     os.makedirs(out, exist_ok=True)
     scores.to_csv(os.path.join(out, "scores.csv"), index=False)
     written = {"curves": plot_learning_curves(scores, out)}
-    ens = None
-    if scores["algo"].nunique() > 1:
-        ens_table(scores).to_csv(os.path.join(out, "ens_details.csv"), index=False)
-        ens = efficiency_normalized_score(scores)
+    print(f"Scores of {scores['algo'].nunique()} algorithm(s) on {scores['task'].nunique()} task(s) -> {out}")
+    shared = tasks_with_every_algorithm(scores)
+    if scores["algo"].nunique() < 2:
+        print("ENS compares algorithms: skipped with a single algorithm")
+    elif not shared:
+        print("ENS skipped: no task has results of every algorithm")
+    else:
+        left_out = sorted(set(scores["task"]) - set(shared))
+        if left_out:
+            print(f"ENS over {shared} only; left out, without results of every algorithm: {left_out}")
+        ens_scores = scores[scores["task"].isin(shared)]
+        ens_table(ens_scores).to_csv(os.path.join(out, "ens_details.csv"), index=False)
+        ens = efficiency_normalized_score(ens_scores)
         ens.to_csv(os.path.join(out, "ens.csv"))
         written["ens"] = plot_ens(ens, os.path.join(out, "ens.png"))
-    table = rliable_metrics(scores, reps=reps)
-    table.to_csv(os.path.join(out, "rliable.csv"), index=False)
-    written["rliable"] = plot_intervals(table, os.path.join(out, "rliable.png"))
-    print(f"Scores of {scores['algo'].nunique()} algorithm(s) on {scores['task'].nunique()} task(s) -> {out}")
-    if ens is not None:
         print(ens.to_string())
+    uneven = uneven_seed_counts(scores)
+    if uneven:
+        print(f"rliable metrics skipped: they need as many seeds on every task, seeds per task: {uneven}")
     else:
-        print("ENS compares algorithms: skipped with a single algorithm")
-    print(table.to_string(index=False))
+        table = rliable_metrics(scores, reps=reps)
+        table.to_csv(os.path.join(out, "rliable.csv"), index=False)
+        written["rliable"] = plot_intervals(table, os.path.join(out, "rliable.png"))
+        print(table.to_string(index=False))
     if at_steps is not None:
         at_steps.to_csv(os.path.join(out, "returns_at.csv"), index=False)
         print(at_steps.to_string(index=False, float_format="%.1f"))

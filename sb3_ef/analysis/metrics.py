@@ -141,6 +141,27 @@ def efficiency_normalized_score(scores: pd.DataFrame, thresholds: tuple[float, .
     return ens_table(scores, thresholds).groupby("algo")["normalized_score"].mean().rename("ens")
 
 
+def tasks_with_every_algorithm(scores: pd.DataFrame) -> list[str]:
+    """The tasks (sorted) on which every algorithm of ``scores`` has results: the tasks ENS can compare."""
+    check_columns(scores, SCORE_COLUMNS)
+    algos = set(scores["algo"])
+    present = scores.groupby("task")["algo"].agg(set)
+    return sorted(str(task) for task, found in present.items() if found == algos)
+
+
+def uneven_seed_counts(scores: pd.DataFrame) -> dict[str, dict[str, int]]:
+    """Seeds per task of each algorithm whose count differs between tasks (rliable needs them even), or ``{}``."""
+    check_columns(scores, SCORE_COLUMNS)
+    tasks = sorted(scores["task"].unique())
+    counts = scores.groupby(["algo", "task"])["seed"].nunique()
+    uneven = {}
+    for algo in sorted(scores["algo"].unique()):
+        per_task = counts[algo].reindex(tasks, fill_value=0)
+        if per_task.nunique() != 1:
+            uneven[str(algo)] = {str(task): int(count) for task, count in per_task.items()}
+    return uneven
+
+
 def best_scores(scores: pd.DataFrame) -> dict[str, np.ndarray]:
     """Best evaluation score of every run as rliable wants it: ``{algo: (runs, tasks) array}``, tasks sorted by
     name and runs by seed. Every algorithm needs the same number of seeds on every task."""

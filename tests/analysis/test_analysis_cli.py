@@ -56,6 +56,20 @@ def test_results_command_tabulates_returns_at_steps(tmp_path):
     assert 300 <= slow["mean"].item() <= 310  # slope 1 plus uniform(0, 10) noise
 
 
+def test_results_of_a_grid_part_way_through_are_analysed_as_far_as_they_go(tmp_path, capsys):
+    write_results(tmp_path / "runs")
+    rows = [{"algo": "DrQv2", "task": "dmc/walker-walk", "seed": 0, "step": 100, "frame": 200, "return": 50.0,
+             "success": ""}]  # fmt: skip
+    append_records(tmp_path / "runs" / "DrQv2" / "walker.csv", rows)  # one algorithm, one seed so far
+    out = tmp_path / "out"
+    assert main(["results", str(tmp_path / "runs"), "--out", str(out), "--reps", "20"]) == 0
+    printed = capsys.readouterr().out
+    assert "left out, without results of every algorithm: ['dmc/walker-walk']" in printed
+    assert set(pd.read_csv(out / "ens_details.csv")["task"]) == {"dmc/reacher-easy", "dmc/cartpole-swingup"}
+    assert "rliable metrics skipped" in printed and "'dmc/walker-walk': 0" in printed
+    assert not (out / "rliable.csv").exists() and (out / "curve_dmc_walker-walk.png").exists()
+
+
 def test_results_command_without_records_fails_clearly(tmp_path):
     with pytest.raises(FileNotFoundError, match="No evaluation CSV"):
         main(["results", str(tmp_path)])
