@@ -1,7 +1,7 @@
 """``sb3-ef benchmark``: train a grid of runs (algorithms x tasks x seeds) locally or on a Ray cluster.
 
 sb3-ef benchmark GRID.yml --out DIR [--runs GLOB ...] [--backend local|ray] [--workers N] [--threads T] [--address ADDR]
-                          [--gpus G] [--retries R] [--device auto] [--dry-run]
+                          [--gpus G] [--retries R] [--device auto] [--keep-checkpoints N|all] [--dry-run]
 """
 
 from __future__ import annotations
@@ -10,6 +10,15 @@ import argparse
 from collections.abc import Sequence
 
 from sb3_ef.benchmark.runner import BACKENDS
+
+
+def keep_count(text: str) -> int | None:
+    """``--keep-checkpoints``: a count >= 1, or ``all`` (``None``)."""
+    if text == "all":
+        return None
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"expected a count >= 1 or 'all', got {text!r}")
+    return int(text)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -24,6 +33,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--gpus", type=float, default=0.0, help="Ray: GPUs per task (fractions share a GPU)")
     parser.add_argument("--retries", type=int, default=1, help="attempts after a failure (each resumes)")
     parser.add_argument("--device", default="auto", help="torch device of each run")
+    parser.add_argument(
+        "--keep-checkpoints",
+        type=keep_count,
+        default=2,
+        metavar="N|all",
+        help="newest checkpoints kept per run while it trains, deleted when it ends; all: every one, kept for good",
+    )
     parser.add_argument("--dry-run", action="store_true", help="list the runs, their status and expected hours")
     return parser
 
@@ -50,6 +66,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         retries=args.retries,
         address=args.address,
         gpus=args.gpus,
+        keep_checkpoints=args.keep_checkpoints,
     )
     return int(any(result.status == "failed" for result in results))
 

@@ -120,8 +120,17 @@ def build_env(spec: RunSpec, seed: int) -> gym.Env:
     return gym.make(spec.task, **spec.env_kwargs)
 
 
-def execute_run(spec: RunSpec, out: str | os.PathLike, threads: int = 1, device: str = "auto") -> RunResult:
+def execute_run(
+    spec: RunSpec,
+    out: str | os.PathLike,
+    threads: int = 1,
+    device: str = "auto",
+    keep_checkpoints: int | None = 2,
+) -> RunResult:
     """Train one run to ``spec.n_timesteps`` agent steps (resuming from its newest checkpoint) and record it.
+
+    ``keep_checkpoints``: the newest checkpoints kept while it trains, all deleted when it finishes; ``None`` keeps
+    every checkpoint, also after the run (to study its course, e.g. with ``benchmarks/ef_gradients.py``).
 
     A finished run (``result.json`` present) is not trained again: its stored result comes back as ``skipped``.
     """
@@ -167,7 +176,7 @@ def execute_run(spec: RunSpec, out: str | os.PathLike, threads: int = 1, device:
             callback_after_eval=recorder,
             verbose=0,
         ),
-        ResumableCheckpointCallback(spec.checkpoint_freq, paths.checkpoints),
+        ResumableCheckpointCallback(spec.checkpoint_freq, str(paths.checkpoints), keep=keep_checkpoints),
     ]
     remaining = spec.n_timesteps - model.num_timesteps
     if remaining > 0:
@@ -186,5 +195,6 @@ def execute_run(spec: RunSpec, out: str | os.PathLike, threads: int = 1, device:
         records=[{key: row[key] for key in RECORD_COLUMNS} for row in records],
     )
     store_result(paths, result)
-    shutil.rmtree(paths.checkpoints, ignore_errors=True)
+    if keep_checkpoints is not None:
+        shutil.rmtree(paths.checkpoints, ignore_errors=True)
     return result

@@ -105,6 +105,7 @@ def run_benchmark(
     retries: int = 1,
     address: str | None = None,
     gpus: float = 0.0,
+    keep_checkpoints: int | None = 2,
     log: Callable[[str], None] = print,
 ) -> list[RunResult]:
     """Execute ``runs`` into the results folder ``out`` and return their results in the order of ``runs``.
@@ -112,7 +113,8 @@ def run_benchmark(
     Finished runs are skipped; interrupted ones resume from their last checkpoint. ``workers`` and ``threads``:
     parallel runs and torch threads per run of the local backend; with ``backend="ray"``, each run is a Ray task
     with ``threads`` CPUs and ``gpus`` GPUs on the cluster at ``address`` (default: a Ray started on this machine),
-    and as many run at once as the cluster holds. Failed runs are retried ``retries`` times.
+    and as many run at once as the cluster holds. Failed runs are retried ``retries`` times. ``keep_checkpoints``:
+    the newest checkpoints kept per run while it trains (deleted when it finishes); ``None`` keeps them all, for good.
     """
     if backend not in BACKENDS:
         raise ValueError(f"Unknown backend {backend!r}: expected one of {BACKENDS}")
@@ -128,10 +130,11 @@ def run_benchmark(
             results[spec.run_id] = stored
             log(progress_line("skip", spec, stored, position[spec.run_id], len(runs)))
     if pending:
+        options = {"threads": threads, "device": device, "retries": retries, "keep_checkpoints": keep_checkpoints}
         if backend == "local":
-            executor = LocalBackend(out, workers=workers, threads=threads, device=device, retries=retries)
+            executor = LocalBackend(out, workers=workers, **options)
         else:
-            executor = RayBackend(out, address=address, threads=threads, gpus=gpus, device=device, retries=retries)
+            executor = RayBackend(out, address=address, gpus=gpus, **options)
         for event, spec, detail in executor.execute(pending):
             if event == "finish":
                 results[spec.run_id] = detail

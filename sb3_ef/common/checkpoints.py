@@ -202,7 +202,7 @@ class ResumableCheckpointCallback(BaseCallback):
     :param save_path: folder of the checkpoints (created when missing).
     :param name_prefix: file-name prefix.
     :param save_replay_buffer: also save the replay buffer (off-policy algorithms).
-    :param keep: how many of the newest checkpoints to keep (older ones are deleted).
+    :param keep: how many of the newest checkpoints to keep (older ones are deleted); ``None`` keeps them all.
     :param verbose: 1 to print each checkpoint's path.
     """
 
@@ -212,14 +212,14 @@ class ResumableCheckpointCallback(BaseCallback):
         save_path: str,
         name_prefix: str = "rl_model",
         save_replay_buffer: bool = True,
-        keep: int = 2,
+        keep: int | None = 2,
         verbose: int = 0,
     ):
         super().__init__(verbose)
         if save_freq < 1:
             raise ValueError(f"save_freq must be >= 1, got {save_freq}")
-        if keep < 1:
-            raise ValueError(f"keep must be >= 1 (the newest checkpoint), got {keep}")
+        if keep is not None and keep < 1:
+            raise ValueError(f"keep must be >= 1 (the newest checkpoint) or None (all), got {keep}")
         self.save_freq = save_freq
         self.save_path = save_path
         self.name_prefix = name_prefix
@@ -264,6 +264,8 @@ class ResumableCheckpointCallback(BaseCallback):
         return Checkpoint(paths.step, paths.model_path, buffer_path, paths.rng_path)
 
     def _prune(self) -> None:
+        if self.keep is None:
+            return
         for old in list_checkpoints(self.save_path, self.name_prefix)[: -self.keep]:
             for path in (old.replay_buffer_path, old.rng_path, old.model_path):
                 if path is not None:

@@ -66,6 +66,12 @@ def test_killed_and_resumed_run_equals_uninterrupted(tmp_path):
         assert th.equal(value, got[name]), name
 
 
+def test_keep_none_keeps_every_checkpoint(tmp_path):
+    model = _model(_env())
+    model.learn(60, callback=ResumableCheckpointCallback(10, str(tmp_path), keep=None))
+    assert [checkpoint.step for checkpoint in list_checkpoints(tmp_path)] == [10, 20, 30, 40, 50]
+
+
 def test_checkpoints_hold_the_transition_of_their_step_and_are_pruned(tmp_path):
     model = _model(_env())
     callback = ResumableCheckpointCallback(10, str(tmp_path), keep=2)

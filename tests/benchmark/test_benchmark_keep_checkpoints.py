@@ -1,0 +1,35 @@
+"""`--keep-checkpoints`: how many checkpoints a run keeps while it trains, or all of them for good."""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+from sb3_ef.benchmark import load_grid
+from sb3_ef.benchmark.cli import keep_count
+from sb3_ef.benchmark.run import RunPaths, execute_run
+from sb3_ef.common.checkpoints import list_checkpoints
+
+TINY_GRID = Path(__file__).parent / "tiny_grid.yml"
+
+
+def test_keep_all_leaves_every_checkpoint_after_the_run(tmp_path):
+    tiny = next(spec for spec in load_grid(TINY_GRID) if spec.run_id == "drqv2/dmc-cartpole-balance-v0_s0")
+    spec = replace(tiny, n_timesteps=400)
+    kept = execute_run(spec, tmp_path / "all", keep_checkpoints=None)
+    assert kept.status == "done" and kept.steps == 400
+    # a checkpoint is written at the rollout after its step, so 400 ends the run first; the default keeps 2
+    checkpoints = list_checkpoints(RunPaths.of(tmp_path / "all", spec).checkpoints)
+    assert [checkpoint.step for checkpoint in checkpoints] == [100, 200, 300]
+    default = execute_run(tiny, tmp_path / "default")
+    assert default.status == "done" and not RunPaths.of(tmp_path / "default", tiny).checkpoints.exists()
+
+
+def test_keep_count_parses_a_count_or_all():
+    assert keep_count("all") is None and keep_count("3") == 3
+    for bad in ("0", "-1", "some"):
+        with pytest.raises(argparse.ArgumentTypeError, match="a count >= 1 or 'all'"):
+            keep_count(bad)
