@@ -118,6 +118,8 @@ def run_benchmark(
     """
     if backend not in BACKENDS:
         raise ValueError(f"Unknown backend {backend!r}: expected one of {BACKENDS}")
+    if keep_checkpoints is not None and keep_checkpoints < 1:
+        raise ValueError(f"keep_checkpoints must be >= 1 or None (all), got {keep_checkpoints}")
     check_unique(runs)
     position = {spec.run_id: index for index, spec in enumerate(runs, start=1)}
     results: dict[str, RunResult] = {}

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from sb3_ef.benchmark import load_grid
+from sb3_ef.benchmark import load_grid, run_benchmark
 from sb3_ef.benchmark.cli import keep_count
 from sb3_ef.benchmark.run import RunPaths, execute_run
 from sb3_ef.common.checkpoints import list_checkpoints
@@ -33,3 +33,9 @@ def test_keep_count_parses_a_count_or_all():
     for bad in ("0", "-1", "some"):
         with pytest.raises(argparse.ArgumentTypeError, match="a count >= 1 or 'all'"):
             keep_count(bad)
+
+
+def test_a_bad_count_fails_before_any_run(tmp_path):
+    with pytest.raises(ValueError, match="keep_checkpoints must be >= 1 or None"):
+        run_benchmark(load_grid(TINY_GRID), tmp_path, keep_checkpoints=0)
+    assert not any(tmp_path.iterdir())
