@@ -29,11 +29,9 @@ from typing import Any
 import torch as th
 from ef_gradients import diagnose_model  # this folder is on sys.path when a script of it runs
 from stable_baselines3.common.evaluation import evaluate_policy
-from stable_baselines3.common.monitor import Monitor
-from stable_baselines3.common.vec_env import DummyVecEnv
 
 from sb3_ef.benchmark.grid import RunSpec, constructor_kwargs, load_grid
-from sb3_ef.benchmark.run import EVAL_SEED_OFFSET, build_env
+from sb3_ef.benchmark.run import build_env, build_eval_env
 from sb3_ef.common.checkpoints import checkpoint_for, load_checkpoint
 from sb3_ef.zoo.registration import algorithm_classes
 
@@ -83,8 +81,7 @@ def fork(
         setattr(model, name, value)
     start = model.num_timesteps
     model.learn(steps, reset_num_timesteps=checkpoint is None)
-    eval_env = DummyVecEnv([lambda: Monitor(build_env(spec, seed=env_seed + EVAL_SEED_OFFSET))])
-    eval_env.seed(env_seed + EVAL_SEED_OFFSET)
+    eval_env = build_eval_env(spec, env_seed)
     returns, _ = evaluate_policy(model, eval_env, n_eval_episodes=eval_episodes, return_episode_rewards=True)
     eval_env.close()
     result = {

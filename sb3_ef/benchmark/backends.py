@@ -47,8 +47,8 @@ class LocalBackend:
     ):
         if workers < 1 or threads < 1 or retries < 0:
             raise ValueError(f"workers and threads must be >= 1 and retries >= 0, got {workers}, {threads}, {retries}")
-        self.out, self.workers, self.threads, self.device, self.retries = out, workers, threads, device, retries
-        self.run_options = (threads, device, keep_checkpoints)  # execute_run's arguments after the spec and out
+        self.out, self.workers, self.retries = out, workers, retries
+        self.run_kwargs = {"threads": threads, "device": device, "keep_checkpoints": keep_checkpoints}
 
     def _pool(self) -> ProcessPoolExecutor:
         return ProcessPoolExecutor(self.workers, mp_context=get_context("spawn"), max_tasks_per_child=1)
@@ -61,7 +61,7 @@ class LocalBackend:
             while queue or running:
                 while queue and len(running) < self.workers:
                     spec = queue.popleft()
-                    running[pool.submit(execute_run, spec, self.out, *self.run_options)] = spec
+                    running[pool.submit(execute_run, spec, self.out, **self.run_kwargs)] = spec
                     yield "start", spec, None
                 done, _ = wait(running, return_when=FIRST_COMPLETED)
                 broken = False
@@ -107,8 +107,8 @@ class RayBackend:
             raise ValueError(f"threads must be >= 1, gpus >= 0 and retries >= 0, got {threads}, {gpus}, {retries}")
         # Absolute, so that workers whose working directory differs find the same folder (a shared filesystem).
         self.out = os.path.abspath(out)
-        self.address, self.threads, self.gpus, self.device, self.retries = address, threads, gpus, device, retries
-        self.run_options = (threads, device, keep_checkpoints)  # execute_run's arguments after the spec and out
+        self.address, self.threads, self.gpus, self.retries = address, threads, gpus, retries
+        self.run_kwargs = {"threads": threads, "device": device, "keep_checkpoints": keep_checkpoints}
 
     def capacity(self, resources: dict[str, float]) -> int:
         """How many runs the cluster holds at once with each run's CPU and GPU request (at least one)."""
@@ -133,7 +133,7 @@ class RayBackend:
             while queue or running:
                 while queue and len(running) < capacity:
                     spec = queue.popleft()
-                    running[task.remote(spec, self.out, *self.run_options)] = spec
+                    running[task.remote(spec, self.out, **self.run_kwargs)] = spec
                     yield "start", spec, None
                 [ref], _ = ray.wait(list(running), num_returns=1)
                 spec = running.pop(ref)

@@ -20,12 +20,15 @@ import shutil
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 
 from sb3_ef.analysis.records import RECORD_COLUMNS, EvalRecorderCallback, append_records
 from sb3_ef.benchmark.grid import MAKE_ENV_SUITES, RunSpec, constructor_kwargs
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.vec_env import DummyVecEnv
 
 #: Offset added to a run's seed for its evaluation env, so evaluation episodes differ from training ones.
 EVAL_SEED_OFFSET = 10_000
@@ -120,6 +123,17 @@ def build_env(spec: RunSpec, seed: int) -> gym.Env:
     return gym.make(spec.task, **spec.env_kwargs)
 
 
+def build_eval_env(spec: RunSpec, seed: int) -> DummyVecEnv:
+    """The evaluation env of a run trained with ``seed``: one monitored env, seeded with ``seed + EVAL_SEED_OFFSET``
+    so that its episodes differ from the training ones (deterministic actions are the caller's choice)."""
+    from stable_baselines3.common.monitor import Monitor
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    eval_env = DummyVecEnv([lambda: Monitor(build_env(spec, seed=seed + EVAL_SEED_OFFSET))])
+    eval_env.seed(seed + EVAL_SEED_OFFSET)
+    return eval_env
+
+
 def execute_run(
     spec: RunSpec,
     out: str | os.PathLike,
@@ -136,8 +150,6 @@ def execute_run(
     """
     import torch as th
     from stable_baselines3.common.callbacks import EvalCallback
-    from stable_baselines3.common.monitor import Monitor
-    from stable_baselines3.common.vec_env import DummyVecEnv
 
     from sb3_ef.common.checkpoints import ResumableCheckpointCallback, latest_checkpoint, load_checkpoint
     from sb3_ef.zoo.registration import algorithm_classes
@@ -149,8 +161,7 @@ def execute_run(
     th.set_num_threads(threads)
     start = time.perf_counter()
     env = build_env(spec, seed=spec.seed)
-    eval_env = DummyVecEnv([lambda: Monitor(build_env(spec, seed=spec.seed + EVAL_SEED_OFFSET))])
-    eval_env.seed(spec.seed + EVAL_SEED_OFFSET)
+    eval_env = build_eval_env(spec, spec.seed)
     algo_class = algorithm_classes()[spec.algo]
     checkpoint = latest_checkpoint(paths.checkpoints)
     if checkpoint is None:
