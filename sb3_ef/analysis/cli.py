@@ -1,6 +1,6 @@
 """``sb3-ef analyze``: tables and plots from evaluation CSVs, or predictions and saliency of a saved model.
 
-sb3-ef analyze results DIR [--out DIR] [--return-scale 1000] [--reps 2000]
+sb3-ef analyze results DIR [--out DIR] [--return-scale 1000] [--reps 2000] [--at STEP ...] [--finished-only]
 sb3-ef analyze model PATH --env NAME [--algo drqv2_ef|tdmpc2_ef] [--steps T] [--actions policy|figure8]
                                      [--action-repeat 2] [--env-kwargs key:value ...] [--seed 0] [--out DIR]
 
@@ -38,6 +38,11 @@ def build_parser() -> argparse.ArgumentParser:
     results.add_argument("--reps", type=int, default=2000, help="bootstrap resamples for the confidence intervals")
     results.add_argument(
         "--at", type=int, nargs="+", metavar="STEP", help="also tabulate mean +- std return at these steps"
+    )
+    results.add_argument(
+        "--finished-only",
+        action="store_true",
+        help="only finished runs of an `sb3-ef benchmark` folder (those with a result.json), not runs in progress",
     )
 
     model = commands.add_parser("model", help="open-loop prediction, saliency and mask scores of a saved model")
@@ -100,10 +105,16 @@ def run_env_kwargs(model_path: str | os.PathLike) -> dict[str, Any]:
 
 
 def analyze_results(
-    directory: str, out: str, return_scale: float = 1000.0, reps: int = 2000, at: tuple[int, ...] = ()
+    directory: str,
+    out: str,
+    return_scale: float = 1000.0,
+    reps: int = 2000,
+    at: tuple[int, ...] = (),
+    finished_only: bool = False,
 ) -> dict[str, Any]:
     """Write ``scores.csv``, ``ens.csv``, ``ens_details.csv``, ``rliable.csv`` and the plots to ``out`` (created
-    only once the records have been read), and ``returns_at.csv`` for the steps ``at``.
+    only once the records have been read), and ``returns_at.csv`` for the steps ``at``; ``finished_only`` reads
+    only the finished runs of an ``sb3-ef benchmark`` folder.
 
     A grid part-way through is analysed as far as it allows: ENS over the tasks that every algorithm has results
     on, rliable metrics only when each algorithm has as many seeds on every task; what is left out is printed.
@@ -120,7 +131,7 @@ def analyze_results(
     )
     from sb3_ef.analysis.plots import plot_ens, plot_intervals, plot_learning_curves
 
-    records = load_records(directory)
+    records = load_records(directory, finished_only)
     scores = records_to_scores(records, return_scale=return_scale)
     at_steps = returns_at(records, tuple(at)) if at else None
     os.makedirs(out, exist_ok=True)
@@ -265,6 +276,7 @@ def main(argv: list[str] | None = None) -> int:
             args.return_scale,
             args.reps,
             tuple(args.at or ()),
+            args.finished_only,
         )
     else:
         out = args.out or os.path.splitext(args.path)[0] + "_analysis"

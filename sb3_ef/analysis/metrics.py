@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from sb3_ef.analysis._optional import require
-from sb3_ef.analysis.records import RECORD_COLUMNS
+from sb3_ef.analysis.records import RECORD_COLUMNS, RUN_RESULT_FILE
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -43,18 +43,25 @@ def check_columns(df: pd.DataFrame, columns: tuple[str, ...]) -> None:
         raise ValueError("Expected at least one row of scores, got an empty table")
 
 
-def load_records(directory: str | os.PathLike) -> pd.DataFrame:
+def load_records(directory: str | os.PathLike, finished_only: bool = False) -> pd.DataFrame:
     """Concatenate every evaluation CSV (header ``algo, task, seed, step, frame, return, success``) under a
-    directory, recursively; other CSV files are skipped."""
+    directory, recursively; other CSV files are skipped.
+
+    :param finished_only: only the CSVs of finished runs, those with a ``<name>/result.json`` beside ``<name>.csv``
+        (``sb3-ef benchmark``'s results folder), so a grid part-way through is read without its runs in progress.
+    """
     pandas = require("pandas")
     frames = []
     for path in sorted(glob.glob(os.path.join(os.fspath(directory), "**", "*.csv"), recursive=True)):
+        if finished_only and not os.path.isfile(os.path.join(path[: -len(".csv")], RUN_RESULT_FILE)):
+            continue
         with open(path) as file:
             header = tuple(file.readline().strip().split(","))
         if header == RECORD_COLUMNS:
             frames.append(pandas.read_csv(path, keep_default_na=True))
     if not frames:
-        raise FileNotFoundError(f"No evaluation CSV with header {','.join(RECORD_COLUMNS)} under {directory}")
+        which = f" of a finished run ({RUN_RESULT_FILE} beside it)" if finished_only else ""
+        raise FileNotFoundError(f"No evaluation CSV{which} with header {','.join(RECORD_COLUMNS)} under {directory}")
     return pandas.concat(frames, ignore_index=True)
 
 

@@ -9,6 +9,9 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 
 RECORD_COLUMNS = ("algo", "task", "seed", "step", "frame", "return", "success")
+#: The file a finished run writes into the folder named like its CSV (``run.csv`` -> ``run/result.json``), as
+#: ``sb3-ef benchmark`` does; an unfinished run's CSV has none.
+RUN_RESULT_FILE = "result.json"
 
 
 def record_row(

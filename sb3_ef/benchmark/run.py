@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 
-from sb3_ef.analysis.records import RECORD_COLUMNS, EvalRecorderCallback, append_records
+from sb3_ef.analysis.records import RECORD_COLUMNS, RUN_RESULT_FILE, EvalRecorderCallback, append_records
 from sb3_ef.benchmark.grid import MAKE_ENV_SUITES, RunSpec, constructor_kwargs
 
 if TYPE_CHECKING:
@@ -67,7 +67,7 @@ class RunPaths:
 
     @property
     def result(self) -> Path:
-        return self.folder / "result.json"
+        return self.folder / RUN_RESULT_FILE
 
     @property
     def model(self) -> Path:

@@ -8,6 +8,7 @@ from PIL import Image
 from sb3_ef import DrQv2EF
 from sb3_ef.analysis.cli import main
 from sb3_ef.analysis.records import append_records
+from sb3_ef.benchmark.run import RunPaths, RunResult, store_result
 from sb3_ef.envs.toy import ToyAgentEnv
 
 TINY_DRQV2 = {
@@ -68,6 +69,23 @@ def test_results_of_a_grid_part_way_through_are_analysed_as_far_as_they_go(tmp_p
     assert set(pd.read_csv(out / "ens_details.csv")["task"]) == {"dmc/reacher-easy", "dmc/cartpole-swingup"}
     assert "rliable metrics skipped" in printed and "'dmc/walker-walk': 0" in printed
     assert not (out / "rliable.csv").exists() and (out / "curve_dmc_walker-walk.png").exists()
+
+
+def test_results_of_finished_runs_only_leave_runs_in_progress_out(tmp_path, capsys):
+    write_results(tmp_path / "runs")
+    for csv in (tmp_path / "runs").rglob("*.csv"):  # finished, as `sb3-ef benchmark` marks a run
+        store_result(RunPaths(records=csv, folder=csv.with_suffix("")), RunResult(run_id=csv.stem, status="done"))
+    rows = [{"algo": "DrQv2", "task": "dmc/walker-walk", "seed": 0, "step": 100, "frame": 200, "return": 50.0,
+             "success": ""}]  # fmt: skip
+    append_records(tmp_path / "runs" / "DrQv2" / "walker.csv", rows)  # a run in progress: no result.json yet
+    append_records(tmp_path / "in_progress" / "walker.csv", rows)
+    out = tmp_path / "out"
+    assert main(["results", str(tmp_path / "runs"), "--out", str(out), "--reps", "20", "--finished-only"]) == 0
+    assert "dmc/walker-walk" not in capsys.readouterr().out
+    assert set(pd.read_csv(out / "scores.csv")["task"]) == {"dmc/reacher-easy", "dmc/cartpole-swingup"}
+    assert (out / "rliable.csv").exists()  # even seeds once the run in progress is left out
+    with pytest.raises(FileNotFoundError, match=r"of a finished run \(result.json beside it\)"):
+        main(["results", str(tmp_path / "in_progress"), "--finished-only"])
 
 
 def test_results_command_without_records_fails_clearly(tmp_path):
