@@ -45,7 +45,8 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
 
 
 def summary_table(runs: Sequence[RunSpec], results: Sequence[RunResult]) -> str:
-    """Per algorithm and task: runs finished / failed of all, final return mean +- std over seeds, training hours."""
+    """Per algorithm and task: runs finished / failed of all, final return mean +- sample std over seeds (the one
+    return alone when a single run has finished), training hours."""
     groups: dict[tuple[str, str], list[RunResult]] = {}
     for spec, result in zip(runs, results, strict=True):
         groups.setdefault((spec.label, spec.task), []).append(result)
@@ -54,9 +55,10 @@ def summary_table(runs: Sequence[RunSpec], results: Sequence[RunResult]) -> str:
         finished = [result for result in group if result.status != "failed"]
         returns = [result.final_return for result in finished if result.final_return is not None]
         score = "-"
-        if returns:
-            spread = statistics.stdev(returns) if len(returns) > 1 else 0.0
-            score = f"{statistics.mean(returns):.1f} +- {spread:.1f}"
+        if len(returns) == 1:
+            score = f"{returns[0]:.1f}"
+        elif returns:
+            score = f"{statistics.mean(returns):.1f} +- {statistics.stdev(returns):.1f}"
         hours = sum(result.duration_s for result in finished) / 3600
         rows.append(
             [label, task, f"{len(finished)}/{len(group)}", str(len(group) - len(finished)), score, f"{hours:.2f}"]

@@ -7,8 +7,9 @@ from pathlib import Path
 import pytest
 import yaml
 
-from sb3_ef.benchmark.grid import Algorithm, grid_runs, load_grid, select_runs
-from sb3_ef.benchmark.runner import plan_table
+from sb3_ef.benchmark.grid import Algorithm, RunSpec, grid_runs, load_grid, select_runs
+from sb3_ef.benchmark.run import RunResult
+from sb3_ef.benchmark.runner import plan_table, summary_table
 from sb3_ef.envs.tasks import DMC_PAPER_TASKS, METAWORLD_PAPER_TASKS
 
 HERE = Path(__file__).parent
@@ -155,3 +156,19 @@ def test_cpu_grid_states_the_reduced_settings_of_the_learning_evidence():
     ef = {run.label: run.hyperparams for run in runs if run.algo == "drqv2_ef"}
     assert ef["drqv2_ef"]["beta"] == 1.0 and ef["drqv2_ef_beta1e-3"]["beta"] == 1e-3
     assert ef["drqv2_ef"]["babbling_steps"] == 1000
+
+
+def test_summary_table_gives_mean_and_std_over_finished_seeds_and_a_lone_run_alone():
+    specs = [RunSpec(label, "drqv2", "dmc/cartpole-balance-v0", seed, 100, 50, 1, 50)
+             for label in ("drqv2", "drqv2_ef") for seed in (0, 1)]  # fmt: skip
+    results = [
+        RunResult(specs[0].run_id, "done", 100, 1800.0, 250.0),
+        RunResult(specs[1].run_id, "skipped", 100, 1800.0, 270.0),
+        RunResult(specs[2].run_id, "done", 100, 3600.0, 300.0),
+        RunResult(specs[3].run_id, "failed", error="RuntimeError: boom"),
+    ]
+    rows = [line.split() for line in summary_table(specs, results).splitlines()[2:]]
+    assert rows == [
+        ["drqv2", "dmc/cartpole-balance-v0", "2/2", "0", "260.0", "+-", "14.1", "1.00"],
+        ["drqv2_ef", "dmc/cartpole-balance-v0", "1/2", "1", "300.0", "1.00"],
+    ]
