@@ -9,6 +9,8 @@ in flight, so a ``start`` event is the moment the run gets its worker. A failed 
 from __future__ import annotations
 
 import os
+import threading
+import time
 import traceback
 from collections import deque
 from collections.abc import Iterator, Sequence
@@ -22,6 +24,22 @@ from sb3_ef.benchmark.run import RunPaths, RunResult, execute_run, store_result
 
 Event = tuple[str, RunSpec, Any]
 
+#: Seconds between a local worker's checks that the driver that started it is still alive.
+PARENT_CHECK_INTERVAL = 1.0
+
+
+def _exit_with_parent(parent_pid: int) -> None:
+    """Pool-worker initializer: end this worker when the driver process is gone (killed, even by SIGKILL), so no
+    orphaned worker goes on training a run that the next invocation trains too. Checkpoint files are written
+    atomically, so ending mid-write leaves the last complete checkpoint."""
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(PARENT_CHECK_INTERVAL)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
+
 
 def _failure(spec: RunSpec, error: BaseException) -> RunResult:
     # The last line names the error (a Ray task error's message holds the remote traceback before it).
@@ -33,7 +51,7 @@ class LocalBackend:
     """Runs in a pool of ``workers`` processes (spawned, one fresh process per run), ``threads`` torch threads each.
 
     A worker that dies (killed, out of memory) breaks the pool: the runs in flight count a failed attempt and the
-    pool is rebuilt.
+    pool is rebuilt. A worker whose driver dies ends within a second or so, rather than training on unseen.
     """
 
     def __init__(
@@ -51,7 +69,13 @@ class LocalBackend:
         self.run_kwargs = {"threads": threads, "device": device, "keep_checkpoints": keep_checkpoints}
 
     def _pool(self) -> ProcessPoolExecutor:
-        return ProcessPoolExecutor(self.workers, mp_context=get_context("spawn"), max_tasks_per_child=1)
+        return ProcessPoolExecutor(
+            self.workers,
+            mp_context=get_context("spawn"),
+            max_tasks_per_child=1,
+            initializer=_exit_with_parent,
+            initargs=(os.getpid(),),
+        )
 
     def execute(self, specs: Sequence[RunSpec]) -> Iterator[Event]:
         queue, attempts = deque(specs), dict.fromkeys((spec.run_id for spec in specs), 0)
