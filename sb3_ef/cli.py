@@ -1,5 +1,5 @@
 """The ``sb3-ef`` console script: ``train``, ``enjoy``, ``optimize`` (rl-zoo3), ``analyze`` (sb3_ef.analysis),
-``benchmark`` (sb3_ef.benchmark) and ``collect``, ``pretrain``, ``predict`` (sb3_ef.offline).
+``benchmark`` (sb3_ef.grid) and ``collect``, ``pretrain``, ``predict`` (sb3_ef.offline).
 
 Each subcommand forwards the rest of the command line untouched, so ``sb3-ef train --help`` shows rl-zoo3's
 training options and ``sb3-ef analyze --help`` the analysis ones. A user error (bad argument, missing file, missing
@@ -45,7 +45,7 @@ COMMANDS: dict[str, Command] = {
     ),
     "analyze": Command("sb3_ef.analysis.cli:main", "predictions, saliency, ENS and rliable plots (sb3_ef.analysis)"),
     "benchmark": Command(
-        "sb3_ef.benchmark.cli:main", "train a grid of runs locally or on a Ray cluster (sb3_ef.benchmark)"
+        "sb3_ef.grid.cli:main", "train a grid of runs locally or on a Ray cluster (sb3_ef.grid)"
     ),
     "collect": Command(
         "sb3_ef.offline.cli:collect_main",

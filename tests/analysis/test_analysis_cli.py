@@ -8,8 +8,8 @@ from PIL import Image
 from sb3_ef import DrQv2EF
 from sb3_ef.analysis.cli import main
 from sb3_ef.analysis.records import append_records
-from sb3_ef.benchmark.run import RunPaths, RunResult, store_result
 from sb3_ef.envs.toy import ToyAgentEnv
+from sb3_ef.grid.run import RunPaths, RunResult, store_result
 
 TINY_DRQV2 = {
     "features_dim": 64,

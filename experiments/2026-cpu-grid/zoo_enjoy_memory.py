@@ -5,7 +5,7 @@ itself is never filled), then loads it in a fresh process each way and reports t
 capacity (``nbytes``, exact) and the process's resident memory after loading (pages the OS actually backs: NumPy's
 zeroed arrays stay virtual until written, so RSS understates what filling the buffer would take).
 
-    MUJOCO_GL=egl python benchmarks/zoo_enjoy_memory.py --buffer-size 1000000
+    MUJOCO_GL=egl python experiments/2026-cpu-grid/zoo_enjoy_memory.py --buffer-size 1000000
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""benchmarks/fork_checkpoint.py continues a grid run's checkpoint under changed settings, with the control."""
+"""fork_checkpoint.py continues a grid run's checkpoint under changed settings, with the control."""
 
 from __future__ import annotations
 
@@ -8,14 +8,14 @@ from pathlib import Path
 
 import pytest
 
-from sb3_ef.benchmark.grid import constructor_kwargs
-from sb3_ef.benchmark.run import build_env
 from sb3_ef.common.checkpoints import ResumableCheckpointCallback
 from sb3_ef.drqv2 import DrQv2EF
+from sb3_ef.grid.grid import constructor_kwargs
+from sb3_ef.grid.run import build_env
 
-REPO = Path(__file__).resolve().parents[2]
-SCRIPT = REPO / "benchmarks" / "fork_checkpoint.py"
-TINY_GRID = REPO / "tests" / "benchmark" / "tiny_grid.yml"
+HERE = Path(__file__).resolve().parents[1]
+SCRIPT = HERE / "fork_checkpoint.py"
+TINY_GRID = HERE.parents[1] / "tests" / "grid" / "tiny_grid.yml"
 
 
 def load_script():

@@ -7,10 +7,10 @@ from pathlib import Path
 import pytest
 import yaml
 
-from sb3_ef.benchmark.grid import Algorithm, RunSpec, grid_runs, load_grid, select_runs
-from sb3_ef.benchmark.run import RunResult
-from sb3_ef.benchmark.runner import plan_table, summary_table
 from sb3_ef.envs.tasks import DMC_PAPER_TASKS, METAWORLD_PAPER_TASKS
+from sb3_ef.grid.grid import Algorithm, RunSpec, grid_runs, load_grid, select_runs
+from sb3_ef.grid.run import RunResult
+from sb3_ef.grid.runner import plan_table, summary_table
 
 HERE = Path(__file__).parent
 TINY_GRID = HERE / "tiny_grid.yml"
@@ -140,31 +140,6 @@ def test_paper_grid_covers_the_papers_tasks_at_its_budgets_with_expected_hours(t
     # The dry-run table sums n_timesteps / steps_per_second over the runs.
     expected = sum(run.n_timesteps / run.steps_per_second for run in runs) / 3600
     assert plan_table(runs, tmp_path).splitlines()[-1].split()[-1] == f"{expected:.1f}"
-
-
-def test_cpu_grid_states_the_reduced_settings_of_the_learning_evidence():
-    every = load_grid(REPO / "benchmarks" / "cpu_grid.yml")
-    stall = [run for run in every if run.label.endswith("_stall")]
-    runs = [run for run in every if not run.label.endswith("_stall")]
-    assert {run.label for run in runs} == {"drqv2", "drqv2_ef", "drqv2_ef_beta1e-3", "drqv2_std100k"}
-    assert {run.task for run in runs} == {"dmc/cartpole-balance-v0", "dmc/cartpole-swingup-v0"}
-    assert {run.seed for run in runs} == {0, 1, 2} and len(runs) == 21
-    for run in runs:
-        assert (run.n_timesteps, run.eval_freq, run.eval_episodes, run.checkpoint_freq) == (20000, 2000, 5, 2000)
-    for run in every:
-        assert run.env_kwargs["size"] == 64 and run.hyperparams["batch_size"] == 64
-        decay = "linear(1.0,0.1,100000)" if run.label == "drqv2_std100k" else "linear(1.0,0.1,10000)"
-        assert run.hyperparams["exploration_std"] == decay
-    assert {run.task for run in runs if run.label == "drqv2_std100k"} == {"dmc/cartpole-swingup-v0"}
-    ef = {run.label: run.hyperparams for run in every if run.algo == "drqv2_ef"}
-    assert ef["drqv2_ef"]["beta"] == 1.0 and ef["drqv2_ef_beta1e-3"]["beta"] == 1e-3
-    assert ef["drqv2_ef"]["babbling_steps"] == 1000 and ef["drqv2_ef_stall"] == ef["drqv2_ef"]
-    # The stall block: the main grid's settings on fresh seeds, evaluated twice as often, to 10k steps.
-    assert {(run.label, run.algo) for run in stall} == {("drqv2_stall", "drqv2"), ("drqv2_ef_stall", "drqv2_ef")}
-    assert {run.seed for run in stall} == {3, 4, 5} and {run.task for run in stall} == {"dmc/cartpole-balance-v0"}
-    assert {(run.n_timesteps, run.eval_freq, run.checkpoint_freq) for run in stall} == {(10000, 1000, 2000)}
-    drqv2 = {run.label: run.hyperparams for run in every if run.algo == "drqv2"}
-    assert drqv2["drqv2_stall"] == drqv2["drqv2"]
 
 
 def test_summary_table_gives_mean_and_std_over_finished_seeds_and_a_lone_run_alone():

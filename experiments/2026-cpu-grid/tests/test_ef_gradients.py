@@ -1,4 +1,4 @@
-"""benchmarks/ef_gradients.py diagnoses every checkpoint of a run folder, in step order."""
+"""experiments/2026-cpu-grid/ef_gradients.py diagnoses every checkpoint of a run folder, in step order."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from sb3_ef.common.checkpoints import ResumableCheckpointCallback
 from sb3_ef.drqv2 import DrQv2EF
 from sb3_ef.envs.toy import ToyAgentEnv
 
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "ef_gradients.py"
+SCRIPT = Path(__file__).resolve().parents[1] / "ef_gradients.py"
 
 
 def load_script():

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from sb3_ef.benchmark import grid_runs, load_grid, run_benchmark
-from sb3_ef.benchmark.run import RunPaths
+from sb3_ef.grid import grid_runs, load_grid, run_benchmark
+from sb3_ef.grid.run import RunPaths
 
 ray = pytest.importorskip("ray")
 

@@ -13,9 +13,9 @@ update of its last step, where the grid's ``EvalCallback`` evaluates just before
 scores the same, a moving one a little differently (DrQ-v2 seed 2 on cartpole-balance: 178 at 2k steps as a
 fork, 157 in the grid run).
 
-    python benchmarks/fork_checkpoint.py benchmarks/cpu_grid.yml drqv2_ef/dmc-cartpole-balance-v0_s1 \\
+    python fork_checkpoint.py cpu_grid.yml drqv2_ef/dmc-cartpole-balance-v0_s1 \\
         --checkpoint CHECKPOINT.zip --variant beta=0 --steps 2000 --seeds 0 1 [--eval-episodes 5]
-    python benchmarks/fork_checkpoint.py benchmarks/cpu_grid.yml drqv2_ef/dmc-cartpole-balance-v0_s0 \\
+    python fork_checkpoint.py cpu_grid.yml drqv2_ef/dmc-cartpole-balance-v0_s0 \\
         --variant beta=0 --variant babbling_steps=0 --steps 2000 --seeds 0 1 2 --diagnose
 
 Prints one JSON line per fork: the variant's settings ({} for the control), the fork seed, the steps, the
@@ -33,9 +33,9 @@ import torch as th
 from ef_gradients import diagnose_model  # this folder is on sys.path when a script of it runs
 from stable_baselines3.common.evaluation import evaluate_policy
 
-from sb3_ef.benchmark.grid import RunSpec, constructor_kwargs, load_grid
-from sb3_ef.benchmark.run import build_env, build_eval_env
 from sb3_ef.common.checkpoints import checkpoint_for, load_checkpoint
+from sb3_ef.grid.grid import RunSpec, constructor_kwargs, load_grid
+from sb3_ef.grid.run import build_env, build_eval_env
 from sb3_ef.zoo.registration import algorithm_classes
 
 

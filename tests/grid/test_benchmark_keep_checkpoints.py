@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 
-from sb3_ef.benchmark import load_grid, run_benchmark
-from sb3_ef.benchmark.cli import keep_count
-from sb3_ef.benchmark.run import RunPaths, execute_run
 from sb3_ef.common.checkpoints import list_checkpoints
+from sb3_ef.grid import load_grid, run_benchmark
+from sb3_ef.grid.cli import keep_count
+from sb3_ef.grid.run import RunPaths, execute_run
 
 TINY_GRID = Path(__file__).parent / "tiny_grid.yml"
 

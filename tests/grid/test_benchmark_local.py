@@ -16,9 +16,9 @@ import pytest
 import yaml
 
 from sb3_ef.analysis.records import RECORD_COLUMNS
-from sb3_ef.benchmark import grid_runs, load_grid, run_benchmark
-from sb3_ef.benchmark.run import RunPaths
 from sb3_ef.cli import main as sb3_ef_main
+from sb3_ef.grid import grid_runs, load_grid, run_benchmark
+from sb3_ef.grid.run import RunPaths
 
 # Four spawned training processes take 30-90 s on 2 loaded cores: the default run covers the runner on Ray
 # (test_benchmark_ray.py) and the grid expansion; these run with -m slow.

@@ -18,7 +18,7 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="re
 # The driver starts the local backend's pool and gives it a task that marks its start and then runs for a minute.
 DRIVER = """
 import os, sys, time
-from sb3_ef.benchmark.backends import LocalBackend
+from sb3_ef.grid.backends import LocalBackend
 
 pool = LocalBackend(sys.argv[1])._pool()
 pool.submit(os.system, f"echo $$ > {sys.argv[2]}.tmp && mv {sys.argv[2]}.tmp {sys.argv[2]} && exec sleep 60")

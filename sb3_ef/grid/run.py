@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 import gymnasium as gym
 
 from sb3_ef.analysis.records import RECORD_COLUMNS, RUN_RESULT_FILE, EvalRecorderCallback, append_records
-from sb3_ef.benchmark.grid import MAKE_ENV_SUITES, RunSpec, constructor_kwargs
+from sb3_ef.grid.grid import MAKE_ENV_SUITES, RunSpec, constructor_kwargs
 
 if TYPE_CHECKING:
     from stable_baselines3.common.vec_env import DummyVecEnv
@@ -144,7 +144,7 @@ def execute_run(
     """Train one run to ``spec.n_timesteps`` agent steps (resuming from its newest checkpoint) and record it.
 
     ``keep_checkpoints``: the newest checkpoints kept while it trains, all deleted when it finishes; ``None`` keeps
-    every checkpoint, also after the run (to study its course, e.g. with ``benchmarks/ef_gradients.py``).
+    every checkpoint, also after the run (to study its course, e.g. with ``experiments/2026-cpu-grid/ef_gradients.py``).
 
     A finished run (``result.json`` present) is not trained again: its stored result comes back as ``skipped``.
     """

@@ -19,8 +19,8 @@ from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
 from typing import Any
 
-from sb3_ef.benchmark.grid import RunSpec
-from sb3_ef.benchmark.run import RunPaths, RunResult, execute_run, store_result
+from sb3_ef.grid.grid import RunSpec
+from sb3_ef.grid.run import RunPaths, RunResult, execute_run, store_result
 
 Event = tuple[str, RunSpec, Any]
 

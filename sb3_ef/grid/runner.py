@@ -6,9 +6,9 @@ import os
 import statistics
 from collections.abc import Callable, Sequence
 
-from sb3_ef.benchmark.backends import LocalBackend, RayBackend
-from sb3_ef.benchmark.grid import RunSpec, check_unique
-from sb3_ef.benchmark.run import RunPaths, RunResult, read_result
+from sb3_ef.grid.backends import LocalBackend, RayBackend
+from sb3_ef.grid.grid import RunSpec, check_unique
+from sb3_ef.grid.run import RunPaths, RunResult, read_result
 
 BACKENDS = ("local", "ray")
 

@@ -13,8 +13,8 @@ the policy and the critic depend on the state:
   averaged (1.0: the same push whatever the state, as a stalled cartpole policy does);
 - ``critic_majority``: the same share for the sign the critic prefers, min-Q(s, +1) against min-Q(s, -1).
 
-    python benchmarks/ef_gradients.py CHECKPOINT.zip REPLAY_BUFFER.pkl [--algo drqv2_ef] [--batch-size 64]
-    python benchmarks/ef_gradients.py --checkpoints DIR [--algo drqv2]     # every rl_model_<N>_steps pair in DIR
+    python ef_gradients.py CHECKPOINT.zip REPLAY_BUFFER.pkl [--algo drqv2_ef] [--batch-size 64]
+    python ef_gradients.py --checkpoints DIR [--algo drqv2]     # every rl_model_<N>_steps pair in DIR
 """
 
 from __future__ import annotations
