@@ -1,0 +1,40 @@
+"""The one interface through which an auxiliary representation loss (Ego-Foresight, SEAR, CURL) joins a host.
+
+An auxiliary loss is an ``nn.Module`` trained together with a host algorithm's encoder. Per gradient update the
+host calls, in this order:
+
+1. ``observations, targets = aux.prepare(batch, pad, generator)``: the augmented observations the host encodes
+   (its random shift or crop), and what the loss compares against, augmented consistently with them;
+2. ``features = encoder(observations)`` (the host's own forward, shared with its critic or world model where the
+   paper shares it);
+3. ``loss, logs = aux(features, targets)``: the loss already weighted by its coefficients, and its detached,
+   unweighted parts for logging (``train/<name>``); the host adds ``loss`` to the loss that trains its encoder,
+   or steps it on its own optimiser;
+4. ``aux.after_update(encoder)`` once the optimisers have stepped (CURL's momentum key encoder follows the
+   online encoder here).
+
+The module lives on the host's policy, so its weights are saved and loaded with the policy.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import Any
+
+import torch as th
+from torch import nn
+
+
+class AuxiliaryLoss(nn.Module, ABC):
+    """Base class of the auxiliary representation losses (see the module docstring for the calling protocol)."""
+
+    @abstractmethod
+    def prepare(self, batch: Any, pad: int, generator: th.Generator | None = None) -> tuple[th.Tensor, Any]:
+        """Augment the batch's observations for the host's encoder; return them and the loss's targets."""
+
+    @abstractmethod
+    def forward(self, features: th.Tensor, targets: Any) -> tuple[th.Tensor, dict[str, th.Tensor]]:
+        """The weighted loss on encoder ``features`` of the prepared observations, and its logged parts."""
+
+    def after_update(self, encoder: nn.Module) -> None:
+        """Called after the optimiser steps of each update; nothing by default."""
