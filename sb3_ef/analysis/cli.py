@@ -1,6 +1,7 @@
 """``sb3-ef analyze``: tables and plots from evaluation CSVs, or predictions and saliency of a saved model.
 
 sb3-ef analyze results DIR [--out DIR] [--return-scale 1000] [--reps 2000] [--at STEP ...] [--finished-only]
+                        [--reference drqv2|tdmpc2]
 sb3-ef analyze model PATH --env NAME [--algo drqv2_ef|tdmpc2_ef] [--steps T] [--actions policy|figure8]
                                      [--action-repeat 2] [--env-kwargs key:value ...] [--seed 0] [--out DIR]
 
@@ -43,6 +44,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--finished-only",
         action="store_true",
         help="only finished runs of an `sb3-ef benchmark` folder (those with a result.json), not runs in progress",
+    )
+    results.add_argument(
+        "--reference",
+        choices=("drqv2", "tdmpc2"),
+        help="put the runs beside published curves: DrQ-v2's official DMC curves or TD-MPC2's DMC pixel results",
     )
 
     model = commands.add_parser("model", help="open-loop prediction, saliency and mask scores of a saved model")
@@ -111,10 +117,13 @@ def analyze_results(
     reps: int = 2000,
     at: tuple[int, ...] = (),
     finished_only: bool = False,
+    reference: str | None = None,
 ) -> dict[str, Any]:
     """Write ``scores.csv``, ``ens.csv``, ``ens_details.csv``, ``rliable.csv`` and the plots to ``out`` (created
     only once the records have been read), and ``returns_at.csv`` for the steps ``at``; ``finished_only`` reads
-    only the finished runs of an ``sb3-ef benchmark`` folder.
+    only the finished runs of an ``sb3-ef benchmark`` folder. With ``reference`` (``drqv2`` or ``tdmpc2``), also the
+    published curves beside the runs (``reference_<name>_<task>.png``) and ``reference_<name>.csv``: your mean at
+    each step of ``at`` (default: the last step all seeds reached) against the official mean and min-max.
 
     A grid part-way through is analysed as far as it allows: ENS over the tasks that every algorithm has results
     on, rliable metrics only when each algorithm has as many seeds on every task; what is left out is printed.
@@ -164,7 +173,26 @@ def analyze_results(
     if at_steps is not None:
         at_steps.to_csv(os.path.join(out, "returns_at.csv"), index=False)
         print(at_steps.to_string(index=False, float_format="%.1f"))
+    if reference is not None:
+        written.update(compare_with_reference(records, reference, out, tuple(at)))
     return written
+
+
+def compare_with_reference(records: Any, name: str, out: str, at: tuple[int, ...]) -> dict[str, Any]:
+    """Write and print the table and curves of your runs beside a published reference."""
+    from sb3_ef.analysis.plots import plot_reference_curves
+    from sb3_ef.analysis.reference import get_reference, missing_tasks, reference_table
+
+    reference = get_reference(name)
+    missing = missing_tasks(records, name)
+    if missing:
+        print(f"No {reference.label} curves for {missing}: left out of the comparison")
+    table = reference_table(records, name, at)
+    path = os.path.join(out, f"reference_{name}.csv")
+    table.to_csv(path, index=False)
+    print(f"Against {reference.label} ({reference.source}), x in {reference.unit}:")
+    print(table.to_string(index=False, float_format="%.1f") if not table.empty else "no task in common")
+    return {"reference_table": path, "reference_curves": plot_reference_curves(records, name, out)}
 
 
 def make_analysis_env(
@@ -277,6 +305,7 @@ def main(argv: list[str] | None = None) -> int:
             args.reps,
             tuple(args.at or ()),
             args.finished_only,
+            args.reference,
         )
     else:
         out = args.out or os.path.splitext(args.path)[0] + "_analysis"

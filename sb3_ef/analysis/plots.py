@@ -11,6 +11,7 @@ import numpy as np
 
 from sb3_ef.analysis._optional import pyplot
 from sb3_ef.analysis.metrics import SCORE_COLUMNS, check_columns
+from sb3_ef.analysis.records import RECORD_COLUMNS
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -49,6 +50,38 @@ def plot_learning_curves(scores: pd.DataFrame, out_dir: str | os.PathLike, xlabe
         axis.set(title=str(task), xlabel=xlabel, ylabel="score")
         axis.legend()
         paths.append(_save(figure, os.path.join(os.fspath(out_dir), f"curve_{_safe_name(str(task))}.png")))
+    return paths
+
+
+def plot_reference_curves(records: pd.DataFrame, name: str, out_dir: str | os.PathLike) -> list[str]:
+    """One PNG per task the reference has: each algorithm's mean return over seeds (band: min-max over seeds)
+    and the official mean with its min-max band, up to the end of your runs (plus 10%).
+
+    :return: the written paths, ``<out_dir>/reference_<name>_<task>.png``.
+    """
+    from sb3_ef.analysis.reference import get_reference, load_reference, reference_task
+
+    check_columns(records, RECORD_COLUMNS)
+    plt = pyplot()
+    reference = get_reference(name)
+    official = load_reference(name)
+    paths = []
+    for task, group in records.groupby("task"):
+        curves = official[official["task"] == reference_task(str(task))]
+        if curves.empty:
+            continue
+        figure, axis = plt.subplots(figsize=(5, 3.5))
+        for algo, runs in group.groupby("algo"):
+            stats = runs.groupby(reference.x_column)["return"].agg(["mean", "min", "max"]).sort_index()
+            axis.plot(stats.index, stats["mean"], label=str(algo))
+            axis.fill_between(stats.index, stats["min"], stats["max"], alpha=0.2)
+        end = 1.1 * float(group[reference.x_column].max())
+        stats = curves[curves["x"] <= end].groupby("x")["return"].agg(["mean", "min", "max"]).sort_index()
+        axis.plot(stats.index, stats["mean"], color="black", linestyle="--", label=reference.label)
+        axis.fill_between(stats.index, stats["min"], stats["max"], color="black", alpha=0.1)
+        axis.set(title=str(task), xlabel=reference.unit, ylabel="episode return")
+        axis.legend()
+        paths.append(_save(figure, os.path.join(os.fspath(out_dir), f"reference_{name}_{_safe_name(str(task))}.png")))
     return paths
 
 
