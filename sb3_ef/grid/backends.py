@@ -108,6 +108,13 @@ class LocalBackend:
             pool.shutdown(cancel_futures=True)
 
 
+def _execute_on_node(spec: RunSpec, out: str, **run_kwargs: Any) -> RunResult:
+    """``execute_run`` inside a Ray task; the result names the node that ran it."""
+    import ray
+
+    return execute_run(spec, out, node=ray.get_runtime_context().get_node_id(), **run_kwargs)
+
+
 class RayBackend:
     """One Ray task per run with ``threads`` CPUs (also its torch threads) and ``gpus`` GPUs.
 
@@ -148,7 +155,7 @@ class RayBackend:
         if started_here:
             ray.init(address=self.address, log_to_driver=False)
         task = ray.remote(num_cpus=self.threads, num_gpus=self.gpus, max_retries=self.retries, retry_exceptions=True)(
-            execute_run
+            _execute_on_node
         )
         capacity = self.capacity(ray.cluster_resources())
         queue: deque[RunSpec] = deque(specs)

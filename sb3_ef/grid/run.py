@@ -37,7 +37,8 @@ EVAL_SEED_OFFSET = 10_000
 @dataclass(frozen=True)
 class RunResult:
     """How a run ended. ``status`` is ``done`` (trained now), ``skipped`` (finished before) or ``failed``;
-    ``records`` are its evaluation rows (so a driver on another machine can write them)."""
+    ``records`` are its evaluation rows (so a driver on another machine can write them); ``node`` is the id of the
+    Ray node that ran it (``None`` on the local pool)."""
 
     run_id: str
     status: str
@@ -47,6 +48,7 @@ class RunResult:
     resumed_from: int | None = None
     records: list[dict[str, Any]] = field(default_factory=list)
     error: str | None = None
+    node: str | None = None
 
 
 @dataclass(frozen=True)
@@ -140,11 +142,13 @@ def execute_run(
     threads: int = 1,
     device: str = "auto",
     keep_checkpoints: int | None = 2,
+    node: str | None = None,
 ) -> RunResult:
-    """Train one run to ``spec.n_timesteps`` agent steps (resuming from its newest checkpoint) and record it.
+    """Train one run to ``spec.n_timesteps`` agent steps (resuming from its newest checkpoint) and record it;
+    ``node`` names the cluster node that runs it, stored in its result.
 
     ``keep_checkpoints``: the newest checkpoints kept while it trains, all deleted when it finishes; ``None`` keeps
-    every checkpoint, also after the run (to study its course, e.g. with ``experiments/2026-cpu-grid/ef_gradients.py``).
+    every checkpoint, also after the run (to study its course).
 
     A finished run (``result.json`` present) is not trained again: its stored result comes back as ``skipped``.
     """
@@ -204,6 +208,7 @@ def execute_run(
         final_return=records[-1]["return"] if records else None,
         resumed_from=resumed_from,
         records=[{key: row[key] for key in RECORD_COLUMNS} for row in records],
+        node=node,
     )
     store_result(paths, result)
     if keep_checkpoints is not None:
