@@ -87,7 +87,7 @@ def restore_buffer(buffer: SequenceReplayBuffer, state: dict[str, Any]) -> None:
             steps = {"_actions": steps["_actions"], "_rewards": steps["_rewards"], "_dones": steps["_terminals"]}
         for field, values in steps.items():
             getattr(storage, _STEP_FIELDS[field]).copy_(th.from_numpy(values))
-        if stored.get("masks") is not None:
+        if stored.get("masks") is not None and storage.masks is not None:
             storage.masks.copy_(th.from_numpy(stored["masks"]))
     sampler.rng = rng
     sampler.restore_pending(pending, buffer.device)

@@ -292,6 +292,7 @@ class BatchSampler:
         packed = packed.to(device, non_blocking=non_blocking)
         shifts = th.arange(7, -1, -1, dtype=th.uint8, device=device)
         bits = (packed.unsqueeze(-1) >> shifts) & 1
+        assert self.mask_size is not None, "masks are gathered only where they are stored"
         height, width = self.mask_size
         return bits.flatten(-2)[..., : height * width].unflatten(-1, (height, width))
 

@@ -125,7 +125,7 @@ class SequenceReplayBuffer(ReplayBuffer):
                 f"frames per env (one window and its context), got {buffer_size} // {n_envs} = {capacity}"
             )
         request = storage_request(storage_device)
-        if memmap_dir is not None and request != "auto" and request.type != "cpu":
+        if memmap_dir is not None and isinstance(request, th.device) and request.type != "cpu":
             raise ValueError(
                 f"SequenceReplayBuffer keeps memory-mapped frames in host memory: memmap_dir expects "
                 f"storage_device 'cpu' or 'auto', got {storage_device!r}"

@@ -107,18 +107,14 @@ class FrameStorage:
     ) -> None:
         self.rows, self.frame_shape, self.action_dim = rows, frame_shape, action_dim
         self.mask_bytes, self.memmap_dir, self.frame_stack = mask_bytes, memmap_dir, frame_stack
+        self.allocated = False  # the tensors below exist (allocated at the first add(), or when a pickle is loaded)
         self.frame_map: np.memmap | None = None
-        self.frames: th.Tensor | None = None
+        self.frames = self.actions = self.rewards = self.dones = self.timeouts = self.step_flags = th.empty(0)
         self.masks: th.Tensor | None = None
-        self.actions = self.rewards = self.dones = self.timeouts = self.step_flags = th.empty(0)
-
-    @property
-    def allocated(self) -> bool:
-        return self.frames is not None
 
     @property
     def device(self) -> th.device:
-        assert self.frames is not None, "the storage is allocated at the first add()"
+        """Where the tensors are (meaningful once allocated)."""
         return self.frames.device
 
     def bytes_needed(self) -> tuple[int, int]:
@@ -130,7 +126,7 @@ class FrameStorage:
     def choose_device(self, request: str | th.device, training: th.device) -> th.device:
         """The device ``request`` names on this machine: ``"auto"`` is the training GPU when everything plus a margin
         (a quarter of the GPU's memory, at least ``MIN_DEVICE_MARGIN``) fits its free memory, else host memory."""
-        if request != "auto":
+        if isinstance(request, th.device):
             if request.type == "cuda" and not th.cuda.is_available():  # a buffer loaded on a machine without CUDA
                 warnings.warn(f"SequenceReplayBuffer storage_device={request} needs CUDA: frames stay in host memory")
                 return th.device("cpu")
@@ -145,6 +141,7 @@ class FrameStorage:
     def check_memory(self, device: th.device) -> None:
         """Raise before allocating when ``device`` cannot hold the storage, naming the ways out."""
         frame_bytes, step_bytes = self.bytes_needed()
+        available: int | None
         ways_out = [
             f"a smaller buffer_size (an episode of T steps takes T + {self.frame_stack} frames; to go on training a "
             "saved model, Model.load(path, buffer_size=...))"
@@ -191,14 +188,16 @@ class FrameStorage:
         self.dones = zeros((rows,), th.bool, device)
         self.timeouts = zeros((rows,), th.bool, device)
         self.masks = None if self.mask_bytes is None else zeros((rows, self.mask_bytes), th.uint8, device)
+        self.allocated = True
         self.share_step_flags(step_flags)
 
     def move(self, device: th.device, step_flags: np.ndarray) -> None:
         """Move every tensor to ``device`` (the frames are copied once)."""
         self.check_memory(device)
-        for name in ("frames", *self.STEP_TENSORS, "masks"):
-            tensor = getattr(self, name)
-            setattr(self, name, None if tensor is None else tensor.to(device))
+        for name in ("frames", *self.STEP_TENSORS):
+            setattr(self, name, getattr(self, name).to(device))
+        if self.masks is not None:
+            self.masks = self.masks.to(device)
         self.share_step_flags(step_flags)
 
     def share_step_flags(self, step_flags: np.ndarray) -> None:
@@ -210,6 +209,7 @@ class FrameStorage:
         """Store frames (and their bit-packed masks) in ``rows``."""
         write_rows(self.frames, rows, frames)
         if masks is not None:
+            assert self.masks is not None, "masks are written only where they are stored"
             write_rows(self.masks, rows, masks)
 
     def write_steps(self, rows: np.ndarray, **values: np.ndarray) -> None:
