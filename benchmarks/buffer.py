@@ -49,18 +49,20 @@ class Stream:
     def stack(self, t: int) -> np.ndarray:
         return self.frames[t : t + self.frame_stack].reshape(1, 3 * self.frame_stack, self.size, self.size)
 
-    def add_to(self, *buffers: ReplayBuffer) -> float:
-        """Add the next step to every buffer; return the seconds spent inside add()."""
+    def add_to(self, *buffers: ReplayBuffer) -> list[float]:
+        """Add the next step to every buffer; return the seconds each spent inside add()."""
         t = self.step_index % self.episode_length
         self.step_index += 1
         done = np.array([t == self.episode_length - 1])
         infos = [{"TimeLimit.truncated": bool(done[0])}]
         reward = np.array([self.rng.normal()], dtype=np.float32)
         obs, next_obs = self.stack(t), self.stack(t + 1)
-        start = time.perf_counter()
+        seconds = []
         for buffer in buffers:
+            start = time.perf_counter()
             buffer.add(obs, next_obs, self.action, reward, done, infos)
-        return time.perf_counter() - start
+            seconds.append(time.perf_counter() - start)
+        return seconds
 
 
 def stored_bytes(buffer: ReplayBuffer) -> int:
@@ -112,7 +114,7 @@ def compare_sb3(args: argparse.Namespace, obs_space: spaces.Box, action_space: s
     for name, make in candidates.items():
         buffer = make()
         stream = Stream(args.episode_length, args.size, args.frame_stack)
-        add_seconds = sum(stream.add_to(buffer) for _ in range(args.transitions))
+        add_seconds = sum(stream.add_to(buffer)[0] for _ in range(args.transitions))
         per_transition = stored_bytes(buffer) / buffer.size()
         sample_ms = statistics.median(time_sampling(buffer, args.batch_size, args.repeats))
         print(
@@ -163,19 +165,20 @@ def compare_baseline(args: argparse.Namespace, obs_space: spaces.Box, action_spa
         "this package": SequenceReplayBuffer(args.transitions, obs_space, action_space, **kwargs),
     }
     stream = Stream(args.episode_length, args.size, args.frame_stack)
-    for _ in range(args.transitions):
-        stream.add_to(*buffers.values())
+    add_seconds = np.sum([stream.add_to(*buffers.values()) for _ in range(args.transitions)], axis=0)
     times: dict[str, list[float]] = {name: [] for name in buffers}
     for _ in range(args.rounds):
         for name, buffer in buffers.items():
             times[name] += time_sampling(buffer, args.batch_size, args.repeats)
     median = {name: statistics.median(values) for name, values in times.items()}
     print(f"baseline: SequenceReplayBuffer from {args.baseline} ({baseline_class.__module__})")
-    print(f"| buffer | sample({args.batch_size}) ms median | quartiles | ratio to the baseline |")
-    print("|---|---|---|---|")
-    for name, values in times.items():
+    print(f"| buffer | sample({args.batch_size}) ms median | quartiles | ratio to the baseline | add() us, mean |")
+    print("|---|---|---|---|---|")
+    for (name, values), seconds in zip(times.items(), add_seconds, strict=True):
         q = statistics.quantiles(values, n=4)
-        print(f"| {name} | {median[name]:.2f} | {q[0]:.2f}-{q[2]:.2f} | {median[name] / median['baseline']:.3f} |")
+        ratio = median[name] / median["baseline"]
+        add_us = 1e6 * seconds / args.transitions
+        print(f"| {name} | {median[name]:.2f} | {q[0]:.2f}-{q[2]:.2f} | {ratio:.3f} | {add_us:.0f} |")
 
 
 def prefetch_loop(args: argparse.Namespace, obs_space: spaces.Box, action_space: spaces.Box) -> None:

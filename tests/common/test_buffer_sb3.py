@@ -91,6 +91,10 @@ def test_td3_learns_from_sequence_buffer(tmp_path):
     seen = emitted(model)
     for obs, next_obs in zip(batch.observations.numpy(), batch.next_observations.numpy(), strict=True):
         assert obs.tobytes() in seen and next_obs.tobytes() in seen
+    # SB3's ReplayBuffer arrays: 25 add() calls of 2 envs; row pos - 1 holds the last call's steps.
+    assert buffer.observations.shape == (200, 2, 3 * FRAME_STACK, SIZE, SIZE) and buffer.actions.shape == (200, 2, 2)
+    assert all(obs.tobytes() in seen for obs in buffer.observations[buffer.pos - 1])
+    assert buffer.pos == 25 and buffer.rewards[: buffer.pos].shape == (25, 2) and buffer.dones.dtype == np.float32
 
     model.save_replay_buffer(tmp_path / "buffer")
     other = make_td3(seed=1)
