@@ -8,6 +8,7 @@ import pickle
 import gymnasium as gym
 import numpy as np
 import pytest
+import torch as th
 from stable_baselines3 import TD3
 from stable_baselines3.common.vec_env import DummyVecEnv
 
@@ -97,7 +98,7 @@ def test_sampled_masks_are_the_env_masks_of_the_observation_frames_and_survive_p
         assert buffer.size() == 60
         logged = {key: mask for log in env.get_attr("masks") for key, mask in log.items()}
         batch = buffer.sample(256)
-        assert batch.masks.shape == (256, STACK, SIZE, SIZE) and batch.masks.dtype.is_floating_point is False
+        assert batch.masks.shape == (256, STACK, SIZE, SIZE) and batch.masks.dtype == th.uint8
         observations, masks = batch.observations.numpy(), batch.masks.numpy()
         assert set(np.unique(masks)) == {0, 1}
         for obs, obs_masks in zip(observations, masks, strict=True):
