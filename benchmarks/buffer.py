@@ -1,17 +1,18 @@
 """Replay buffer benchmark: bytes per stored transition, sample() / add() speed, and prefetch.
 
-Three parts, each its own flag (all by default):
+Three parts, each its own flag (``--compare-sb3`` and ``--prefetch`` when no part is named):
 
 - ``--compare-sb3``: SequenceReplayBuffer (frames stored once, n-step transition + EF window per sample) against
   SB3's ReplayBuffer, its optimize_memory_usage variant and its NStepReplayBuffer, all filled with the same stream of
   random 84x84 RGB frames stacked 3 deep.
-- ``--compare-before``: ``sample()`` of today's buffer against the buffer as it was at commit ``--before`` (loaded from
-  git into a temporary module), same stream, same batch size, interleaved in one run.
+- ``--baseline PATH``: ``sample()`` of this package's buffer against another SequenceReplayBuffer, same stream, same
+  batch size, interleaved in one run. PATH is a module file that defines ``SequenceReplayBuffer`` (a one-file
+  ``sb3_ef/common/buffers.py``) or the root of another sb3-ef source tree.
 - ``--prefetch``: an update loop (add one step, sample, run the DrQ-v2 encoder forward and backward on part of the
   batch) with and without prefetch; reports the share of the loop spent waiting in ``sample()``.
 
     python benchmarks/buffer.py --transitions 20000 --compare-sb3
-    python benchmarks/buffer.py --transitions 50000 --compare-before --prefetch --update-batch 4
+    python benchmarks/buffer.py --transitions 50000 --baseline ../sb3-ef-other --prefetch --update-batch 4
 """
 
 from __future__ import annotations
@@ -20,7 +21,6 @@ import argparse
 import importlib.util
 import os
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -34,8 +34,6 @@ from stable_baselines3.common.buffers import NStepReplayBuffer, ReplayBuffer
 
 from sb3_ef.common.buffers import SequenceReplayBuffer
 from sb3_ef.drqv2.policies import DrQv2Encoder
-
-REPOSITORY = Path(__file__).resolve().parents[1]
 
 
 class Stream:
@@ -51,18 +49,20 @@ class Stream:
     def stack(self, t: int) -> np.ndarray:
         return self.frames[t : t + self.frame_stack].reshape(1, 3 * self.frame_stack, self.size, self.size)
 
-    def add_to(self, *buffers: ReplayBuffer) -> float:
-        """Add the next step to every buffer; return the seconds spent inside add()."""
+    def add_to(self, *buffers: ReplayBuffer) -> list[float]:
+        """Add the next step to every buffer; return the seconds each spent inside add()."""
         t = self.step_index % self.episode_length
         self.step_index += 1
         done = np.array([t == self.episode_length - 1])
         infos = [{"TimeLimit.truncated": bool(done[0])}]
         reward = np.array([self.rng.normal()], dtype=np.float32)
         obs, next_obs = self.stack(t), self.stack(t + 1)
-        start = time.perf_counter()
+        seconds = []
         for buffer in buffers:
+            start = time.perf_counter()
             buffer.add(obs, next_obs, self.action, reward, done, infos)
-        return time.perf_counter() - start
+            seconds.append(time.perf_counter() - start)
+        return seconds
 
 
 def stored_bytes(buffer: ReplayBuffer) -> int:
@@ -114,7 +114,7 @@ def compare_sb3(args: argparse.Namespace, obs_space: spaces.Box, action_space: s
     for name, make in candidates.items():
         buffer = make()
         stream = Stream(args.episode_length, args.size, args.frame_stack)
-        add_seconds = sum(stream.add_to(buffer) for _ in range(args.transitions))
+        add_seconds = sum(stream.add_to(buffer)[0] for _ in range(args.transitions))
         per_transition = stored_bytes(buffer) / buffer.size()
         sample_ms = statistics.median(time_sampling(buffer, args.batch_size, args.repeats))
         print(
@@ -126,42 +126,59 @@ def compare_sb3(args: argparse.Namespace, obs_space: spaces.Box, action_space: s
         del buffer
 
 
-def load_buffer_at(commit: str) -> type:
-    """``SequenceReplayBuffer`` as committed at ``commit``, imported from a temporary module."""
-    source = subprocess.run(
-        ["git", "-C", str(REPOSITORY), "show", f"{commit}:sb3_ef/common/buffers.py"],
-        check=True,
-        capture_output=True,
-        text=True,
-    ).stdout
-    path = Path(tempfile.mkdtemp()) / f"buffers_{commit}.py"
-    path.write_text(source)
-    spec = importlib.util.spec_from_file_location(path.stem, path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[path.stem] = module
-    spec.loader.exec_module(module)
-    return module.SequenceReplayBuffer
+def load_baseline(path: Path) -> type:
+    """``SequenceReplayBuffer`` from a module file, or from the sb3-ef source tree rooted at ``path``.
+
+    A tree's ``sb3_ef`` is imported under its own name with this package's modules set aside, then set aside in
+    turn: the class keeps its module's globals, so both buffers live side by side in this process."""
+    if path.is_file():
+        spec = importlib.util.spec_from_file_location("baseline_buffers", path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = module
+        spec.loader.exec_module(module)
+        return module.SequenceReplayBuffer
+    if not (path / "sb3_ef" / "common").is_dir():
+        raise SystemExit(f"--baseline expects a module file or an sb3-ef source tree, got {path}")
+
+    def ours(name: str) -> bool:
+        return name == "sb3_ef" or name.startswith("sb3_ef.")
+
+    current = {name: module for name, module in sys.modules.items() if ours(name)}
+    for name in current:
+        del sys.modules[name]
+    sys.path.insert(0, str(path))
+    try:
+        return importlib.import_module("sb3_ef.common.buffers").SequenceReplayBuffer
+    finally:
+        sys.path.remove(str(path))
+        for name in [name for name in sys.modules if ours(name)]:
+            del sys.modules[name]
+        sys.modules.update(current)
 
 
-def compare_before(args: argparse.Namespace, obs_space: spaces.Box, action_space: spaces.Box) -> None:
-    """Interleaved sample() timings of the buffer at ``--before`` and today's, filled with the same stream."""
-    kwargs = {"n_steps": args.n_steps, "horizon": args.horizon, "device": "cpu"}
-    before = load_buffer_at(args.before)(args.transitions, obs_space, action_space, **kwargs)
-    now = SequenceReplayBuffer(args.transitions, obs_space, action_space, storage_device="cpu", **kwargs)
+def compare_baseline(args: argparse.Namespace, obs_space: spaces.Box, action_space: spaces.Box) -> None:
+    """Interleaved sample() timings of the baseline buffer and this package's, filled with the same stream."""
+    kwargs = {"n_steps": args.n_steps, "horizon": args.horizon, "device": "cpu", "storage_device": "cpu"}
+    baseline_class = load_baseline(args.baseline)
+    buffers = {
+        "baseline": baseline_class(args.transitions, obs_space, action_space, **kwargs),
+        "this package": SequenceReplayBuffer(args.transitions, obs_space, action_space, **kwargs),
+    }
     stream = Stream(args.episode_length, args.size, args.frame_stack)
-    for _ in range(args.transitions):
-        stream.add_to(before, now)
-    times: dict[str, list[float]] = {"before": [], "now": []}
+    add_seconds = np.sum([stream.add_to(*buffers.values()) for _ in range(args.transitions)], axis=0)
+    times: dict[str, list[float]] = {name: [] for name in buffers}
     for _ in range(args.rounds):
-        times["before"] += time_sampling(before, args.batch_size, args.repeats)
-        times["now"] += time_sampling(now, args.batch_size, args.repeats)
+        for name, buffer in buffers.items():
+            times[name] += time_sampling(buffer, args.batch_size, args.repeats)
     median = {name: statistics.median(values) for name, values in times.items()}
-    quartiles = {name: statistics.quantiles(values, n=4) for name, values in times.items()}
-    print(f"| buffer | sample({args.batch_size}) ms median | quartiles | ratio to {args.before} |")
-    print("|---|---|---|---|")
-    for name, label in (("before", f"at {args.before}"), ("now", "today")):
-        q = quartiles[name]
-        print(f"| {label} | {median[name]:.1f} | {q[0]:.1f}-{q[2]:.1f} | {median[name] / median['before']:.2f} |")
+    print(f"baseline: SequenceReplayBuffer from {args.baseline} ({baseline_class.__module__})")
+    print(f"| buffer | sample({args.batch_size}) ms median | quartiles | ratio to the baseline | add() us, mean |")
+    print("|---|---|---|---|---|")
+    for (name, values), seconds in zip(times.items(), add_seconds, strict=True):
+        q = statistics.quantiles(values, n=4)
+        ratio = median[name] / median["baseline"]
+        add_us = 1e6 * seconds / args.transitions
+        print(f"| {name} | {median[name]:.2f} | {q[0]:.2f}-{q[2]:.2f} | {ratio:.3f} | {add_us:.0f} |")
 
 
 def prefetch_loop(args: argparse.Namespace, obs_space: spaces.Box, action_space: spaces.Box) -> None:
@@ -230,14 +247,15 @@ def main() -> None:
     parser.add_argument("--horizon", type=int, default=10)
     parser.add_argument("--n-steps", type=int, default=3)
     parser.add_argument("--repeats", type=int, default=30, help="timed calls per round")
-    parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds of the before/now and prefetch parts")
-    parser.add_argument("--before", default="d98919b", help="commit whose buffer --compare-before times")
+    parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds of the baseline and prefetch parts")
+    parser.add_argument("--baseline", type=Path, help="a buffer module file or sb3-ef source tree to time against")
     parser.add_argument("--update-batch", type=int, default=32, help="samples the --prefetch loop's update encodes")
     parser.add_argument("--compare-sb3", action="store_true")
-    parser.add_argument("--compare-before", action="store_true")
     parser.add_argument("--prefetch", action="store_true")
     args = parser.parse_args()
-    parts = [name for name in ("compare_sb3", "compare_before", "prefetch") if getattr(args, name)]
+    parts = [name for name in ("compare_sb3", "prefetch") if getattr(args, name)]
+    if args.baseline is not None:
+        parts.insert(1, "compare_baseline")
     th.set_num_threads(1)
 
     obs_space = spaces.Box(0, 255, (3 * args.frame_stack, args.size, args.size), np.uint8)
@@ -247,9 +265,9 @@ def main() -> None:
         f"stack {args.frame_stack}, batch {args.batch_size}, horizon {args.horizon}, n_steps {args.n_steps}; "
         f"1 torch thread; load average before: {os.getloadavg()[0]:.1f}"
     )
-    for part in parts or ["compare_sb3", "compare_before", "prefetch"]:
+    for part in parts or ["compare_sb3", "prefetch"]:
         print()
-        {"compare_sb3": compare_sb3, "compare_before": compare_before, "prefetch": prefetch_loop}[part](
+        {"compare_sb3": compare_sb3, "compare_baseline": compare_baseline, "prefetch": prefetch_loop}[part](
             args, obs_space, action_space
         )
     print(f"\nload average after: {os.getloadavg()[0]:.1f}")

@@ -23,6 +23,7 @@ def make_env(
     camera: int | str | None = None,
     fast_render: bool = False,
     seed: int | None = None,
+    agent_masks: bool = False,
     **kwargs: Any,
 ):
     """Build a pixel environment: ``uint8`` observations ``(3 * frame_stack, size, size)``, actions in [-1, 1].
@@ -36,6 +37,10 @@ def make_env(
     :param fast_render: shadows, reflections and multisampling off: several times faster on CPU, other frames
         (no shadows: analyse and evaluate with the same setting).
     :param seed: seed of the initial states (and of the Meta-World task variant).
+    :param agent_masks: render the agent mask of every frame and put the masks in the infos (``info["agent_masks"]``:
+        reset's ``(frame_stack, size, size)`` for the observation's frames, step's ``(frame_stack + 1, size, size)``
+        for the previous observation's frames and the new one, oldest first), as ``SequenceReplayBuffer(...,
+        store_masks=True)`` stores them; ``env.agent_masks`` tells. One more render per step.
     :param kwargs: suite options: ``episode_length`` (simulator steps; 1000 DMC, 500 Meta-World),
         ``render_mode`` (``"rgb_array"``), ``resample_task`` (Meta-World), ``repeat_discount`` (Meta-World: the
         reward of an agent step is ``r1 + repeat_discount * r2``; 0.99 with ``gamma=authors_gamma()`` is the EF
@@ -45,6 +50,8 @@ def make_env(
     task = parse_env_name(name)
     if not isinstance(size, (int, np.integer)) or isinstance(size, bool) or not MIN_SIZE <= size <= MAX_SIZE:
         raise ValueError(f"size must be an int in [{MIN_SIZE}, {MAX_SIZE}] (e.g. 64 or 84), got {size!r}")
+    if not isinstance(agent_masks, (bool, np.bool_)):
+        raise ValueError(f"agent_masks must be True or False, got {agent_masks!r}")
     if task.suite != "metaworld" and "repeat_discount" in kwargs:
         raise ValueError(f"repeat_discount (the EF authors' protocol) is a Meta-World option, got it for {name!r}")
     ensure_gl_backend()
@@ -62,6 +69,9 @@ def make_env(
         **kwargs,
     )
     env = env_class(task.task, **options)
+    env.agent_masks = bool(agent_masks)
+    if agent_masks:
+        options["agent_masks"] = True
     # The spec gym.make would give, so env.spec.id names the task (eval records, rl-zoo3, SB3) for envs made here too.
     registered = gym.spec(f"{task.suite}/{task.task}-v0")
     env.spec = dataclasses.replace(registered, kwargs={**registered.kwargs, **options})

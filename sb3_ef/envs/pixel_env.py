@@ -17,6 +17,9 @@ from gymnasium import spaces
 from sb3_ef.envs.agent_geoms import agent_geoms
 from sb3_ef.envs.renderer import FrameRenderer
 
+#: Info key of the agent masks in reset and step infos when ``agent_masks`` is on (``make_env(..., agent_masks=True)``).
+AGENT_MASKS_INFO_KEY = "agent_masks"
+
 
 class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
     """Pixel observations of a MuJoCo simulation, stacked oldest first, with action repeat.
@@ -30,6 +33,12 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
     """
 
     metadata: dict[str, Any] = {"render_modes": ["rgb_array"]}
+    #: When True, every frame's agent mask is rendered with it and infos carry them under ``"agent_masks"``:
+    #: ``reset``'s the ``(frame_stack, size, size)`` bool masks of the observation's frames, ``step``'s the
+    #: ``(frame_stack + 1, size, size)`` masks of the frames of the observation the action was taken from and of the
+    #: new frame, oldest first (``[:-1]`` for that observation, ``[1:]`` for the returned one). An algorithm reads it
+    #: through ``VecEnv.get_attr("agent_masks")``. Set by ``make_env(..., agent_masks=True)``, before ``reset()``.
+    agent_masks: bool = False
 
     def _setup(
         self,
@@ -62,6 +71,7 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
         self.action_space = spaces.Box(-1.0, 1.0, (action_dim,), np.float32)
         self._renderer = FrameRenderer(model, size, camera, fast=fast_render, flip=flip, agent_geoms=agent_geoms(model))
         self._frames: deque[np.ndarray] = deque(maxlen=frame_stack)
+        self._masks: deque[np.ndarray] | None = None  # with agent_masks: those of the last frame_stack + 1 frames
         self._sim_steps = 0
         self._episode_over = True
 
@@ -97,6 +107,10 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
         frame = self._render_frame()
         for _ in range(self.frame_stack):
             self._frames.append(frame)
+        self._masks = None
+        if self.agent_masks:
+            self._masks = deque([self.agent_mask()] * self.frame_stack, maxlen=self.frame_stack + 1)
+            info[AGENT_MASKS_INFO_KEY] = np.stack(self._masks)
         return self._observation(), info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
@@ -119,7 +133,16 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
         if success is not None:
             info["is_success"] = success
         self._frames.append(self._render_frame())
+        if self.agent_masks:
+            info[AGENT_MASKS_INFO_KEY] = self._step_masks()
         return self._observation(), reward, terminated, truncated, info
+
+    def _step_masks(self) -> np.ndarray:
+        """The masks of the previous observation's frames and of the frame just rendered, oldest first."""
+        if self._masks is None:
+            raise RuntimeError("agent_masks was turned on during an episode: call reset() to start one with masks")
+        self._masks.append(self.agent_mask())
+        return np.stack(self._masks)
 
     def agent_mask(self) -> np.ndarray:
         """``(size, size)`` bool mask of the pixels showing the agent's body in the newest frame.

@@ -12,8 +12,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
 from sb3_ef import DrQv2EF
-from sb3_ef.common import buffers
-from sb3_ef.common.buffers import SequenceReplayBuffer
+from sb3_ef.common.buffers import SequenceReplayBuffer, storage
 from sb3_ef.envs.toy import ToyAgentEnv
 
 FRAME_STACK = 2
@@ -92,19 +91,23 @@ def test_td3_learns_from_sequence_buffer(tmp_path):
     seen = emitted(model)
     for obs, next_obs in zip(batch.observations.numpy(), batch.next_observations.numpy(), strict=True):
         assert obs.tobytes() in seen and next_obs.tobytes() in seen
+    # SB3's ReplayBuffer arrays: 25 add() calls of 2 envs; row pos - 1 holds the last call's steps.
+    assert buffer.observations.shape == (200, 2, 3 * FRAME_STACK, SIZE, SIZE) and buffer.actions.shape == (200, 2, 2)
+    assert all(obs.tobytes() in seen for obs in buffer.observations[buffer.pos - 1])
+    assert buffer.pos == 25 and buffer.rewards[: buffer.pos].shape == (25, 2) and buffer.dones.dtype == np.float32
 
     model.save_replay_buffer(tmp_path / "buffer")
     other = make_td3(seed=1)
     other.load_replay_buffer(tmp_path / "buffer")
     expected = buffer.sample(16)  # the pickle carries the sampling generator: both draw the same batch
     got = other.replay_buffer.sample(16)
-    for name in expected._fields:
-        assert th.equal(getattr(got, name), getattr(expected, name)), name
+    for name, value in expected._asdict().items():
+        assert (getattr(got, name) is None) if value is None else th.equal(getattr(got, name), value), name
 
 
 def test_a_model_whose_buffer_does_not_fit_in_ram_loads_and_acts(tmp_path, monkeypatch):
     """SB3's load rebuilds the saved 1M-frame buffer (3.1 GB at 32x32): it is only reserved by the first add()."""
-    monkeypatch.setattr(buffers, "available_host_memory", lambda: 10**8)  # 0.1 GB of RAM left
+    monkeypatch.setattr(storage, "available_host_memory", lambda: 10**8)  # 0.1 GB of RAM left
     env = ToyAgentEnv(size=32, max_episode_steps=10)
     policy_kwargs = {"net_arch": [16], "trunk_dim": 8, "features_dim": 32, "agent_dim": 4}
     policy_kwargs["ef_kwargs"] = {"rollout_hidden_dims": (8,), "decoder_channels": 4}

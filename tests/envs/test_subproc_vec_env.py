@@ -64,7 +64,7 @@ def test_trains_on_two_envs_in_subprocesses(algorithm):
         assert model._n_updates > 0
         assert all(np.isfinite(value) for key, value in model.logger.name_to_value.items() if key.endswith("loss"))
         # Each env's ring holds its own rendered episode: real frames, different between the two seeds.
-        frames = buffer._frames[:-1].reshape(2, buffer.buffer_size, 3, SIZE, SIZE)[:, :16].numpy()
-        assert frames.std() > 0 and not np.array_equal(frames[0], frames[1])
+        frames = buffer.observations[:16, :, -3:]  # the newest frame of each env's 16 stored observations
+        assert frames.std() > 0 and not np.array_equal(frames[:, 0], frames[:, 1])
     finally:
         env.close()

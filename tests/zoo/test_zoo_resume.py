@@ -7,7 +7,6 @@ import pickle
 
 import numpy as np
 import pytest
-import torch as th
 from zoo_tiny import cli_pairs
 
 from sb3_ef.common.checkpoints import latest_checkpoint, list_checkpoints
@@ -79,7 +78,7 @@ def test_resume_continues_steps_warm_up_babbling_and_buffer(resumed):
         buffer = pickle.load(file)
     assert buffer.size() == TOTAL  # the 40 steps before the checkpoint are still there
     # The stored actions of the (only) env in step order: the ring has not wrapped.
-    actions = buffer._actions[: buffer.buffer_size][th.from_numpy(buffer._has_step[0])].numpy()
+    actions = buffer.actions[: buffer.size(), 0]
     # Babbling (+-1 actions) went on after the resume at step 40 up to step 50, and stopped there.
     assert np.all(np.abs(actions[:BABBLING]) == 1.0)
     assert not np.all(np.abs(actions[BABBLING:]) == 1.0)

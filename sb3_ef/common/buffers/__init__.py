@@ -1,0 +1,13 @@
+"""The frame-deduplicating replay buffer that samples RL transitions together with Ego-Foresight windows.
+
+:class:`SequenceReplayBuffer` composes one part per job: ``episodes`` (checks and episode bookkeeping), ``storage``
+(tensors in host memory, a memory map or on a GPU), ``sampling`` (draws, gathers, prefetch), ``persistence``
+(pickling) and ``sb3_arrays`` (SB3's ``observations``, ``actions``, ... layout). docs/buffer.md describes it.
+"""
+
+from sb3_ef.common.buffers.episodes import MASKS_INFO_KEY
+from sb3_ef.common.buffers.sampling import SequenceReplayBufferSamples
+from sb3_ef.common.buffers.sequence import SequenceReplayBuffer
+from sb3_ef.common.buffers.storage import available_host_memory
+
+__all__ = ["MASKS_INFO_KEY", "SequenceReplayBuffer", "SequenceReplayBufferSamples", "available_host_memory"]

@@ -1,0 +1,331 @@
+"""``SequenceReplayBuffer``: SB3's replay buffer interface over frame rings, composed of one part per job.
+
+Stacked image observations share all but one frame with their neighbours, so each frame is stored once in a
+per-environment ring of frames, and stacked observations are rebuilt at sample time from consecutive frames (they
+equal what the env emitted, episode starts included, whatever padding the env used). The parts:
+:class:`~sb3_ef.common.buffers.episodes.EpisodeRings` (checks and episode bookkeeping),
+:class:`~sb3_ef.common.buffers.storage.FrameStorage` (tensors on the storage device),
+:class:`~sb3_ef.common.buffers.sampling.BatchSampler` (draws, gathers, prefetch),
+:mod:`~sb3_ef.common.buffers.persistence` (pickling) and :mod:`~sb3_ef.common.buffers.sb3_arrays` (SB3's arrays).
+See docs/buffer.md for the layout and the rules.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.buffers import BaseBuffer, ReplayBuffer
+from stable_baselines3.common.utils import get_device
+from stable_baselines3.common.vec_env import VecNormalize
+
+from sb3_ef.common.buffers import persistence
+from sb3_ef.common.buffers.episodes import EpisodeRings
+from sb3_ef.common.buffers.sampling import BatchSampler, SequenceReplayBufferSamples
+from sb3_ef.common.buffers.sb3_arrays import StackedFrameView, sb3_rows, step_array
+from sb3_ef.common.buffers.storage import FrameStorage, storage_request
+
+
+def _check_observation_space(observation_space: spaces.Space, frame_channels: int) -> int:
+    """Return the frame stack k of a uint8 ``Box(0, 255, (frame_channels * k, h, w))``, or raise."""
+    expected = f"a uint8 Box of shape ({frame_channels} * frame_stack, height, width)"
+    if not isinstance(observation_space, spaces.Box):
+        raise ValueError(f"SequenceReplayBuffer expects {expected}, got {observation_space}")
+    if observation_space.dtype != np.uint8 or len(observation_space.shape) != 3:
+        raise ValueError(
+            f"SequenceReplayBuffer expects {expected}, got dtype {observation_space.dtype} "
+            f"and shape {observation_space.shape}"
+        )
+    channels = observation_space.shape[0]
+    if frame_channels < 1 or channels < frame_channels or channels % frame_channels != 0:
+        raise ValueError(
+            f"SequenceReplayBuffer expects {expected}: channels must be a positive multiple of "
+            f"frame_channels={frame_channels}, got {channels} channels"
+        )
+    return channels // frame_channels
+
+
+class SequenceReplayBuffer(ReplayBuffer):
+    """Replay buffer for stacked uint8 image observations that keeps each frame once.
+
+    Usable as SB3's ``replay_buffer_class`` (it subclasses ``ReplayBuffer`` so that SB3 accepts it when loading,
+    but allocates none of ``ReplayBuffer``'s observation arrays; ``observations``, ``actions``, ... are derived
+    on demand in SB3's layout) and directly by the standalone TD-MPC2.
+
+    :param buffer_size: capacity in frames, shared equally by the ``n_envs`` environments (as SB3 splits it). An
+        episode of T steps uses T + frame_stack frames.
+    :param observation_space: ``Box(0, 255, (frame_channels * k, h, w), uint8)``, frames stacked oldest first.
+    :param action_space: a ``Box`` action space.
+    :param device: torch device of the sampled tensors (the training device).
+    :param n_envs: number of parallel environments.
+    :param optimize_memory_usage: must be False: frames are always stored once (SB3's flag would make SB3 write
+        into arrays this buffer does not have).
+    :param handle_timeout_termination: when True, ``infos[i]["TimeLimit.truncated"]`` marks a time limit,
+        which bootstraps instead of terminating.
+    :param n_steps: number of steps summed in the n-step return.
+    :param gamma: discount of the n-step return.
+    :param horizon: length H of the Ego-Foresight window (future actions, frames, rewards).
+    :param frame_channels: channels of one frame (3 for RGB).
+    :param memmap_dir: when set, the frames live in an unnamed temporary file in this folder (``np.memmap``, host
+        storage), so a large buffer need not fit in RAM. Pickling (``save_replay_buffer``) copies the frames into
+        the pickle.
+    :param storage_device: where frames and per-step arrays live and are gathered: ``"cpu"`` (host memory), a CUDA
+        device (``"cuda"``, a ``torch.device``), or ``"auto"``: the training device when the whole buffer plus a
+        margin (a quarter of the GPU's memory, at least 4 GiB) fits its free memory, else host memory. The storage
+        is allocated at the first ``add()``, which raises ``MemoryError`` before storing anything when it does not
+        fit; host memory is zeroed lazily by the OS (pages are committed as frames are written).
+    :param prefetch: gather the next batch in a background thread while the caller uses this one. ``None``: on
+        when the training device is CUDA and the storage is host memory.
+    :param store_masks: store the agent mask of every frame (bit-packed) from ``infos[i]["agent_masks"]``, which
+        envs made with ``make_env(..., agent_masks=True)`` provide, and return the observations' masks in
+        ``sample().masks``.
+    """
+
+    def __init__(
+        self,
+        buffer_size: int,
+        observation_space: spaces.Space,
+        action_space: spaces.Space,
+        device: th.device | str = "auto",
+        n_envs: int = 1,
+        optimize_memory_usage: bool = False,
+        handle_timeout_termination: bool = True,
+        n_steps: int = 1,
+        gamma: float = 0.99,
+        horizon: int = 10,
+        frame_channels: int = 3,
+        memmap_dir: str | os.PathLike | None = None,
+        storage_device: str | th.device = "auto",
+        prefetch: bool | None = None,
+        store_masks: bool = False,
+    ):
+        frame_stack = _check_observation_space(observation_space, frame_channels)
+        if not isinstance(action_space, spaces.Box):
+            raise ValueError(f"SequenceReplayBuffer expects a Box action space, got {action_space}")
+        if optimize_memory_usage:
+            raise ValueError(
+                "SequenceReplayBuffer expects optimize_memory_usage=False (it always stores each frame once), got True"
+            )
+        if n_steps < 1:
+            raise ValueError(f"SequenceReplayBuffer expects n_steps >= 1, got {n_steps}")
+        if horizon < 1:
+            raise ValueError(f"SequenceReplayBuffer expects horizon >= 1, got {horizon}")
+        if not 0.0 <= gamma <= 1.0:
+            raise ValueError(f"SequenceReplayBuffer expects 0 <= gamma <= 1, got {gamma}")
+        if n_envs < 1:
+            raise ValueError(f"SequenceReplayBuffer expects n_envs >= 1, got {n_envs}")
+        capacity = buffer_size // n_envs
+        if capacity <= horizon + frame_stack:
+            raise ValueError(
+                f"SequenceReplayBuffer expects buffer_size // n_envs > horizon + frame_stack = {horizon + frame_stack} "
+                f"frames per env (one window and its context), got {buffer_size} // {n_envs} = {capacity}"
+            )
+        request = storage_request(storage_device)
+        if memmap_dir is not None and isinstance(request, th.device) and request.type != "cpu":
+            raise ValueError(
+                f"SequenceReplayBuffer keeps memory-mapped frames in host memory: memmap_dir expects "
+                f"storage_device 'cpu' or 'auto', got {storage_device!r}"
+            )
+        # ReplayBuffer.__init__ would allocate full observation arrays: set up only the base buffer.
+        BaseBuffer.__init__(self, buffer_size, observation_space, action_space, device, n_envs=n_envs)
+        self.buffer_size = capacity
+        self.optimize_memory_usage = False
+        self.handle_timeout_termination = handle_timeout_termination
+        self.n_steps = n_steps
+        self.gamma = gamma
+        self.horizon = horizon
+        self.frame_channels = frame_channels
+        self.frame_stack = frame_stack
+        self.frame_shape = (frame_channels, *observation_space.shape[1:])
+        self.memmap_dir = None if memmap_dir is None else os.fspath(memmap_dir)
+        self.storage_request = request
+        self.store_masks = bool(store_masks)
+        # SB3's set_random_seed sets torch's initial seed to the model's seed: seeded runs draw the same batches, and
+        # nothing else (the env code's NumPy draws, the networks' initialisation) moves this stream or is moved by it.
+        self._build_parts(prefetch, seed=th.initial_seed())
+        # Chosen now, allocated at the first add(): SB3's load rebuilds this buffer for models loaded only to act.
+        self.storage_device = self._storage.choose_device(request, self.device)
+
+    def _build_parts(self, prefetch: bool | None, seed: int = 0) -> None:
+        """The bookkeeping, the (unallocated) storage and the sampler, from the buffer's settings."""
+        height, width = self.frame_shape[1:]
+        self._rings = EpisodeRings(self.n_envs, self.buffer_size, self.frame_stack, self.frame_channels, self.obs_shape)
+        self._storage = FrameStorage(
+            self.n_envs * self.buffer_size,
+            self.frame_shape,
+            self.action_dim,
+            math.ceil(height * width / 8) if self.store_masks else None,
+            self.memmap_dir,
+            self.frame_stack,
+        )
+        mask_size = (height, width) if self.store_masks else None
+        self._sampler = BatchSampler(
+            self._storage, self._rings, self.n_steps, self.gamma, self.horizon, mask_size, prefetch, seed
+        )
+        self._sb3_rows_cache: tuple[tuple[int, int], np.ndarray] | None = None
+
+    # ----------------------------------------------------------------- storage
+    @property
+    def device(self) -> th.device:
+        """The training device: sampled tensors land here. Setting it (SB3 does after ``load_replay_buffer``)
+        moves an ``"auto"`` storage to where it now belongs."""
+        return self._device
+
+    @device.setter
+    def device(self, device: th.device | str) -> None:
+        self._device = get_device(device)
+        if "_storage" not in self.__dict__:  # BaseBuffer.__init__ sets the device before the storage exists
+            return
+        storage = self._storage.choose_device(self.storage_request, self._device)
+        if not self._storage.allocated:
+            self.storage_device = storage
+        elif storage != self.storage_device:
+            self._sampler.drop_pending()
+            self._storage.move(storage, self._rings.has_step_rows)
+            self.storage_device = storage
+
+    @property
+    def prefetch(self) -> bool | None:
+        """Gather the next batch in the background (None: when host storage feeds a CUDA training device)."""
+        return self._sampler.prefetch
+
+    @prefetch.setter
+    def prefetch(self, prefetch: bool | None) -> None:
+        self._sampler.prefetch = prefetch
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes the whole capacity takes once allocated at the first ``add()`` (frames on disk included when
+        memory-mapped)."""
+        rings = self._rings
+        host = rings.has_step_rows.nbytes + rings.head.nbytes + rings.episode_open.nbytes + rings.last_obs.nbytes
+        return sum(self._storage.bytes_needed()) + host
+
+    def size(self) -> int:
+        """Number of transitions that can be sampled."""
+        return self._rings.n_transitions
+
+    def reset(self) -> None:
+        """Forget everything stored (the storage stays allocated)."""
+        self._sampler.drop_pending()
+        super().reset()
+        self._rings.reset()
+        if self._storage.allocated:
+            self._storage.step_flags.zero_()
+
+    def seed(self, seed: int) -> None:
+        """Restart the sampling stream from ``seed`` (a prefetched batch is dropped)."""
+        self._sampler.seed(seed)
+
+    # ------------------------------------------------------------------ writing
+    def add(
+        self,
+        obs: np.ndarray,
+        next_obs: np.ndarray,
+        action: np.ndarray,
+        reward: np.ndarray,
+        done: np.ndarray,
+        infos: list[dict[str, Any]],
+    ) -> None:
+        """Store one step of every env, as SB3's ``_store_transition`` calls it.
+
+        ``next_obs[i]`` is the terminal observation when env ``i`` finished. An ``obs`` that does not continue the
+        env's stored episode (e.g. the env was reset by a new ``learn()`` call) starts a new episode and leaves the
+        previous one cut, which bootstraps like a time limit. A refused call stores nothing.
+        """
+        expected_shape = (self.n_envs, *self.obs_shape)
+        obs, next_obs = np.asarray(obs), np.asarray(next_obs)
+        for name, array in (("obs", obs), ("next_obs", next_obs)):
+            if array.shape != expected_shape:
+                raise ValueError(
+                    f"SequenceReplayBuffer.add expects {name} of shape {expected_shape}, got {array.shape}"
+                )
+        action = np.asarray(action, dtype=np.float32).reshape(self.n_envs, self.action_dim)
+        reward = np.asarray(reward, dtype=np.float32).reshape(self.n_envs)
+        done = np.asarray(done, dtype=bool).reshape(self.n_envs)
+        rings, storage = self._rings, self._storage
+        rings.check_step(obs, next_obs, action, reward)
+        masks = rings.step_masks(infos, self.frame_shape[1:]) if self.store_masks else None
+        truncated = np.array(
+            [self.handle_timeout_termination and info.get("TimeLimit.truncated", False) for info in infos], dtype=bool
+        )
+        if not storage.allocated:
+            storage.allocate(self.storage_device, rings.has_step_rows)
+            self.storage_device = storage.device
+        self._sampler.wait_for_prefetch()
+
+        placement = rings.place(obs, next_obs, done)
+        packed = None
+        if masks is not None:  # a new episode stores the masks of its first observation's frames too
+            new = [masks[env] if placement.started[env] else masks[env, -1:] for env in range(self.n_envs)]
+            packed = np.packbits(np.concatenate(new).reshape(len(placement.frame_rows), -1), axis=1)
+        storage.write_frames(placement.frame_rows, np.stack(placement.frames), packed)
+        storage.write_steps(placement.step_rows, actions=action, rewards=reward, dones=done, timeouts=truncated)
+        storage.update_step_flags(placement.touched_rows, rings.has_step_rows)
+        self.pos = (self.pos + 1) % self.buffer_size
+        self.full = self.full or self.pos == 0
+
+    # ----------------------------------------------------------------- sampling
+    def sample(self, batch_size: int, env: VecNormalize | None = None) -> SequenceReplayBufferSamples:
+        """Draw ``batch_size`` transitions uniformly over all stored ones (with replacement).
+
+        The frame tensors of a batch are reused: a batch stays valid until the second call to ``sample()`` after
+        the one that returned it (clone what you keep longer). With prefetch, the batch was drawn when the previous
+        one was handed out (docs/buffer.md says how stale it may be).
+        """
+        if self._rings.n_transitions == 0:
+            raise ValueError("SequenceReplayBuffer.sample expects a buffer with at least one transition, got none")
+        if batch_size < 1:
+            raise ValueError(f"SequenceReplayBuffer.sample expects batch_size >= 1, got {batch_size}")
+        if env is not None and getattr(env, "norm_obs", False):
+            raise ValueError("SequenceReplayBuffer expects uint8 images that are not normalised (norm_obs=False)")
+        return self._sampler.sample(batch_size, self.device, env)
+
+    # ------------------------------------------------------- SB3's array layout
+    def _sb3_rows(self) -> np.ndarray:
+        key = (self._rings.version, self.pos)
+        if self._sb3_rows_cache is None or self._sb3_rows_cache[0] != key:
+            self._sb3_rows_cache = (key, sb3_rows(self._rings, self.pos))
+        return self._sb3_rows_cache[1]
+
+    @property
+    def observations(self) -> StackedFrameView:  # type: ignore[override]
+        """SB3's ``(buffer_size, n_envs, *obs_shape)`` observations: a read-only view gathered when indexed."""
+        return StackedFrameView(self._storage, self._sb3_rows(), self.buffer_size, self.frame_stack, offset=0)
+
+    @property
+    def next_observations(self) -> StackedFrameView:  # type: ignore[override]
+        """SB3's ``(buffer_size, n_envs, *obs_shape)`` next observations: a read-only view gathered when indexed."""
+        return StackedFrameView(self._storage, self._sb3_rows(), self.buffer_size, self.frame_stack, offset=1)
+
+    @property
+    def actions(self) -> np.ndarray:  # type: ignore[override]
+        """SB3's ``(buffer_size, n_envs, action_dim)`` float32 actions (a read-only copy)."""
+        return step_array(self._storage, "actions", self._sb3_rows())
+
+    @property
+    def rewards(self) -> np.ndarray:  # type: ignore[override]
+        """SB3's ``(buffer_size, n_envs)`` float32 rewards (a read-only copy)."""
+        return step_array(self._storage, "rewards", self._sb3_rows())
+
+    @property
+    def dones(self) -> np.ndarray:  # type: ignore[override]
+        """SB3's ``(buffer_size, n_envs)`` float32 episode ends, time limits included (a read-only copy)."""
+        return step_array(self._storage, "dones", self._sb3_rows())
+
+    @property
+    def timeouts(self) -> np.ndarray:  # type: ignore[override]
+        """SB3's ``(buffer_size, n_envs)`` float32 time-limit flags (all zero unless ``handle_timeout_termination``;
+        a read-only copy)."""
+        return step_array(self._storage, "timeouts", self._sb3_rows())
+
+    # ------------------------------------------------------------- save / load
+    def __getstate__(self) -> dict[str, Any]:
+        return persistence.buffer_state(self)
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        persistence.restore_buffer(self, state)
