@@ -40,3 +40,60 @@ def random_shift(*images: th.Tensor, pad: int = 4, generator: th.Generator | Non
         moved = image.permute(0, 2, 3, 1)[batch_index, rows[:, :, None], cols[:, None, :]]
         shifted.append(moved.permute(0, 3, 1, 2).contiguous())
     return tuple(shifted)
+
+
+def _check_batch(images: tuple[th.Tensor, ...], name: str) -> tuple[int, int, int]:
+    """(batch, height, width) shared by all ``images``, or a ``ValueError`` naming the first that differs."""
+    if not images:
+        raise ValueError(f"{name} needs at least one tensor")
+    batch, height, width = images[0].shape[0], images[0].shape[-2], images[0].shape[-1]
+    for image in images:
+        if image.dim() != 4 or image.shape[0] != batch or image.shape[-2:] != (height, width):
+            raise ValueError(
+                f"{name} expects (batch, channels, height, width) tensors with one batch size and frame size, "
+                f"got shapes {[tuple(image.shape) for image in images]}"
+            )
+    return batch, height, width
+
+
+def _check_crop(size: int, height: int, width: int, name: str) -> None:
+    if isinstance(size, bool) or not isinstance(size, int) or not 1 <= size <= min(height, width):
+        raise ValueError(
+            f"{name}: crop size must be an int in [1, {min(height, width)}] for {height}x{width} frames, got {size!r}"
+        )
+
+
+def random_crop(*images: th.Tensor, size: int, generator: th.Generator | None = None) -> tuple[th.Tensor, ...]:
+    """Crop a random ``size`` x ``size`` window of each sample (CURL's augmentation: 84x84 windows of 100x100 frames).
+
+    The window's corner is uniform over every position that fits (``0 .. height - size`` rows, ``0 .. width - size``
+    columns), drawn per sample. Tensors passed together get the *same* window per sample; call twice for two
+    independent crops (CURL's query and key).
+
+    :param images: tensors of shape (batch, channels, height, width), all with the same batch, height and width.
+    :param size: side of the crop, at most the frame's height and width.
+    :param generator: optional torch generator for reproducible crops.
+    :return: the cropped tensors (batch, channels, size, size), in the order given.
+    """
+    batch, height, width = _check_batch(images, "random_crop")
+    _check_crop(size, height, width, "random_crop")
+    device = images[0].device
+    top = th.randint(0, height - size + 1, (batch, 1), device=device, generator=generator)
+    left = th.randint(0, width - size + 1, (batch, 1), device=device, generator=generator)
+    window = th.arange(size, device=device)[None, :]
+    rows, cols = top + window, left + window
+    batch_index = th.arange(batch, device=device)[:, None, None]
+    cropped = []
+    for image in images:
+        moved = image.permute(0, 2, 3, 1)[batch_index, rows[:, :, None], cols[:, None, :]]
+        cropped.append(moved.permute(0, 3, 1, 2).contiguous())
+    return tuple(cropped)
+
+
+def center_crop(images: th.Tensor, size: int) -> th.Tensor:
+    """The central ``size`` x ``size`` window of (batch, channels, height, width) ``images`` (CURL's crop when
+    acting); offsets ``(height - size) // 2`` and ``(width - size) // 2``."""
+    _, height, width = _check_batch((images,), "center_crop")
+    _check_crop(size, height, width, "center_crop")
+    top, left = (height - size) // 2, (width - size) // 2
+    return images[:, :, top : top + size, left : left + size]

@@ -1,0 +1,84 @@
+"""CURL's pixel encoder as an SB3 features extractor: SAC-AE's conv stack, a linear layer and LayerNorm."""
+
+from __future__ import annotations
+
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+from torch import nn
+
+from sb3_ef.common.augmentation import center_crop
+from sb3_ef.common.env_checks import check_stacked_frames
+
+
+def _conv_output_size(size: int, n_layers: int) -> int:
+    """Side of the last conv map: one 3x3 stride-2 convolution, then ``n_layers - 1`` 3x3 stride-1 ones."""
+    return (size - 3) // 2 + 1 - 2 * (n_layers - 1)
+
+
+def _weight_init(module: nn.Module) -> None:
+    """CURL's initialisation: orthogonal linear weights; delta-orthogonal convolutions (zero kernels except an
+    orthogonal centre tap, ReLU gain); zero biases."""
+    if isinstance(module, nn.Linear):
+        nn.init.orthogonal_(module.weight)
+        nn.init.zeros_(module.bias)
+    elif isinstance(module, nn.Conv2d):
+        nn.init.zeros_(module.weight)
+        nn.init.zeros_(module.bias)
+        centre = module.kernel_size[0] // 2
+        with th.no_grad():
+            nn.init.orthogonal_(module.weight[:, :, centre, centre], nn.init.calculate_gain("relu"))
+
+
+class CURLEncoder(BaseFeaturesExtractor):
+    """CURL's encoder (Laskin et al., 2020): ``obs / 255`` -> 3x3 convolutions with ReLU (stride 2, then stride 1)
+    -> flatten -> Linear -> LayerNorm, with no output activation (the authors' ``output_logits=True``).
+
+    The encoder works on ``crop_size`` x ``crop_size`` images: CURL trains on random crops of larger rendered
+    frames (84 of 100) and acts on their centre crop, so larger inputs are centre-cropped here. It scales the
+    images itself: build the policy with ``normalize_images=False``.
+
+    :param observation_space: uint8 Box of shape (3 * frame_stack, height, width), the rendered frames.
+    :param features_dim: size of the features (CURL's ``encoder_feature_dim``, 50).
+    :param crop_size: side of the images the encoder sees; ``None`` for the whole frame (square frames only).
+    :param n_layers: number of convolutions (4).
+    :param n_filters: channels of every convolution (32).
+    """
+
+    def __init__(
+        self,
+        observation_space: spaces.Box,
+        features_dim: int = 50,
+        crop_size: int | None = None,
+        n_layers: int = 4,
+        n_filters: int = 32,
+    ):
+        channels, height, width = check_stacked_frames(observation_space, "CURL")
+        if crop_size is None and height != width:
+            raise ValueError(f"CURL's encoder needs square images: give crop_size for {height}x{width} frames")
+        crop_size = height if crop_size is None else crop_size
+        if isinstance(crop_size, bool) or not isinstance(crop_size, int) or not 1 <= crop_size <= min(height, width):
+            raise ValueError(
+                f"crop_size must be an int in [1, {min(height, width)}] (at most the {height}x{width} frames), "
+                f"got {crop_size!r}"
+            )
+        for name, value in (("features_dim", features_dim), ("n_layers", n_layers), ("n_filters", n_filters)):
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive int, got {value!r}")
+        conv_size = _conv_output_size(crop_size, n_layers)
+        if conv_size < 1:
+            raise ValueError(f"Crops of {crop_size}x{crop_size} are too small for {n_layers} convolutions")
+        super().__init__(observation_space, features_dim)
+        self.crop_size = crop_size
+        layers: list[nn.Module] = []
+        for index in range(n_layers):
+            layers += [nn.Conv2d(channels if index == 0 else n_filters, n_filters, 3, stride=2 if index == 0 else 1)]
+            layers.append(nn.ReLU())
+        self.convnet = nn.Sequential(*layers, nn.Flatten())
+        self.projection = nn.Sequential(nn.Linear(n_filters * conv_size**2, features_dim), nn.LayerNorm(features_dim))
+        self.apply(_weight_init)
+
+    def forward(self, observations: th.Tensor) -> th.Tensor:
+        if observations.shape[-2:] != (self.crop_size, self.crop_size):
+            observations = center_crop(observations, self.crop_size)
+        return self.projection(self.convnet(observations.float() / 255.0))

@@ -1,0 +1,90 @@
+"""SEAR's decoder: a half of the latent back to a full-size image, mirroring the pooled DrQ-v2 encoder.
+
+SEAR (Gmelin et al., ICML 2023) decodes with the transpose of its encoder: a linear layer and ReLU to a
+16-channel map of the encoder's pooled size, a stride-4 transposed convolution back to the conv stack's output
+size, three 3x3 transposed convolutions and a final stride-2 one to the frame size. At 84x84 this is the authors'
+``PoolDecoder`` layer for layer (8x8 -> 35 -> 37 -> 39 -> 41 -> 84); other frame sizes get the output paddings
+that invert the encoder's size arithmetic.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import torch as th
+from torch import nn
+
+# Channels of the decoder's first map and of its hidden transposed convolutions (the authors' values).
+_IN_CHANNELS = 16
+_HIDDEN = (16, 32, 32, 32)
+_POOL = 4
+_STRIDE_ONE_LAYERS = 3  # 3x3 stride-1 convolutions after the encoder's first (stride-2) one
+
+#: Smallest frame side the pooled DrQ-v2 encoder (and so this decoder) handles: a 1x1 pooled map.
+MIN_FRAME_SIZE = 21
+
+
+def _encoder_sizes(size: int) -> tuple[int, int]:
+    """(conv output size, pooled size) of the pooled DrQ-v2 encoder along one image axis."""
+    conv = (size - 3) // 2 + 1 - 2 * _STRIDE_ONE_LAYERS
+    return conv, conv // _POOL
+
+
+def _weight_init(module: nn.Module) -> None:
+    """SEAR's initialisation: orthogonal weights (ReLU gain for the transposed convolutions), zero biases."""
+    if isinstance(module, nn.Linear):
+        nn.init.orthogonal_(module.weight)
+        nn.init.zeros_(module.bias)
+    elif isinstance(module, nn.ConvTranspose2d):
+        nn.init.orthogonal_(module.weight, nn.init.calculate_gain("relu"))
+        nn.init.zeros_(module.bias)
+
+
+class SEARDecoder(nn.Module):
+    """Linear + ReLU to (16, p_h, p_w), then transposed convolutions with ReLU between them to
+    (out_channels, height, width). The output has no activation: SEAR clamps the frame and applies a sigmoid to
+    the mask inside its loss.
+
+    :param in_dim: size of the latent half the decoder reads.
+    :param out_channels: channels of the decoded image (3 x frame stack for frames, frame stack for masks).
+    :param height: frame height (at least 21).
+    :param width: frame width (at least 21).
+    """
+
+    def __init__(self, in_dim: int, out_channels: int, height: int, width: int):
+        super().__init__()
+        if min(height, width) < MIN_FRAME_SIZE:
+            raise ValueError(
+                f"SEAR's decoder needs frames of at least {MIN_FRAME_SIZE}x{MIN_FRAME_SIZE} (a 1x1 pooled encoder "
+                f"map), got {height}x{width}"
+            )
+        (conv_h, pooled_h), (conv_w, pooled_w) = _encoder_sizes(height), _encoder_sizes(width)
+        self.pooled_shape = (_IN_CHANNELS, pooled_h, pooled_w)
+        self.projection = nn.Sequential(nn.Linear(in_dim, _IN_CHANNELS * pooled_h * pooled_w), nn.ReLU())
+        first_conv = (conv_h + 2 * _STRIDE_ONE_LAYERS, conv_w + 2 * _STRIDE_ONE_LAYERS)
+        layers: list[nn.Module] = [
+            nn.ConvTranspose2d(
+                _IN_CHANNELS,
+                _HIDDEN[0],
+                _POOL,
+                stride=_POOL,
+                output_padding=(conv_h - _POOL * pooled_h, conv_w - _POOL * pooled_w),
+            ),
+            nn.ReLU(),
+        ]
+        for in_channels, out in itertools.pairwise(_HIDDEN):
+            layers += [nn.ConvTranspose2d(in_channels, out, 3, stride=1), nn.ReLU()]
+        layers.append(
+            nn.ConvTranspose2d(
+                _HIDDEN[-1],
+                out_channels,
+                3,
+                stride=2,
+                output_padding=(height - 2 * first_conv[0] - 1, width - 2 * first_conv[1] - 1),
+            )
+        )
+        self.deconvs = nn.Sequential(*layers)
+        self.apply(_weight_init)
+
+    def forward(self, latent: th.Tensor) -> th.Tensor:
+        return self.deconvs(self.projection(latent).view(-1, *self.pooled_shape))
