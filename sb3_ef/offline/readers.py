@@ -1,8 +1,9 @@
 """Readers of (frames, actions) episodes behind one interface: a folder of NPZ / HDF5 files, a Minari dataset, and
 BAIR's robot-pushing TFRecords (``softmotion30_44k``), all yielding :class:`~sb3_ef.offline.episodes.Episode`.
 
-``open_dataset`` picks the reader from the source: ``minari:<dataset id>``, a ``.tfrecord`` file or a folder of
-them, or a folder of ``.npz`` / ``.h5`` episodes.
+``open_dataset`` picks the reader from the source: ``minari:<dataset id>``, a LeRobot dataset folder
+(:mod:`sb3_ef.offline.lerobot`), an RLDS / TFDS folder or ``rlds:<path>`` (:mod:`sb3_ef.offline.rlds`), a
+``.tfrecord`` file or a folder of them (BAIR), or a folder of ``.npz`` / ``.h5`` episodes.
 """
 
 from __future__ import annotations
@@ -10,16 +11,19 @@ from __future__ import annotations
 import glob
 import io
 import os
+import zipfile
+import zlib
 from abc import ABC, abstractmethod
 from collections.abc import Iterator, Sequence
 
 import numpy as np
 
 from sb3_ef.offline.episodes import HDF5_SUFFIXES, NPZ_SUFFIXES, Episode, EpisodeError, make_episode
-from sb3_ef.offline.tfrecord import parse_example, read_record_at, record_offsets
+from sb3_ef.offline.tfrecord import Features, parse_example, read_record_at, record_offsets
 
 TFRECORD_SUFFIXES = (".tfrecord", ".tfrecords")
 MINARI_PREFIX = "minari:"
+RLDS_PREFIX = "rlds:"
 
 
 class EpisodeDataset(ABC):
@@ -40,6 +44,11 @@ class EpisodeDataset(ABC):
     def __iter__(self) -> Iterator[Episode]:
         for index in range(len(self)):
             yield self[index]
+
+    def lengths(self) -> list[int]:
+        """Frames per episode, to index the dataset for streaming. Readers that know them from metadata or headers
+        override this; here every episode is read once (and let go)."""
+        return [len(episode.frames) for episode in self]
 
     def _check_index(self, index: int) -> None:
         if not 0 <= index < len(self):
@@ -64,22 +73,59 @@ class FolderDataset(EpisodeDataset):
     def __len__(self) -> int:
         return len(self.paths)
 
+    def lengths(self) -> list[int]:
+        """Frames per episode from the array headers (no frame is decompressed)."""
+        return [_frame_count(path, f"{path} (episode {index})") for index, path in enumerate(self.paths)]
+
     def __getitem__(self, index: int) -> Episode:
         self._check_index(index)
         path = self.paths[index]
         source = f"{path} (episode {index})"
         if path.endswith(NPZ_SUFFIXES):
-            with np.load(path) as file:
-                arrays = {key: file[key] for key in file.files}
+            arrays = _read_npz(path, source)
         else:
             import h5py
 
-            with h5py.File(path, "r") as file:
-                arrays = {key: file[key][()] for key in file}
+            try:
+                with h5py.File(path, "r") as file:
+                    arrays = {key: file[key][()] for key in file}
+            except OSError as error:
+                raise EpisodeError(f"{source}: not a readable HDF5 file ({error})") from error
         missing = [key for key in ("frames", "actions") if key not in arrays]
         if missing:
             raise EpisodeError(f"{source}: missing {missing}; expected keys 'frames', 'actions' and optionally 'masks'")
         return make_episode(arrays["frames"], arrays["actions"], arrays.get("masks"), source, self.min_frames)
+
+
+def _read_npz(path: str, source: str) -> dict[str, np.ndarray]:
+    """The arrays of an ``.npz`` episode; a damaged file or one holding Python objects is an ``EpisodeError``."""
+    try:
+        with np.load(path, allow_pickle=False) as file:
+            return {key: file[key] for key in file.files}
+    except ValueError as error:  # numpy: object arrays, or not an npz at all
+        raise EpisodeError(f"{source}: not a readable .npz of numeric arrays (corrupt, or holds objects)") from error
+    except (OSError, EOFError, zipfile.BadZipFile, zlib.error) as error:
+        raise EpisodeError(f"{source}: corrupt or truncated .npz file ({error})") from error
+
+
+def _frame_count(path: str, source: str) -> int:
+    """Frames of an episode file from the header of its ``frames`` array."""
+    try:
+        if path.endswith(NPZ_SUFFIXES):
+            with zipfile.ZipFile(path) as archive, archive.open("frames.npy") as member:
+                major, _ = np.lib.format.read_magic(member)
+                read_header = np.lib.format.read_array_header_1_0 if major == 1 else np.lib.format.read_array_header_2_0
+                shape = read_header(member)[0]
+        else:
+            import h5py
+
+            with h5py.File(path, "r") as file:
+                shape = file["frames"].shape
+    except KeyError as error:
+        raise EpisodeError(f"{source}: missing ['frames']; expected keys 'frames', 'actions'") from error
+    except (OSError, ValueError, zipfile.BadZipFile, zlib.error) as error:
+        raise EpisodeError(f"{source}: corrupt or truncated episode file ({error})") from error
+    return int(shape[0])
 
 
 class MinariDataset(EpisodeDataset):
@@ -182,12 +228,20 @@ class BAIRDataset(EpisodeDataset):
     def __len__(self) -> int:
         return len(self._offsets)
 
-    def __getitem__(self, index: int) -> Episode:
-        self._check_index(index)
+    def lengths(self) -> list[int]:
+        """Frames per episode from each record's step features (records are parsed, images not decoded)."""
+        return [len(self._steps(index)[1]) for index in range(len(self))]
+
+    def _steps(self, index: int) -> tuple[Features, list[int], str]:
         path, offset = self._offsets[index]
         source = f"{path} (episode {index})"
         features = parse_example(_read_record(path, offset, source, self.verify))
         steps = sorted({int(key.split("/", 1)[0]) for key in features if key.split("/", 1)[0].isdigit()})
+        return features, steps, source
+
+    def __getitem__(self, index: int) -> Episode:
+        self._check_index(index)
+        features, steps, source = self._steps(index)
         if not steps:
             raise EpisodeError(f"{source}: no per-step features '{{t}}/{self.camera}/encoded' in this record")
         frames, actions = [], []
@@ -238,14 +292,24 @@ def _read_record(path: str, offset: int, source: str, verify: bool) -> bytes:
 
 
 def open_dataset(source: str | os.PathLike, min_frames: int = 2, **kwargs) -> EpisodeDataset:
-    """The reader for ``source``: ``minari:<id>``, ``.tfrecord`` file(s) / a folder of them, or a folder of episodes."""
+    """The reader for ``source``: ``minari:<id>``, a LeRobot folder, an RLDS folder (or ``rlds:<path>``),
+    ``.tfrecord`` file(s) / a folder of them (BAIR), or a folder of episodes; ``kwargs`` go to the reader."""
+    from sb3_ef.offline.lerobot import LeRobotDataset, is_lerobot_dataset
+    from sb3_ef.offline.rlds import RLDSDataset, is_rlds_folder
+
     text = os.fspath(source)
     if text.startswith(MINARI_PREFIX):
         return MinariDataset(text[len(MINARI_PREFIX) :], min_frames=min_frames, **kwargs)
+    if text.startswith(RLDS_PREFIX) or is_rlds_folder(text):
+        return RLDSDataset(text.removeprefix(RLDS_PREFIX), min_frames=min_frames, **kwargs)
+    if is_lerobot_dataset(text):
+        return LeRobotDataset(text, min_frames=min_frames, **kwargs)
     if text.endswith(TFRECORD_SUFFIXES) or (
         os.path.isdir(text) and any(p.endswith(TFRECORD_SUFFIXES) for p in os.listdir(text))
     ):
         return BAIRDataset(text, min_frames=min_frames, **kwargs)
+    if kwargs:
+        raise TypeError(f"Options {sorted(kwargs)} do not apply to a folder of .npz / .h5 episodes ({text})")
     return FolderDataset(text, min_frames=min_frames)
 
 

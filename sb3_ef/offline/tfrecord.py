@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import os
 import struct
-from typing import BinaryIO
 from collections.abc import Callable, Iterator, Mapping, Sequence
+from typing import BinaryIO
 
 import numpy as np
 
