@@ -183,3 +183,18 @@ def test_writer_refuses_an_existing_dataset(tmp_path):
     write_lerobot(tmp_path, episodes(count=1), codec="libx264rgb")
     with pytest.raises(FileExistsError, match="already holds a LeRobot dataset"):
         write_lerobot(tmp_path, episodes(count=1), codec="libx264rgb")
+
+
+def test_pretrain_reads_a_lerobot_dataset_end_to_end(tmp_path, capsys):
+    from sb3_ef.cli import main
+
+    write_lerobot(tmp_path / "ds", episodes(count=3, size=64), codec="libsvtav1", robot_type="square")
+    arguments = ["--encoder", "drqv2", "--context", "2", "--horizon", "3", "--steps", "2", "--batch-size", "4"]
+    arguments += ["--holdout", "1", "--encoder-kwargs", '{"features_dim": 64}', "--agent-dim", "8", "--no-progress"]
+    arguments += ["--camera", "observation.image", "--image-size", "32"]
+    assert main(["pretrain", str(tmp_path / "ds"), str(tmp_path / "run"), *arguments]) == 0
+    assert '"agent_ratio"' in capsys.readouterr().out  # masks travel through the Parquet table
+    metrics = json.loads((tmp_path / "run/metrics.json").read_text())
+    assert metrics["train_episodes"] == 2 and metrics["held_out_episodes"] == 1
+    with pytest.raises(SystemExit, match="--image-key do\\(es\\) not apply"):
+        main(["pretrain", str(tmp_path / "ds"), str(tmp_path / "run2"), "--image-key", "observation/image"])

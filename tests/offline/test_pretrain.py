@@ -127,7 +127,14 @@ def test_corrupt_npz_is_an_episode_error_naming_the_file(tmp_path):
 
 def test_a_finished_run_is_kept_unless_overwrite(tmp_path):
     data = episodes(count=3, steps=10)
-    arguments = dict(horizon=3, batch_size=4, holdout=1, ef_kwargs=TINY_EF, progress_bar=False, tensorboard=False)
+    arguments = {
+        "horizon": 3,
+        "batch_size": 4,
+        "holdout": 1,
+        "ef_kwargs": TINY_EF,
+        "progress_bar": False,
+        "tensorboard": False,
+    }
     pretrain(data, tmp_path, steps=2, **arguments, **TINY_DRQV2)
     written = (tmp_path / MODEL).stat().st_mtime_ns, (tmp_path / METRICS).read_text()
     with pytest.raises(FileExistsError, match=r"model.pt holds a finished run of 2 steps: pass overwrite=True"):

@@ -108,3 +108,15 @@ def test_corrupt_shard_is_named_with_the_episode(tmp_path):
     assert len(dataset[0].frames) == 6
     with pytest.raises(EpisodeError, match=r"d-train.tfrecord-00000-of-00001 \(episode 1\): .*wrong CRC-32C"):
         dataset[1]
+
+
+def test_pretrain_reads_an_rlds_shard_folder_end_to_end(tmp_path):
+    from sb3_ef.offline.model import load_pretrained
+    from tests.offline.offline_data import tiny_pretrain
+
+    root = tmp_path / "pushes" / "1.0.0"
+    write_tfds_folder(root, "pushes", [[square_episode(steps=9, seed=s) for s in range(2)], [square_episode(steps=9)]])
+    _, scores = tiny_pretrain(root, tmp_path / "run", context=2)
+    model, _ = load_pretrained(tmp_path / "run" / "model.pt")
+    assert model.config.frame_shape == (3, 32, 32) and model.config.action_dim == 2
+    assert scores["frame_mse"] > 0 and "agent_ratio" not in scores  # RLDS carries no agent masks
