@@ -135,6 +135,31 @@ def test_v21_layout_one_file_per_episode(tmp_path):
         np.testing.assert_array_equal(read.actions, original.actions)
 
 
+def test_image_cameras_stored_in_the_parquet_table(tmp_path):
+    """A camera of dtype "image": PNG bytes per row, in the struct {bytes, path} LeRobot writes."""
+    import io
+
+    from PIL import Image
+
+    data = episodes(count=2)
+    _write_v21(tmp_path, data)
+    info = json.loads((tmp_path / "meta/info.json").read_text())
+    info["features"]["observation.images.top"]["dtype"] = "image"
+    (tmp_path / "meta/info.json").write_text(json.dumps(info))
+    for index, episode in enumerate(data):
+        path = tmp_path / f"data/chunk-000/episode_{index:06d}.parquet"
+        pngs = []
+        for frame in episode.frames:
+            buffer = io.BytesIO()
+            Image.fromarray(frame.transpose(1, 2, 0)).save(buffer, format="PNG")
+            pngs.append({"bytes": buffer.getvalue(), "path": None})
+        table = pq.read_table(path).append_column("observation.images.top", pa.array(pngs))
+        pq.write_table(table, path)
+    for original, read in zip(data, LeRobotDataset(tmp_path), strict=True):
+        np.testing.assert_array_equal(read.frames, original.frames)
+        np.testing.assert_array_equal(read.actions, original.actions)
+
+
 def test_unknown_camera_or_action_lists_what_exists(tmp_path):
     write_lerobot(tmp_path, episodes(count=1), codec="libx264rgb")
     with pytest.raises(EpisodeError, match=r"no camera 'wrist'; the cameras are \['observation.image'\]"):
