@@ -35,6 +35,7 @@ INFO = os.path.join("meta", "info.json")
 V3_DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
 V3_VIDEO_PATH = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
 V3_EPISODES_PATH = "meta/episodes/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
+VIDEO_COLUMNS = ("chunk_index", "file_index", "from_timestamp", "to_timestamp")
 #: The Parquet column of the agent masks written by :class:`LeRobotWriter` (not a LeRobot convention).
 MASK_KEY = "observation.agent_mask"
 
@@ -129,7 +130,17 @@ class LeRobotDataset(EpisodeDataset):
                 raise EpisodeError(f"{self.root}: no meta/episodes/chunk-*/file-*.parquet episode tables")
             rows = []
             for path in paths:
-                rows += self._read_table(path, None, f"{path} (episode table)").to_pylist()
+                # only the columns used here: real episode tables also hold per-episode statistics of every feature
+                wanted = ["episode_index", "length", "data/chunk_index", "data/file_index"]
+                wanted += [f"videos/{self.camera}/{key}" for key in VIDEO_COLUMNS] if self.is_video else []
+                try:
+                    present = set(self._pq.read_schema(path).names)
+                except Exception as error:  # pyarrow raises ArrowInvalid / OSError subclasses for damaged files
+                    raise EpisodeError(f"{path} (episode table): cannot read Parquet file {path}: {error}") from error
+                missing = [column for column in wanted if column not in present]
+                if missing:
+                    raise EpisodeError(f"{path} (episode table): missing columns {missing}")
+                rows += self._read_table(path, wanted, f"{path} (episode table)").to_pylist()
         else:
             path = os.path.join(self.root, "meta", "episodes.jsonl")
             try:

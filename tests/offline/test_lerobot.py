@@ -202,6 +202,12 @@ def test_corrupt_parquet_and_missing_rows(tmp_path):
     pq.write_table(pa.Table.from_pylist(table), tmp_path / "meta/episodes/chunk-000/file-000.parquet")
     with pytest.raises(EpisodeError, match=r"\(episode 1\): expected 13 rows \(the episode's length\), found 12"):
         LeRobotDataset(tmp_path)[1]
+    episodes_table = tmp_path / "meta/episodes/chunk-000/file-000.parquet"
+    pq.write_table(pq.read_table(episodes_table).drop_columns(["data/file_index"]), episodes_table)
+    with pytest.raises(
+        EpisodeError, match=r"file-000.parquet \(episode table\): missing columns \['data/file_index'\]"
+    ):
+        LeRobotDataset(tmp_path)
 
 
 def test_writer_refuses_an_existing_dataset(tmp_path):
