@@ -133,17 +133,16 @@ def reader_options(args: argparse.Namespace) -> dict[str, Any]:
     names = {"camera": "camera", "action_key": "action_key", "image_key": "image_key", "action_keys": "action_keys"}
     names.update(layout="layout", image_size="image_size")
     options = {key: getattr(args, name) for name, key in names.items() if getattr(args, name) is not None}
-    allowed = {"image_size"}
+    lerobot, rlds = {"camera", "action_key"}, {"image_key", "action_keys", "layout"}
     if is_lerobot_dataset(args.dataset):
-        allowed |= {"camera", "action_key"}
+        kind, allowed = "a LeRobot dataset", lerobot | {"image_size"}
     elif args.dataset.startswith(RLDS_PREFIX) or is_rlds_folder(args.dataset):
-        allowed |= {"image_key", "action_keys", "layout"}
+        kind, allowed = "an RLDS folder", rlds | {"image_size"}
     else:
-        allowed = set()
-    wrong = sorted(set(options) - allowed)
-    if wrong:
-        flags = ", ".join("--" + name.replace("_", "-") for name in wrong)
-        raise SystemExit(f"sb3-ef: {flags} do(es) not apply to {args.dataset} (LeRobot / RLDS options)")
+        kind, allowed = "neither a LeRobot dataset nor an RLDS folder", set()
+    for name in sorted(set(options) - allowed):
+        where = "LeRobot datasets" if name in lerobot else "RLDS folders" if name in rlds else "LeRobot and RLDS data"
+        raise SystemExit(f"sb3-ef: --{name.replace('_', '-')} applies to {where} only; {args.dataset} is {kind}")
     return options
 
 

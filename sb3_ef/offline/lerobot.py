@@ -234,7 +234,7 @@ class LeRobotDataset(EpisodeDataset):
         except FileNotFoundError as error:
             raise EpisodeError(f"{source}: video file {path} is missing") from error
         except (av.error.FFmpegError, OSError, ValueError) as error:
-            raise EpisodeError(f"{source}: cannot decode {path}: {error}") from error
+            raise EpisodeError(f"{source}: cannot decode the video (damaged or truncated file?): {error}") from error
         decoded = np.asarray(decoded_times)
         if not len(decoded):
             raise EpisodeError(

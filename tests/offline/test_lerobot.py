@@ -172,7 +172,7 @@ def test_truncated_video_names_file_episode_expected_and_found(tmp_path):
     write_lerobot(tmp_path, episodes(count=2), codec="libx264rgb")
     video = tmp_path / "videos/observation.image/chunk-000/file-000.mp4"
     video.write_bytes(video.read_bytes()[: video.stat().st_size // 2])
-    with pytest.raises(EpisodeError, match=r"file-000.mp4 \(episode 0\): cannot decode .*file-000.mp4"):
+    with pytest.raises(EpisodeError, match=r"file-000.mp4 \(episode 0\): cannot decode the video"):
         LeRobotDataset(tmp_path)[0]
 
 
@@ -227,5 +227,5 @@ def test_pretrain_reads_a_lerobot_dataset_end_to_end(tmp_path, capsys):
     assert '"agent_ratio"' in capsys.readouterr().out  # masks travel through the Parquet table
     metrics = json.loads((tmp_path / "run/metrics.json").read_text())
     assert metrics["train_episodes"] == 2 and metrics["held_out_episodes"] == 1
-    with pytest.raises(SystemExit, match="--image-key do\\(es\\) not apply"):
+    with pytest.raises(SystemExit, match=r"--image-key applies to RLDS folders only; .*ds is a LeRobot dataset"):
         main(["pretrain", str(tmp_path / "ds"), str(tmp_path / "run2"), "--image-key", "observation/image"])
