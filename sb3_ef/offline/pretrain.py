@@ -80,10 +80,11 @@ def pretrain(
     """
     th.manual_seed(seed)
     _refuse_finished_run(out_dir, steps, resume, overwrite)
-    reader = dataset if isinstance(dataset, EpisodeDataset) else None
-    if isinstance(dataset, list):
+    if isinstance(dataset, EpisodeDataset):
+        reader = dataset
+    elif isinstance(dataset, list):
         reader = EpisodeList(dataset)
-    elif reader is None:
+    else:
         reader = open_dataset(dataset, context + horizon)
     reader.min_frames = context + horizon
     lengths = reader.lengths()

@@ -66,3 +66,15 @@ def test_windows_decoded_in_worker_processes_are_real_windows(tmp_path):
                 if np.array_equal(f[t], last) and np.array_equal(f[t + 1 : t + 4], future)
             ]
             assert found, "a window that is no slice of any episode"
+
+
+def test_pretrain_streams_a_folder_through_a_worker_process(tmp_path):
+    from sb3_ef.offline.model import load_pretrained
+    from tests.offline.offline_data import tiny_pretrain
+
+    for index, episode in enumerate(data(count=4)):
+        write_episode(tmp_path / "data" / f"episode_{index}.npz", episode)
+    # a cache below one episode: the pool holds one episode at a time, decoded in the worker
+    tiny_pretrain(tmp_path / "data", tmp_path / "run", context=2, steps=3, cache_mb=0.01, workers=1)
+    model, checkpoint = load_pretrained(tmp_path / "run" / "model.pt")
+    assert checkpoint["step"] == 3 and model.config.frame_shape == (3, 32, 32)
