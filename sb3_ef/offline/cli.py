@@ -23,6 +23,28 @@ def positive_int(text: str) -> int:
     return value
 
 
+def non_negative_int(text: str) -> int:
+    """argparse type: an integer >= 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {value}")
+    return value
+
+
 def json_object(text: str) -> dict[str, Any]:
     """argparse type: a JSON object such as ``{"width": 32}``."""
     try:
@@ -106,8 +128,12 @@ def pretrain_parser() -> argparse.ArgumentParser:
     parser.add_argument("--threads", type=int, help="torch CPU threads (1 is fastest on a busy shared machine)")
     parser.add_argument("--no-resume", action="store_true", help="start over even if OUT/checkpoint.pt exists")
     parser.add_argument("--overwrite", action="store_true", help="train again over a finished run in OUT")
-    parser.add_argument("--cache-mb", type=float, default=1024, help="memory for decoded episodes (larger: streamed)")
-    parser.add_argument("--workers", type=int, default=0, help="DataLoader processes decoding training windows")
+    parser.add_argument(
+        "--cache-mb", type=positive_float, default=1024, help="memory for decoded training episodes; more is streamed"
+    )
+    parser.add_argument(
+        "--workers", type=non_negative_int, default=0, help="DataLoader processes decoding training windows"
+    )
     add_reader_arguments(parser)
     parser.add_argument("--no-progress", action="store_true")
     return parser

@@ -78,6 +78,8 @@ def pretrain(
     :param workers: ``DataLoader`` worker processes decoding windows (0: in this process).
     :return: the trained model (eval mode) and the final held-out scores.
     """
+    if not cache_mb > 0 or workers < 0:
+        raise ValueError(f"Expected cache_mb > 0 and workers >= 0, got cache_mb={cache_mb}, workers={workers}")
     th.manual_seed(seed)
     _refuse_finished_run(out_dir, steps, resume, overwrite)
     if isinstance(dataset, EpisodeDataset):

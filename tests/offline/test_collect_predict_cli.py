@@ -151,3 +151,13 @@ def test_collect_lerobot_round_trip(tmp_path):
     np.testing.assert_array_equal(read.actions, reference.actions[: read.steps])
     np.testing.assert_array_equal(read.masks, reference.masks[: len(read.frames)])
     assert np.abs(read.frames.astype(int) - reference.frames[: len(read.frames)]).mean() < 6  # AV1 (lossy)
+
+
+@pytest.mark.parametrize(
+    "option, value, match",
+    [("--workers", "-1", "expected an integer >= 0, got -1"), ("--cache-mb", "0", "expected a positive number")],
+)
+def test_pretrain_streaming_options_are_checked(option, value, match, capsys):
+    with pytest.raises(SystemExit):
+        main(["pretrain", "unused", "unused", option, value])
+    assert f"argument {option}: {match}" in capsys.readouterr().err

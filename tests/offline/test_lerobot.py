@@ -216,7 +216,7 @@ def test_writer_refuses_an_existing_dataset(tmp_path):
         write_lerobot(tmp_path, episodes(count=1), codec="libx264rgb")
 
 
-def test_pretrain_reads_a_lerobot_dataset_end_to_end(tmp_path, capsys):
+def test_pretrain_and_predict_read_a_lerobot_dataset_end_to_end(tmp_path, capsys):
     from sb3_ef.cli import main
 
     write_lerobot(tmp_path / "ds", episodes(count=3, size=64), codec="libsvtav1", robot_type="square")
@@ -227,5 +227,8 @@ def test_pretrain_reads_a_lerobot_dataset_end_to_end(tmp_path, capsys):
     assert '"agent_ratio"' in capsys.readouterr().out  # masks travel through the Parquet table
     metrics = json.loads((tmp_path / "run/metrics.json").read_text())
     assert metrics["train_episodes"] == 2 and metrics["held_out_episodes"] == 1
+    predict = ["predict", str(tmp_path / "run/model.pt"), str(tmp_path / "pred"), "--dataset", str(tmp_path / "ds")]
+    assert main([*predict, "--episode", "2", "--image-size", "32"]) == 0
+    assert (tmp_path / "pred/prediction.png").is_file()
     with pytest.raises(SystemExit, match=r"--image-key applies to RLDS folders only; .*ds is a LeRobot dataset"):
         main(["pretrain", str(tmp_path / "ds"), str(tmp_path / "run2"), "--image-key", "observation/image"])
