@@ -94,6 +94,10 @@ class LeRobotDataset(EpisodeDataset):
         self.version = str(self.info.get("codebase_version", ""))
         if not self.version.startswith(("v2", "v3")):
             raise EpisodeError(f"{info_path}: expected codebase_version v2.x or v3.x, got {self.version!r}")
+        required = ("fps", "features") + (("data_path",) if self.version.startswith("v2") else ())
+        missing = [key for key in required if key not in self.info]
+        if missing:
+            raise EpisodeError(f"{info_path}: missing {missing} (a LeRobot {self.version} info.json has them)")
         features = self.info.get("features", {})
         cameras = [key for key, feature in features.items() if feature.get("dtype") in ("video", "image")]
         if not cameras:

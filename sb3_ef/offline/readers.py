@@ -235,7 +235,7 @@ class BAIRDataset(EpisodeDataset):
     def _steps(self, index: int) -> tuple[Features, list[int], str]:
         path, offset = self._offsets[index]
         source = f"{path} (episode {index})"
-        features = parse_example(_read_record(path, offset, source, self.verify))
+        features = parse_record(_read_record(path, offset, source, self.verify), source)
         steps = sorted({int(key.split("/", 1)[0]) for key in features if key.split("/", 1)[0].isdigit()})
         return features, steps, source
 
@@ -289,6 +289,14 @@ def _read_record(path: str, offset: int, source: str, verify: bool) -> bytes:
             return read_record_at(file, offset, path, verify)
         except ValueError as error:
             raise EpisodeError(f"{source}: {error}") from error
+
+
+def parse_record(data: bytes, source: str) -> Features:
+    """``parse_example`` whose errors name ``source``."""
+    try:
+        return parse_example(data)
+    except ValueError as error:
+        raise EpisodeError(f"{source}: {error}") from error
 
 
 def open_dataset(source: str | os.PathLike, min_frames: int = 2, **kwargs) -> EpisodeDataset:

@@ -19,8 +19,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from sb3_ef.offline.episodes import Episode, EpisodeError, make_episode
-from sb3_ef.offline.readers import EpisodeDataset, _offsets, _read_record
-from sb3_ef.offline.tfrecord import Features, parse_example
+from sb3_ef.offline.readers import EpisodeDataset, _offsets, _read_record, parse_record
+from sb3_ef.offline.tfrecord import Features
 
 STEPS = "steps/"
 #: TFDS shard names: ``<name>-<split>.tfrecord-<i>-of-<n>``.
@@ -129,7 +129,7 @@ class RLDSDataset(EpisodeDataset):
     def _features(self, index: int) -> tuple[Features, str]:
         path, offset = self._offsets[index]
         source = f"{path} (episode {index})"
-        return parse_example(_read_record(path, offset, source, self.verify)), source
+        return parse_record(_read_record(path, offset, source, self.verify), source), source
 
     def _resolve(self, features: Features, source: str) -> tuple[list[bytes], list[np.ndarray]]:
         """The image bytes of every step and the action feature arrays, by the configured or detected names."""

@@ -160,6 +160,8 @@ def _fields(buffer: bytes) -> Iterator[tuple[int, int, bytes | int]]:
             value, position = _varint(buffer, position)
         elif wire == _LENGTH:
             length, position = _varint(buffer, position)
+            if position + length > len(buffer):
+                raise ValueError(f"field {number} needs {length} bytes, {len(buffer) - position} are left")
             value = buffer[position : position + length]
             position += length
         elif wire == _FIXED32:
@@ -199,7 +201,17 @@ def _decode_feature(buffer: bytes) -> list[bytes] | np.ndarray:
 
 
 def parse_example(data: bytes) -> Features:
-    """Decode a serialised ``tf.train.Example`` into ``{name: list of bytes | float32 array | int64 array}``."""
+    """Decode a serialised ``tf.train.Example`` into ``{name: list of bytes | float32 array | int64 array}``.
+
+    :raises ValueError: ``data`` is not a well-formed Example (truncated, or another message).
+    """
+    try:
+        return _parse_example(data)
+    except (IndexError, TypeError, ValueError, struct.error, UnicodeDecodeError) as error:
+        raise ValueError(f"not a valid tf.train.Example ({type(error).__name__}: {error})") from error
+
+
+def _parse_example(data: bytes) -> Features:
     features: Features = {}
     for number, _, features_message in _fields(data):
         if number != 1:

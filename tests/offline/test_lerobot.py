@@ -210,6 +210,15 @@ def test_corrupt_parquet_and_missing_rows(tmp_path):
         LeRobotDataset(tmp_path)
 
 
+def test_info_json_without_fps_is_named(tmp_path):
+    write_lerobot(tmp_path, episodes(count=1), codec="libx264rgb")
+    info = json.loads((tmp_path / "meta/info.json").read_text())
+    del info["fps"]
+    (tmp_path / "meta/info.json").write_text(json.dumps(info))
+    with pytest.raises(EpisodeError, match=r"info.json: missing \['fps'\] \(a LeRobot v3.0 info.json has them\)"):
+        LeRobotDataset(tmp_path)
+
+
 def test_writer_refuses_an_existing_dataset(tmp_path):
     write_lerobot(tmp_path, episodes(count=1), codec="libx264rgb")
     with pytest.raises(FileExistsError, match="already holds a LeRobot dataset"):

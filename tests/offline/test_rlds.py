@@ -120,3 +120,12 @@ def test_pretrain_reads_an_rlds_shard_folder_end_to_end(tmp_path):
     model, _ = load_pretrained(tmp_path / "run" / "model.pt")
     assert model.config.frame_shape == (3, 32, 32) and model.config.action_dim == 2
     assert scores["frame_mse"] > 0 and "agent_ratio" not in scores  # RLDS carries no agent masks
+
+
+def test_a_record_that_is_no_example_is_named(tmp_path):
+    root = tmp_path / "d"
+    write_tfds_folder(root, "d", [[square_episode(steps=3)]])
+    (shard,) = root.glob("d-train.tfrecord-*")
+    write_records(shard, [b"\x0a\xff\x01" + b"\x00" * 10])  # valid CRCs, a message claiming 255 bytes
+    with pytest.raises(EpisodeError, match=r"\(episode 0\): not a valid tf.train.Example \(ValueError: field 1 needs"):
+        RLDSDataset(root)[0]
