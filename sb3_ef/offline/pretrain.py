@@ -157,6 +157,7 @@ def pretrain(
             model.train()
         if done % checkpoint_every == 0 or done == steps:
             th.save(model.checkpoint(step=done, optimizer=optimizer.state_dict()), checkpoint_path)
+    batches.close()  # stops the DataLoader workers, if any
     if bar is not None:
         bar.close()
     model.eval()
