@@ -126,6 +126,7 @@ def test_docs_name_the_files_collect_writes(tmp_path):
 
 def test_collect_lerobot_round_trip(tmp_path):
     pytest.importorskip("av")
+    pytest.importorskip("pyarrow")
     from sb3_ef.offline.lerobot import LeRobotDataset
 
     env = ToyAgentEnv(size=32, frame_stack=1)
