@@ -9,13 +9,61 @@ from __future__ import annotations
 
 import argparse
 import json
+from typing import Any
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
+
+
+def non_negative_int(text: str) -> int:
+    """argparse type: an integer >= 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {value}")
+    return value
+
+
+def json_object(text: str) -> dict[str, Any]:
+    """argparse type: a JSON object such as ``{"width": 32}``."""
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise argparse.ArgumentTypeError(
+            f"expected a JSON object such as '{{\"decoder_channels\": 32}}' (keys and strings in double quotes), "
+            f"got {text!r}: {error.msg} at character {error.pos + 1}"
+        ) from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"expected a JSON object ({{...}}), got {type(value).__name__} {text!r}")
+    return value
 
 
 def collect_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="sb3-ef collect", description="record episodes (frames, actions, masks)")
     parser.add_argument("env", help="env name, e.g. metaworld/hammer, dmc/reacher-easy, toy/agent-v0")
-    parser.add_argument("out", help="output folder (one .npz or .h5 file per episode)")
-    parser.add_argument("--episodes", type=int, default=10)
+    parser.add_argument("out", help="output folder: one .npz / .h5 file per episode, or a LeRobot dataset")
+    parser.add_argument("--episodes", type=positive_int, default=10)
     parser.add_argument("--size", type=int, default=64, help="frame size (ignored with --policy: the model's)")
     parser.add_argument("--action-repeat", type=int, default=2)
     parser.add_argument("--mode", choices=("sign", "clamped_uniform"), default="sign", help="babbling actions")
@@ -24,7 +72,9 @@ def collect_parser() -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--slow-render", action="store_true", help="render shadows and reflections (slower)")
     parser.add_argument("--no-masks", action="store_true", help="skip the agent masks (one render less per step)")
-    parser.add_argument("--format", choices=("npz", "h5"), default="npz")
+    parser.add_argument(
+        "--format", choices=("npz", "h5", "lerobot"), default="npz", help="lerobot: a LeRobot v3.0 dataset (AV1 video)"
+    )
     parser.add_argument("--no-progress", action="store_true")
     return parser
 
@@ -54,7 +104,11 @@ def collect_main(argv: list[str] | None = None) -> int:
 
 def pretrain_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="sb3-ef pretrain", description="train encoder + Ego-Foresight offline")
-    parser.add_argument("dataset", help="episode folder (.npz/.h5), .tfrecord file or folder (BAIR), or minari:<id>")
+    parser.add_argument(
+        "dataset",
+        help="episode folder (.npz/.h5), LeRobot dataset folder, RLDS/TFDS folder (or rlds:PATH), .tfrecord file or "
+        "folder (BAIR), or minari:<id>",
+    )
     parser.add_argument("out", help="output folder: checkpoint.pt, model.pt, metrics.json, tb/")
     parser.add_argument("--encoder", choices=("dcgan-unet", "drqv2", "tdmpc2"), default="dcgan-unet")
     parser.add_argument("--context", type=int, default=3, help="stacked context frames (the RL frame stack)")
@@ -67,18 +121,61 @@ def pretrain_parser() -> argparse.ArgumentParser:
     parser.add_argument("--holdout", type=float, default=0.1, help="held-out episodes: a count, or a fraction < 1")
     parser.add_argument("--eval-every", type=int, default=1000)
     parser.add_argument("--checkpoint-every", type=int, default=500)
-    parser.add_argument("--encoder-kwargs", type=json.loads, default={}, help="JSON, e.g. '{\"width\": 32}'")
-    parser.add_argument("--ef-kwargs", type=json.loads, default={}, help="JSON, e.g. '{\"decoder_channels\": 32}'")
+    parser.add_argument("--encoder-kwargs", type=json_object, default={}, help="JSON, e.g. '{\"width\": 32}'")
+    parser.add_argument("--ef-kwargs", type=json_object, default={}, help="JSON, e.g. '{\"decoder_channels\": 32}'")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--threads", type=int, help="torch CPU threads (1 is fastest on a busy shared machine)")
     parser.add_argument("--no-resume", action="store_true", help="start over even if OUT/checkpoint.pt exists")
+    parser.add_argument("--overwrite", action="store_true", help="train again over a finished run in OUT")
+    parser.add_argument(
+        "--cache-mb", type=positive_float, default=1024, help="memory for decoded training episodes; more is streamed"
+    )
+    parser.add_argument(
+        "--workers", type=non_negative_int, default=0, help="DataLoader processes decoding training windows"
+    )
+    add_reader_arguments(parser)
     parser.add_argument("--no-progress", action="store_true")
     return parser
 
 
+def add_reader_arguments(parser: argparse.ArgumentParser) -> None:
+    """Camera / image and action selection for LeRobot and RLDS datasets."""
+    group = parser.add_argument_group("LeRobot and RLDS datasets")
+    group.add_argument("--camera", help="LeRobot camera feature, e.g. observation.images.top (default: the first)")
+    group.add_argument("--action-key", help="LeRobot action feature (default: action)")
+    group.add_argument("--image-key", help="RLDS image feature without steps/, e.g. observation/image")
+    group.add_argument("--action-keys", nargs="+", help="RLDS action features without steps/, concatenated")
+    group.add_argument("--layout", help="RLDS Open X-Embodiment layout name (default: from the folder name)")
+    group.add_argument("--image-size", type=positive_int, help="resize LeRobot / RLDS frames to N x N")
+
+
+def reader_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The reader options given on the command line (only those set), checked against the dataset kind."""
+    from sb3_ef.offline.lerobot import is_lerobot_dataset
+    from sb3_ef.offline.readers import RLDS_PREFIX
+    from sb3_ef.offline.rlds import is_rlds_folder
+
+    names = {"camera": "camera", "action_key": "action_key", "image_key": "image_key", "action_keys": "action_keys"}
+    names.update(layout="layout", image_size="image_size")
+    options = {key: getattr(args, name) for name, key in names.items() if getattr(args, name) is not None}
+    lerobot, rlds = {"camera", "action_key"}, {"image_key", "action_keys", "layout"}
+    if is_lerobot_dataset(args.dataset):
+        kind, allowed = "a LeRobot dataset", lerobot | {"image_size"}
+    elif args.dataset.startswith(RLDS_PREFIX) or is_rlds_folder(args.dataset):
+        kind, allowed = "an RLDS folder", rlds | {"image_size"}
+    else:
+        kind, allowed = "neither a LeRobot dataset nor an RLDS folder", set()
+    for name in sorted(set(options) - allowed):
+        where = "LeRobot datasets" if name in lerobot else "RLDS folders" if name in rlds else "LeRobot and RLDS data"
+        raise SystemExit(f"sb3-ef: --{name.replace('_', '-')} applies to {where} only; {args.dataset} is {kind}")
+    return options
+
+
 def pretrain_main(argv: list[str] | None = None) -> int:
+    from sb3_ef.offline.episodes import EpisodeError
     from sb3_ef.offline.pretrain import pretrain
+    from sb3_ef.offline.readers import open_dataset
 
     args = pretrain_parser().parse_args(argv)
     if args.threads:
@@ -86,8 +183,19 @@ def pretrain_main(argv: list[str] | None = None) -> int:
 
         torch.set_num_threads(args.threads)
     holdout = args.holdout if args.holdout < 1 else int(args.holdout)
-    _, scores = pretrain(
-        args.dataset,
+    options = reader_options(args)
+    try:
+        dataset = open_dataset(args.dataset, args.context + args.horizon, **options) if options else args.dataset
+        _, scores = _pretrain(pretrain, dataset, args, holdout)
+    except (EpisodeError, FileExistsError, FileNotFoundError) as error:
+        raise SystemExit(f"sb3-ef pretrain: {error}") from None
+    print(json.dumps({key: value for key, value in scores.items() if not isinstance(value, list)}, indent=2))
+    return 0
+
+
+def _pretrain(pretrain: Any, dataset: Any, args: argparse.Namespace, holdout: float | int) -> Any:
+    return pretrain(
+        dataset,
         args.out,
         encoder=args.encoder,
         context=args.context,
@@ -105,10 +213,11 @@ def pretrain_main(argv: list[str] | None = None) -> int:
         seed=args.seed,
         device=args.device,
         resume=not args.no_resume,
+        overwrite=args.overwrite,
         progress_bar=not args.no_progress,
+        cache_mb=args.cache_mb,
+        workers=args.workers,
     )
-    print(json.dumps({key: value for key, value in scores.items() if not isinstance(value, list)}, indent=2))
-    return 0
 
 
 def predict_parser() -> argparse.ArgumentParser:
@@ -121,17 +230,28 @@ def predict_parser() -> argparse.ArgumentParser:
     parser.add_argument("--actions", choices=("dataset", "figure8"), default="dataset")
     parser.add_argument("--steps", type=int, help="frames to predict (default: the horizon)")
     parser.add_argument("--video", choices=("gif", "mp4"), default="gif")
+    add_reader_arguments(parser)
     return parser
 
 
 def predict_main(argv: list[str] | None = None) -> int:
+    from sb3_ef.offline.episodes import EpisodeError
     from sb3_ef.offline.model import load_pretrained
     from sb3_ef.offline.predict import predict_episode
     from sb3_ef.offline.readers import open_dataset
 
     args = predict_parser().parse_args(argv)
+    options = reader_options(args)
     model, _ = load_pretrained(args.model)
-    episode = open_dataset(args.dataset, min_frames=model.config.context + 1)[args.episode]
+    try:
+        dataset = open_dataset(args.dataset, min_frames=model.config.context + 1, **options)
+        if not 0 <= args.episode < len(dataset):
+            raise SystemExit(
+                f"sb3-ef predict: --episode {args.episode} is not in 0..{len(dataset) - 1} of {args.dataset}"
+            )
+        episode = dataset[args.episode]
+    except (EpisodeError, FileNotFoundError) as error:
+        raise SystemExit(f"sb3-ef predict: {error}") from None
     written = predict_episode(model, episode, args.out, args.start, args.actions, args.steps, args.video)
     print(json.dumps(written, indent=2))
     return 0

@@ -13,6 +13,9 @@ from sb3_ef.common.env_checks import FRAME_CHANNELS
 from sb3_ef.ef.babbling import babble, check_babbling
 from sb3_ef.offline.episodes import Episode, make_episode, write_episode
 
+#: ``collect``'s file formats: one ``.npz`` / ``.h5`` file per episode, or a LeRobot v3.0 dataset folder.
+FORMATS = ("npz", "h5", "lerobot")
+
 
 def record_episode(env: Any, act: Any, seed: int | None = None, source: str = "", masks: bool = True) -> Episode:
     """Play one episode; ``act(observation) -> action``. Frames are the newest frame of each stacked observation;
@@ -47,11 +50,13 @@ def collect(
     progress_bar: bool = True,
     **env_kwargs: Any,
 ) -> list[str]:
-    """Write ``episodes`` files ``episode_00000.<npz|h5>`` to ``out_dir`` and return their paths.
+    """Write ``episodes`` files ``episode_00000.<npz|h5>`` to ``out_dir`` and return their paths, or with
+    ``file_format="lerobot"`` a LeRobot v3.0 dataset (:class:`~sb3_ef.offline.lerobot.LeRobotWriter`: AV1 video,
+    actions and agent masks in Parquet) and return ``[out_dir]``.
 
-    Files that already exist are kept (an interrupted collection continues where it stopped): episode ``i`` is
-    reset with seed ``seed + i`` and babbles from a generator seeded with ``(seed, i)``, so it does not depend on
-    the others.
+    NPZ / HDF5 files that already exist are kept (an interrupted collection continues where it stopped): episode
+    ``i`` is reset with seed ``seed + i`` and babbles from a generator seeded with ``(seed, i)``, so it does not
+    depend on the others. A LeRobot dataset is written in one go (an existing one is refused).
 
     :param env_name: ``dmc/<domain>-<task>``, ``metaworld/<task>`` or another registered sb3-ef env (``toy/agent-v0``).
     :param mode: babbling mode when no ``policy`` is given (``"sign"`` as in the paper, or ``"clamped_uniform"``).
@@ -61,12 +66,15 @@ def collect(
         that is to start from these frames with the same setting.
     :param env_kwargs: more ``make_env`` options, e.g. ``episode_length`` (simulator steps).
     :param masks: record agent masks for every episode (True), none (False), or the episodes of these indices
+        (a LeRobot dataset has masks for every episode or none: any index records all)
         (masks are only needed to score held-out episodes; each costs a second render per step).
     """
     from sb3_ef.analysis.cli import load_ef_model
 
-    if file_format not in ("npz", "h5"):
-        raise ValueError(f"file_format must be 'npz' or 'h5', got {file_format!r}")
+    if file_format not in FORMATS:
+        raise ValueError(f"file_format must be one of {FORMATS}, got {file_format!r}")
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
+        raise ValueError(f"episodes must be a positive number of episodes to record, got {episodes!r}")
     check_babbling(0, mode)
     rng = np.random.default_rng(seed)  # re-seeded per episode below
     if policy is not None:
@@ -81,16 +89,29 @@ def collect(
         act = lambda _observation: babble(rng, env.action_space.shape, mode)  # noqa: E731
     paths = []
     bar = _progress(episodes, progress_bar)
+    writer = None
     try:
         for index in range(episodes):
             path = os.path.join(os.fspath(out_dir), f"episode_{index:05d}.{file_format}")
-            if not os.path.exists(path):
+            with_masks = masks if isinstance(masks, bool) else index in masks
+            if file_format == "lerobot":
                 rng = np.random.default_rng([seed, index])
-                with_masks = masks if isinstance(masks, bool) else index in masks
+                source = f"{os.fspath(out_dir)} (episode {index})"
+                episode = record_episode(env, act, seed=seed + index, source=source, masks=bool(masks))
+                if writer is None:
+                    from sb3_ef.offline.lerobot import LeRobotWriter
+
+                    writer = LeRobotWriter(out_dir, episode.frame_shape, episode.action_dim, masks=bool(masks))
+                writer.add(episode)
+            elif not os.path.exists(path):
+                rng = np.random.default_rng([seed, index])
                 write_episode(path, record_episode(env, act, seed=seed + index, source=path, masks=with_masks))
-            paths.append(path)
+            if file_format != "lerobot":
+                paths.append(path)
             if bar is not None:
                 bar.update(1)
+        if writer is not None:
+            paths.append(writer.close())
     finally:
         env.close()
         if bar is not None:

@@ -9,6 +9,8 @@ scored against the agent mask at t + k; "chance" is the mask's share of the fram
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import torch as th
 
@@ -44,8 +46,12 @@ def evaluate(
     batch_size: int = 64,
     saliency_windows: int = 32,
     seed: int = 0,
+    progress: bool = False,
 ) -> dict[str, float | list[float]]:
     """Scores on ``episodes`` (held out): per-k lists and their means over k = 1..H, ratios model / copy.
+
+    ``progress`` shows a bar over the prediction batches and the saliency windows (each costs a backward pass per
+    4x4 patch: minutes on a CPU).
 
     Keys: ``frame_mse``, ``copy_frame_mse``, ``frame_ratio`` and, when the episodes have masks, ``agent_mse``,
     ``copy_agent_mse``, ``agent_ratio``, ``saliency_precision``, ``saliency_recall``, ``saliency_chance``,
@@ -59,6 +65,7 @@ def evaluate(
     horizon = config.horizon
     sums = {name: np.zeros(horizon) for name in ("frame", "copy_frame", "agent", "copy_agent", "agent_pixels")}
     with_masks = all(episodes[index].masks is not None for index, _ in picks)
+    bar = _progress(-(-len(picks) // batch_size) + (min(saliency_windows, len(picks)) if with_masks else 0), progress)
     for start in range(0, len(picks), batch_size):
         windows = cut_windows(episodes, picks[start : start + batch_size], config.context, horizon, device)
         predicted = predict_windows(model, windows)
@@ -73,13 +80,27 @@ def evaluate(
             sums["agent"] += (model_error * agent).sum(dim=(0, 2, 3)).cpu().numpy()
             sums["copy_agent"] += (copy_error * agent).sum(dim=(0, 2, 3)).cpu().numpy()
             sums["agent_pixels"] += agent.sum(dim=(0, 2, 3)).cpu().numpy()
+        if bar is not None:
+            bar.update(1)
     scores: dict[str, float | list[float]] = {"windows": float(len(picks))}
     _add_errors(scores, "frame", sums["frame"] / len(picks), sums["copy_frame"] / len(picks))
     if with_masks:
         pixels = np.maximum(sums["agent_pixels"], 1)
         _add_errors(scores, "agent", sums["agent"] / pixels, sums["copy_agent"] / pixels)
-        scores.update(saliency_scores(model, episodes, picks, saliency_windows, seed))
+        scores.update(saliency_scores(model, episodes, picks, saliency_windows, seed, bar))
+    if bar is not None:
+        bar.close()
     return scores
+
+
+def _progress(total: int, enabled: bool) -> Any:
+    if not enabled:
+        return None
+    try:
+        from tqdm.auto import tqdm
+    except ImportError:
+        return None
+    return tqdm(total=total, desc="held-out evaluation", unit="step")
 
 
 def _add_errors(scores: dict, name: str, model_error: np.ndarray, copy_error: np.ndarray) -> None:
@@ -100,7 +121,12 @@ def window_saliency(model: OfflineEF, windows: Windows, index: int, k: int) -> S
 
 
 def saliency_scores(
-    model: OfflineEF, episodes: list[Episode], picks: list[tuple[int, int]], count: int, seed: int = 0
+    model: OfflineEF,
+    episodes: list[Episode],
+    picks: list[tuple[int, int]],
+    count: int,
+    seed: int = 0,
+    bar: Any = None,
 ) -> dict[str, float]:
     """Mean precision / recall of the thresholded h_a saliency of the predicted frame t + k (k drawn in 1..H)
     against the agent mask at t + k, over ``count`` windows drawn from ``picks``."""
@@ -111,6 +137,8 @@ def saliency_scores(
     precision, recall, chance = [], [], []
     for i, k in enumerate(rng.integers(1, config.horizon + 1, len(chosen))):
         truth = windows.masks[i, k].cpu().numpy()  # type: ignore[index]
+        if bar is not None:
+            bar.update(1)
         if not truth.any():
             continue
         scores = mask_scores(threshold_saliency(window_saliency(model, windows, i, int(k)).agent), truth)

@@ -11,7 +11,8 @@ import torch as th
 from sb3_ef.analysis.prediction import (
     eval_mode,
     figure_eight_actions,
-    save_prediction_grid,
+    frame_grid,
+    save_image,
     save_video,
     to_uint8_frames,
 )
@@ -19,6 +20,24 @@ from sb3_ef.offline.episodes import Episode
 from sb3_ef.offline.model import OfflineEF
 
 ACTION_SOURCES = ("dataset", "figure8")
+ROW_LABELS = ("context", "prediction", "truth")
+#: Width in pixels of the label column of ``prediction.png``.
+LABEL_WIDTH = 64
+
+
+def labelled_grid(rows: list[np.ndarray], labels: list[str], spacing: int = 2) -> np.ndarray:
+    """``frame_grid(rows)`` with a column on the left naming each row (white text on black)."""
+    from PIL import Image, ImageDraw
+
+    grid = frame_grid(rows, spacing)
+    height = rows[0].shape[1]
+    image = Image.new("RGB", (LABEL_WIDTH + grid.shape[1], grid.shape[0]))
+    image.paste(Image.fromarray(grid), (LABEL_WIDTH, 0))
+    draw = ImageDraw.Draw(image)
+    for index, label in enumerate(labels):
+        top = index * (height + spacing) + height // 2
+        draw.text((2, top), label, fill=(255, 255, 255), anchor="lm")
+    return np.asarray(image)
 
 
 @th.no_grad()
@@ -50,8 +69,8 @@ def predict_episode(
     steps: int | None = None,
     video: str = "gif",
 ) -> dict[str, str]:
-    """Predict from the context ending at frame ``start`` of ``episode`` and write ``prediction.png`` (context,
-    predicted and, for dataset actions, true rows) and ``prediction.gif`` / ``.mp4`` (predicted | true).
+    """Predict from the context ending at frame ``start`` of ``episode`` and write ``prediction.png`` (rows labelled
+    context, prediction and, for dataset actions, truth) and ``prediction.gif`` / ``.mp4`` (predicted | true).
 
     :param start: the last context frame (default: the first possible, ``context - 1``).
     :param actions: ``"dataset"`` (the episode's own actions; true frames shown) or ``"figure8"`` (the paper's
@@ -74,9 +93,9 @@ def predict_episode(
     context_frames = episode.frames[start - context + 1 : start + 1]
     predicted = predict_frames(model, context_frames, sequence)
     os.makedirs(out_dir, exist_ok=True)
+    rows = [context_frames.transpose(0, 2, 3, 1), predicted] + ([truth] if truth is not None else [])
+    grid = labelled_grid(rows, list(ROW_LABELS[: len(rows)]))
     return {
-        "grid": save_prediction_grid(
-            os.path.join(out_dir, "prediction.png"), context_frames.transpose(0, 2, 3, 1), predicted, truth
-        ),
+        "grid": save_image(os.path.join(out_dir, "prediction.png"), grid),
         "video": save_video(os.path.join(out_dir, f"prediction.{video}"), predicted, truth),
     }

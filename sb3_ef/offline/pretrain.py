@@ -5,29 +5,32 @@ from __future__ import annotations
 
 import json
 import os
-from typing import Any
+from collections.abc import Sequence
+from typing import Any, TypeVar
 
 import torch as th
 
 from sb3_ef.analysis.prediction import frame_grid, to_uint8_frames
 from sb3_ef.common.augmentation import random_shift
-from sb3_ef.offline.episodes import Episode
+from sb3_ef.offline.episodes import Episode, EpisodeError
 from sb3_ef.offline.evaluate import evaluate, predict_windows
 from sb3_ef.offline.model import OfflineEF, OfflineEFConfig, load_pretrained
-from sb3_ef.offline.readers import EpisodeDataset, load_episodes, open_dataset
-from sb3_ef.offline.windows import WindowSampler, cut_windows
+from sb3_ef.offline.readers import EpisodeDataset, open_dataset
+from sb3_ef.offline.streaming import EpisodeList, check_like, window_batches
+from sb3_ef.offline.windows import Windows, cut_windows
 
 CHECKPOINT = "checkpoint.pt"
 MODEL = "model.pt"
 METRICS = "metrics.json"
+T = TypeVar("T")
 
 
-def split_holdout(episodes: list[Episode], holdout: int | float) -> tuple[list[Episode], list[Episode]]:
+def split_holdout(episodes: Sequence[T], holdout: int | float) -> tuple[list[T], list[T]]:
     """The last ``holdout`` episodes (a count, or a fraction when < 1) are held out; at least one stays for training."""
     count = round(holdout * len(episodes)) if isinstance(holdout, float) and holdout < 1 else int(holdout)
     if not 0 <= count < len(episodes):
         raise ValueError(f"holdout must leave at least one of {len(episodes)} episodes for training, got {holdout}")
-    return episodes[: len(episodes) - count], episodes[len(episodes) - count :]
+    return list(episodes[: len(episodes) - count]), list(episodes[len(episodes) - count :])
 
 
 def pretrain(
@@ -50,8 +53,11 @@ def pretrain(
     seed: int = 0,
     device: str = "cpu",
     resume: bool = True,
+    overwrite: bool = False,
     progress_bar: bool = True,
     tensorboard: bool = True,
+    cache_mb: float = 1024,
+    workers: int = 0,
 ) -> tuple[OfflineEF, dict[str, Any]]:
     """Train encoder + EF to predict frame t + k from ``context`` frames and k actions (k drawn in 1..``horizon``).
 
@@ -65,17 +71,33 @@ def pretrain(
     :param saliency_windows: held-out windows whose h_a saliency is scored at the end (each costs one backward
         pass per 4x4 patch of the frame).
     :param holdout: held-out episodes (count, or fraction when < 1), the last ones of the dataset.
+    :param resume: continue from ``checkpoint.pt`` of an unfinished (or shorter) run in ``out_dir``.
+    :param overwrite: train again over a finished run (``model.pt`` at ``steps`` or more); refused otherwise.
+    :param cache_mb: memory for decoded training episodes: a dataset that does not fit is streamed
+        (:mod:`sb3_ef.offline.streaming`); held-out episodes are loaded whole.
+    :param workers: ``DataLoader`` worker processes decoding windows (0: in this process).
     :return: the trained model (eval mode) and the final held-out scores.
     """
+    if not cache_mb > 0 or workers < 0:
+        raise ValueError(f"Expected cache_mb > 0 and workers >= 0, got cache_mb={cache_mb}, workers={workers}")
     th.manual_seed(seed)
-    if isinstance(dataset, list):
-        episodes = dataset
+    _refuse_finished_run(out_dir, steps, resume, overwrite)
+    if isinstance(dataset, EpisodeDataset):
+        reader = dataset
+    elif isinstance(dataset, list):
+        reader = EpisodeList(dataset)
     else:
-        reader = dataset if isinstance(dataset, EpisodeDataset) else open_dataset(dataset, context + horizon)
-        reader.min_frames = context + horizon
-        episodes = load_episodes(reader)
-    train_episodes, held_out = split_holdout(episodes, holdout)
-    first = episodes[0]
+        reader = open_dataset(dataset, context + horizon)
+    reader.min_frames = context + horizon
+    lengths = reader.lengths()
+    short = [i for i, length in enumerate(lengths) if length < context + horizon]
+    if short:
+        reader[short[0]]  # raises the reader's EpisodeError naming the file and episode
+    if not lengths:
+        raise EpisodeError("The dataset holds no episodes")
+    train_indices, held_out_indices = split_holdout(range(len(reader)), holdout)
+    first = reader[train_indices[0]]
+    held_out = [check_like(reader[i], first) for i in held_out_indices]
     config = OfflineEFConfig(
         encoder, first.frame_shape, first.action_dim, context, horizon, agent_dim, encoder_kwargs or {}, ef_kwargs or {}
     )
@@ -95,13 +117,23 @@ def pretrain(
         model, checkpoint = OfflineEF(config).to(device), None
     model.train()
     optimizer = th.optim.Adam(model.parameters(), lr=learning_rate)
-    sampler = WindowSampler(train_episodes, context, horizon, seed=seed + start)
+    batches = window_batches(
+        reader,
+        train_indices,
+        [lengths[i] for i in train_indices],
+        context,
+        horizon,
+        batch_size,
+        cache_mb,
+        workers,
+        seed + start,
+    )
     if checkpoint is not None:
         optimizer.load_state_dict(checkpoint["optimizer"])
     writer = _writer(os.path.join(out_dir, "tb")) if tensorboard else None
     bar = _progress(steps, start, progress_bar)
     for step in range(start, steps):
-        batch = sampler.sample(batch_size, device)
+        batch = _to(next(batches), device)
         ef_steps = model.ef.draw_steps(th.ones(batch_size, horizon, dtype=th.bool, device=device))
         target = batch.frames[th.arange(batch_size, device=device), ef_steps - 1]
         observations = batch.observations
@@ -125,22 +157,43 @@ def pretrain(
             model.train()
         if done % checkpoint_every == 0 or done == steps:
             th.save(model.checkpoint(step=done, optimizer=optimizer.state_dict()), checkpoint_path)
+    batches.close()  # stops the DataLoader workers, if any
     if bar is not None:
         bar.close()
     model.eval()
-    scores = evaluate(model, held_out, saliency_windows=saliency_windows) if held_out else {}
+    scores = evaluate(model, held_out, saliency_windows=saliency_windows, progress=progress_bar) if held_out else {}
     if held_out and writer is not None:
         _log_evaluation(writer, model, held_out, steps, scores)
     th.save(model.checkpoint(step=steps), os.path.join(out_dir, MODEL))
     with open(os.path.join(out_dir, METRICS), "w") as file:
         json.dump(
-            {"steps": steps, "train_episodes": len(train_episodes), "held_out_episodes": len(held_out), **scores},
+            {"steps": steps, "train_episodes": len(train_indices), "held_out_episodes": len(held_out), **scores},
             file,
             indent=2,
         )
     if writer is not None:
         writer.close()
     return model, scores
+
+
+def _refuse_finished_run(out_dir: str | os.PathLike, steps: int, resume: bool, overwrite: bool) -> None:
+    """A finished run (``model.pt`` at ``steps`` or beyond) is kept unless ``overwrite``: only a resumed run with
+    more steps continues it."""
+    model_path = os.path.join(out_dir, MODEL)
+    if overwrite or not os.path.isfile(model_path):
+        return
+    done = th.load(model_path, map_location="cpu", weights_only=False).get("step", 0)
+    if resume and done < steps:
+        return
+    raise FileExistsError(
+        f"{model_path} holds a finished run of {done} steps: pass overwrite=True (sb3-ef pretrain --overwrite) to "
+        f"train again from scratch into {os.fspath(out_dir)}, a larger steps to continue it, or another folder"
+    )
+
+
+def _to(windows: Windows, device: th.device | str) -> Windows:
+    masks = windows.masks.to(device) if windows.masks is not None else None
+    return Windows(windows.observations.to(device), windows.actions.to(device), windows.frames.to(device), masks)
 
 
 def _log_evaluation(writer: Any, model: OfflineEF, held_out: list[Episode], step: int, scores: dict) -> None:

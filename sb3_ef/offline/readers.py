@@ -1,8 +1,9 @@
 """Readers of (frames, actions) episodes behind one interface: a folder of NPZ / HDF5 files, a Minari dataset, and
 BAIR's robot-pushing TFRecords (``softmotion30_44k``), all yielding :class:`~sb3_ef.offline.episodes.Episode`.
 
-``open_dataset`` picks the reader from the source: ``minari:<dataset id>``, a ``.tfrecord`` file or a folder of
-them, or a folder of ``.npz`` / ``.h5`` episodes.
+``open_dataset`` picks the reader from the source: ``minari:<dataset id>``, a LeRobot dataset folder
+(:mod:`sb3_ef.offline.lerobot`), an RLDS / TFDS folder or ``rlds:<path>`` (:mod:`sb3_ef.offline.rlds`), a
+``.tfrecord`` file or a folder of them (BAIR), or a folder of ``.npz`` / ``.h5`` episodes.
 """
 
 from __future__ import annotations
@@ -10,17 +11,19 @@ from __future__ import annotations
 import glob
 import io
 import os
-import struct
+import zipfile
+import zlib
 from abc import ABC, abstractmethod
 from collections.abc import Iterator, Sequence
 
 import numpy as np
 
 from sb3_ef.offline.episodes import HDF5_SUFFIXES, NPZ_SUFFIXES, Episode, EpisodeError, make_episode
-from sb3_ef.offline.tfrecord import parse_example
+from sb3_ef.offline.tfrecord import Features, parse_example, read_record_at, record_offsets
 
 TFRECORD_SUFFIXES = (".tfrecord", ".tfrecords")
 MINARI_PREFIX = "minari:"
+RLDS_PREFIX = "rlds:"
 
 
 class EpisodeDataset(ABC):
@@ -41,6 +44,11 @@ class EpisodeDataset(ABC):
     def __iter__(self) -> Iterator[Episode]:
         for index in range(len(self)):
             yield self[index]
+
+    def lengths(self) -> list[int]:
+        """Frames per episode, to index the dataset for streaming. Readers that know them from metadata or headers
+        override this; here every episode is read once (and let go)."""
+        return [len(episode.frames) for episode in self]
 
     def _check_index(self, index: int) -> None:
         if not 0 <= index < len(self):
@@ -65,22 +73,59 @@ class FolderDataset(EpisodeDataset):
     def __len__(self) -> int:
         return len(self.paths)
 
+    def lengths(self) -> list[int]:
+        """Frames per episode from the array headers (no frame is decompressed)."""
+        return [_frame_count(path, f"{path} (episode {index})") for index, path in enumerate(self.paths)]
+
     def __getitem__(self, index: int) -> Episode:
         self._check_index(index)
         path = self.paths[index]
         source = f"{path} (episode {index})"
         if path.endswith(NPZ_SUFFIXES):
-            with np.load(path) as file:
-                arrays = {key: file[key] for key in file.files}
+            arrays = _read_npz(path, source)
         else:
             import h5py
 
-            with h5py.File(path, "r") as file:
-                arrays = {key: file[key][()] for key in file}
+            try:
+                with h5py.File(path, "r") as file:
+                    arrays = {key: file[key][()] for key in file}
+            except OSError as error:
+                raise EpisodeError(f"{source}: not a readable HDF5 file ({error})") from error
         missing = [key for key in ("frames", "actions") if key not in arrays]
         if missing:
             raise EpisodeError(f"{source}: missing {missing}; expected keys 'frames', 'actions' and optionally 'masks'")
         return make_episode(arrays["frames"], arrays["actions"], arrays.get("masks"), source, self.min_frames)
+
+
+def _read_npz(path: str, source: str) -> dict[str, np.ndarray]:
+    """The arrays of an ``.npz`` episode; a damaged file or one holding Python objects is an ``EpisodeError``."""
+    try:
+        with np.load(path, allow_pickle=False) as file:
+            return {key: file[key] for key in file.files}
+    except ValueError as error:  # numpy: object arrays, or not an npz at all
+        raise EpisodeError(f"{source}: not a readable .npz of numeric arrays (corrupt, or holds objects)") from error
+    except (OSError, EOFError, zipfile.BadZipFile, zlib.error) as error:
+        raise EpisodeError(f"{source}: corrupt or truncated .npz file ({error})") from error
+
+
+def _frame_count(path: str, source: str) -> int:
+    """Frames of an episode file from the header of its ``frames`` array."""
+    try:
+        if path.endswith(NPZ_SUFFIXES):
+            with zipfile.ZipFile(path) as archive, archive.open("frames.npy") as member:
+                major, _ = np.lib.format.read_magic(member)
+                read_header = np.lib.format.read_array_header_1_0 if major == 1 else np.lib.format.read_array_header_2_0
+                shape = read_header(member)[0]
+        else:
+            import h5py
+
+            with h5py.File(path, "r") as file:
+                shape = file["frames"].shape
+    except KeyError as error:
+        raise EpisodeError(f"{source}: missing ['frames']; expected keys 'frames', 'actions'") from error
+    except (OSError, ValueError, zipfile.BadZipFile, zlib.error) as error:
+        raise EpisodeError(f"{source}: corrupt or truncated episode file ({error})") from error
+    return int(shape[0])
 
 
 class MinariDataset(EpisodeDataset):
@@ -157,6 +202,8 @@ class BAIRDataset(EpisodeDataset):
 
     :param paths: TFRecord files, or one folder searched for ``*.tfrecord(s)``.
     :param camera: ``"image_aux1"`` (the 64x64 view used for video prediction) or ``"image_main"``.
+    :param verify: check each record's CRC-32C when it is read (in C when ``google-crc32c`` or ``crc32c`` is
+        installed: a small cost next to decoding).
     """
 
     def __init__(
@@ -165,8 +212,10 @@ class BAIRDataset(EpisodeDataset):
         camera: str = "image_aux1",
         image_size: int = 64,
         min_frames: int = 2,
+        verify: bool = True,
     ):
         super().__init__(min_frames)
+        self.verify = verify
         if isinstance(paths, (str, os.PathLike)) and os.path.isdir(paths):
             paths = sorted(p for p in glob.glob(os.path.join(paths, "*")) if p.endswith(TFRECORD_SUFFIXES))
         self.paths = [os.fspath(path) for path in ([paths] if isinstance(paths, (str, os.PathLike)) else paths)]
@@ -174,21 +223,25 @@ class BAIRDataset(EpisodeDataset):
             raise FileNotFoundError("No .tfrecord files given or found")
         self.camera = camera
         self.image_size = image_size
-        self._offsets = [(path, offset) for path in self.paths for offset in _record_offsets(path)]
+        self._offsets = [(path, offset) for path in self.paths for offset in _offsets(path)]
 
     def __len__(self) -> int:
         return len(self._offsets)
 
-    def __getitem__(self, index: int) -> Episode:
-        self._check_index(index)
+    def lengths(self) -> list[int]:
+        """Frames per episode from each record's step features (records are parsed, images not decoded)."""
+        return [len(self._steps(index)[1]) for index in range(len(self))]
+
+    def _steps(self, index: int) -> tuple[Features, list[int], str]:
         path, offset = self._offsets[index]
         source = f"{path} (episode {index})"
-        with open(path, "rb") as file:
-            file.seek(offset)
-            (length,) = struct.unpack("<Q", file.read(8))
-            file.seek(4, os.SEEK_CUR)
-            features = parse_example(file.read(length))
+        features = parse_record(_read_record(path, offset, source, self.verify), source)
         steps = sorted({int(key.split("/", 1)[0]) for key in features if key.split("/", 1)[0].isdigit()})
+        return features, steps, source
+
+    def __getitem__(self, index: int) -> Episode:
+        self._check_index(index)
+        features, steps, source = self._steps(index)
         if not steps:
             raise EpisodeError(f"{source}: no per-step features '{{t}}/{self.camera}/encoded' in this record")
         frames, actions = [], []
@@ -222,34 +275,49 @@ class BAIRDataset(EpisodeDataset):
         return image.transpose(2, 0, 1)
 
 
-def _record_offsets(path: str) -> list[int]:
-    """Byte offsets of every record of a TFRecord file (headers only are read)."""
-    offsets = []
-    size = os.path.getsize(path)
+def _offsets(path: str) -> list[int]:
+    try:
+        return record_offsets(path)
+    except ValueError as error:
+        raise EpisodeError(str(error)) from error
+
+
+def _read_record(path: str, offset: int, source: str, verify: bool) -> bytes:
+    """One TFRecord record read at random, its CRCs checked when ``verify``; errors name ``source``."""
     with open(path, "rb") as file:
-        position = 0
-        while position < size:
-            header = file.read(8)
-            if len(header) < 8:
-                raise EpisodeError(f"{path}: truncated TFRecord header at byte {position}")
-            (length,) = struct.unpack("<Q", header)
-            offsets.append(position)
-            position += 12 + length + 4
-            if position > size:
-                raise EpisodeError(f"{path}: record at byte {offsets[-1]} is truncated ({length} data bytes expected)")
-            file.seek(position)
-    return offsets
+        try:
+            return read_record_at(file, offset, path, verify)
+        except ValueError as error:
+            raise EpisodeError(f"{source}: {error}") from error
+
+
+def parse_record(data: bytes, source: str) -> Features:
+    """``parse_example`` whose errors name ``source``."""
+    try:
+        return parse_example(data)
+    except ValueError as error:
+        raise EpisodeError(f"{source}: {error}") from error
 
 
 def open_dataset(source: str | os.PathLike, min_frames: int = 2, **kwargs) -> EpisodeDataset:
-    """The reader for ``source``: ``minari:<id>``, ``.tfrecord`` file(s) / a folder of them, or a folder of episodes."""
+    """The reader for ``source``: ``minari:<id>``, a LeRobot folder, an RLDS folder (or ``rlds:<path>``),
+    ``.tfrecord`` file(s) / a folder of them (BAIR), or a folder of episodes; ``kwargs`` go to the reader."""
+    from sb3_ef.offline.lerobot import LeRobotDataset, is_lerobot_dataset
+    from sb3_ef.offline.rlds import RLDSDataset, is_rlds_folder
+
     text = os.fspath(source)
     if text.startswith(MINARI_PREFIX):
         return MinariDataset(text[len(MINARI_PREFIX) :], min_frames=min_frames, **kwargs)
+    if text.startswith(RLDS_PREFIX) or is_rlds_folder(text):
+        return RLDSDataset(text.removeprefix(RLDS_PREFIX), min_frames=min_frames, **kwargs)
+    if is_lerobot_dataset(text):
+        return LeRobotDataset(text, min_frames=min_frames, **kwargs)
     if text.endswith(TFRECORD_SUFFIXES) or (
         os.path.isdir(text) and any(p.endswith(TFRECORD_SUFFIXES) for p in os.listdir(text))
     ):
         return BAIRDataset(text, min_frames=min_frames, **kwargs)
+    if kwargs:
+        raise TypeError(f"Options {sorted(kwargs)} do not apply to a folder of .npz / .h5 episodes ({text})")
     return FolderDataset(text, min_frames=min_frames)
 
 

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,7 +16,7 @@ from sb3_ef.ef.babbling import babble
 from sb3_ef.envs.toy import ToyAgentEnv
 from sb3_ef.offline.collect import collect, record_episode
 from sb3_ef.offline.model import load_pretrained
-from sb3_ef.offline.predict import predict_frames
+from sb3_ef.offline.predict import LABEL_WIDTH, predict_frames
 from sb3_ef.offline.readers import FolderDataset
 from tests.offline.offline_data import tiny_pretrain
 
@@ -44,7 +47,9 @@ def test_collect_pretrain_predict_from_the_command_line(tmp_path, capsys):
     assert '"agent_ratio"' in printed and '"frame_ratio"' in printed
     assert main(["predict", str(run / "model.pt"), str(out), "--dataset", str(data), "--steps", "4"]) == 0
     grid = np.asarray(Image.open(out / "prediction.png"))
-    assert grid.shape == (3 * 32 + 2 * 2, 4 * 32 + 3 * 2, 3)  # context, predicted and true rows of 32x32 frames
+    assert grid.shape == (3 * 32 + 2 * 2, LABEL_WIDTH + 4 * 32 + 3 * 2, 3)  # labels, then context / predicted / true
+    for row in range(3):  # each row's label is drawn in its band of the label column
+        assert grid[row * 34 : row * 34 + 32, :LABEL_WIDTH].max() > 200
     gif = Image.open(out / "prediction.gif")
     assert gif.n_frames == 4 and gif.size == (64, 32)  # predicted | true side by side
     assert (
@@ -52,9 +57,7 @@ def test_collect_pretrain_predict_from_the_command_line(tmp_path, capsys):
         == 0
     )
     eight = Image.open(out / "eight" / "prediction.gif")
-    assert (
-        eight.size == (32, 32) and eight.n_frames == 3
-    )  # horizon frames; no true frames for a hand-made path  # no true frames for a hand-made path
+    assert eight.size == (32, 32) and eight.n_frames == 3  # horizon frames; no true frames for a hand-made path
     assert json.loads((run / "metrics.json").read_text())["held_out_episodes"] == 1
 
 
@@ -79,3 +82,83 @@ def test_collect_metaworld_hammer_babbling(tmp_path):
     assert path.endswith("episode_00000.npz")
     assert episode.frames.shape == (251, 3, 64, 64) and episode.actions.shape == (250, 4)
     assert 0.02 < episode.masks.mean() < 0.5  # the arm fills part of the corner view
+
+
+def test_labelled_grid_names_each_row():
+    from sb3_ef.offline.predict import labelled_grid
+
+    rows = [np.zeros((2, 32, 32, 3), np.uint8)] * 2
+    two = labelled_grid(rows, ["context", "prediction"])
+    three = labelled_grid([*rows, rows[0]], ["context", "prediction", "truth"])
+    assert two.shape == (66, LABEL_WIDTH + 66, 3) and three.shape == (100, LABEL_WIDTH + 66, 3)
+    assert not np.array_equal(two[:32, :LABEL_WIDTH], two[34:66, :LABEL_WIDTH])  # different words
+
+
+@pytest.mark.parametrize("episodes", ["0", "-3", "two"])
+def test_collect_refuses_a_non_positive_episode_count(episodes, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["collect", "toy/agent-v0", "unused", "--episodes", episodes])
+    assert exit_info.value.code == 2
+    assert "argument --episodes: expected a positive integer" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="episodes must be a positive number"):
+        collect("toy/agent-v0", "unused", episodes=0)
+
+
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        ("{a: 8}", r"expected a JSON object such as .* \(keys and strings in double quotes\), got '\{a: 8\}'"),
+        ("[8]", "expected a JSON object .*, got list"),
+    ],
+)
+def test_pretrain_json_options_explain_what_is_expected(text, match, capsys):
+    with pytest.raises(SystemExit):
+        main(["pretrain", "unused", "unused", "--ef-kwargs", text])
+    assert re.search(f"argument --ef-kwargs: {match}", capsys.readouterr().err)
+
+
+def test_docs_name_the_files_collect_writes(tmp_path):
+    (path,) = collect("toy/agent-v0", tmp_path, episodes=1, size=16, progress_bar=False, masks=False)
+    docs = (Path(__file__).parents[2] / "docs" / "offline.md").read_text()
+    assert os.path.basename(path) == "episode_00000.npz" and "OUT/episode_00000.npz" in docs
+    assert "episode_<i>" not in docs
+
+
+def test_collect_lerobot_round_trip(tmp_path):
+    pytest.importorskip("av")
+    pytest.importorskip("pyarrow")
+    from sb3_ef.offline.lerobot import LeRobotDataset
+
+    env = ToyAgentEnv(size=32, frame_stack=1)
+    rng = np.random.default_rng([0, 1])
+    reference = record_episode(env, lambda _obs: babble(rng, (2,)), seed=1)  # collect's episode 1
+    main(
+        [
+            "collect",
+            "toy/agent-v0",
+            str(tmp_path / "ds"),
+            "--episodes",
+            "2",
+            "--size",
+            "32",
+            "--format",
+            "lerobot",
+            "--no-progress",
+        ]
+    )
+    dataset = LeRobotDataset(tmp_path / "ds")
+    assert len(dataset) == 2 and dataset.camera == "observation.image"
+    read = dataset[1]
+    np.testing.assert_array_equal(read.actions, reference.actions[: read.steps])
+    np.testing.assert_array_equal(read.masks, reference.masks[: len(read.frames)])
+    assert np.abs(read.frames.astype(int) - reference.frames[: len(read.frames)]).mean() < 6  # AV1 (lossy)
+
+
+@pytest.mark.parametrize(
+    "option, value, match",
+    [("--workers", "-1", "expected an integer >= 0, got -1"), ("--cache-mb", "0", "expected a positive number")],
+)
+def test_pretrain_streaming_options_are_checked(option, value, match, capsys):
+    with pytest.raises(SystemExit):
+        main(["pretrain", "unused", "unused", option, value])
+    assert f"argument {option}: {match}" in capsys.readouterr().err

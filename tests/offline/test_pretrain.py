@@ -109,3 +109,56 @@ def test_ef_beats_copying_the_last_frame_on_held_out_agent_pixels(tmp_path):
     )
     assert scores["agent_ratio"] < 0.8, scores
     assert scores["saliency_precision_over_chance"] > 2, scores
+
+
+def test_corrupt_npz_is_an_episode_error_naming_the_file(tmp_path):
+    from sb3_ef.offline.episodes import EpisodeError, write_episode
+
+    for index in range(3):
+        write_episode(tmp_path / "data" / f"episode_{index}.npz", square_episode(steps=8, seed=index))
+    bad = tmp_path / "data" / "episode_1.npz"
+    bad.write_bytes(b"not an npz file at all" * 10)  # numpy alone would ask for allow_pickle
+    with pytest.raises(EpisodeError, match=r"episode_1.npz \(episode 1\): corrupt or truncated episode file"):
+        pretrain(tmp_path / "data", tmp_path / "run", context=2, horizon=3, steps=1, progress_bar=False)
+    bad.write_bytes((tmp_path / "data" / "episode_0.npz").read_bytes()[:-200])  # truncated
+    with pytest.raises(EpisodeError, match=r"episode_1.npz \(episode 1\): corrupt or truncated"):
+        pretrain(tmp_path / "data", tmp_path / "run", context=2, horizon=3, steps=1, progress_bar=False)
+
+
+def test_a_finished_run_is_kept_unless_overwrite(tmp_path):
+    data = episodes(count=3, steps=10)
+    arguments = {
+        "horizon": 3,
+        "batch_size": 4,
+        "holdout": 1,
+        "ef_kwargs": TINY_EF,
+        "progress_bar": False,
+        "tensorboard": False,
+    }
+    pretrain(data, tmp_path, steps=2, **arguments, **TINY_DRQV2)
+    written = (tmp_path / MODEL).stat().st_mtime_ns, (tmp_path / METRICS).read_text()
+    with pytest.raises(FileExistsError, match=r"model.pt holds a finished run of 2 steps: pass overwrite=True"):
+        pretrain(data, tmp_path, steps=2, **arguments, **TINY_DRQV2)
+    with pytest.raises(FileExistsError, match="finished run of 2 steps"):
+        pretrain(data, tmp_path, steps=2, resume=False, **arguments, **TINY_DRQV2)
+    assert ((tmp_path / MODEL).stat().st_mtime_ns, (tmp_path / METRICS).read_text()) == written
+    pretrain(data, tmp_path, steps=2, overwrite=True, resume=False, **arguments, **TINY_DRQV2)
+    assert (tmp_path / MODEL).stat().st_mtime_ns != written[0]
+
+
+def test_held_out_evaluation_shows_progress(tmp_path, capsys):
+    data = episodes(count=3, steps=10)
+    pretrain(
+        data,
+        tmp_path,
+        horizon=3,
+        steps=1,
+        batch_size=2,
+        holdout=1,
+        saliency_windows=2,
+        ef_kwargs=TINY_EF,
+        tensorboard=False,
+        **TINY_DRQV2,
+    )
+    err = capsys.readouterr().err
+    assert "pretrain" in err and "held-out evaluation" in err and "3/3" in err  # 1 prediction batch + 2 saliency

@@ -152,3 +152,25 @@ def test_minari_dataset_written_with_minari(tmp_path, monkeypatch):
         assert np.abs(read.frames.astype(int) - original.frames).mean() < 8
         np.testing.assert_array_equal(read.actions, original.actions)
         np.testing.assert_array_equal(read.masks, original.masks)
+
+
+def test_bair_random_access_checks_crcs_unless_told_not_to(tmp_path):
+    frames = np.full((4, 3, 64, 64), 7, np.uint8)
+    path = tmp_path / "a.tfrecord"
+    write_records(path, [_bair_record(frames, np.zeros((4, 4), np.float32))])
+    raw = bytearray(path.read_bytes())
+    position = raw.index(bytes([7] * 64)) + 10  # inside the first frame's pixels
+    raw[position] = 8
+    path.write_bytes(bytes(raw))
+    with pytest.raises(EpisodeError, match=r"a.tfrecord \(episode 0\): .*wrong CRC-32C"):
+        BAIRDataset(path)[0]
+    read = BAIRDataset(path, verify=False)[0]
+    assert (read.frames != 7).sum() == 1  # the flipped byte is read as it is
+
+
+def test_truncated_tfrecord_is_an_episode_error_naming_the_record(tmp_path):
+    path = tmp_path / "a.tfrecord"
+    write_records(path, [_bair_record(np.zeros((4, 3, 64, 64), np.uint8), np.zeros((4, 4), np.float32))])
+    path.write_bytes(path.read_bytes()[:-100])
+    with pytest.raises(EpisodeError, match=r"a.tfrecord: record 0 is truncated \(expected \d+ data bytes"):
+        open_dataset(path)

@@ -7,12 +7,31 @@ import struct
 import numpy as np
 import pytest
 
-from sb3_ef.offline.tfrecord import crc32c, masked_crc32c, parse_example, read_records, serialize_example, write_records
+from sb3_ef.offline.tfrecord import (
+    CRC32C_IMPLEMENTATION,
+    crc32c,
+    masked_crc32c,
+    parse_example,
+    python_crc32c,
+    read_records,
+    serialize_example,
+    write_records,
+)
 
 
-def test_crc32c_matches_the_standard_check_value():
-    assert crc32c(b"123456789") == 0xE3069283  # the CRC-32C check value of RFC 3720
-    assert crc32c(b"") == 0
+@pytest.mark.parametrize("implementation", [crc32c, python_crc32c])
+def test_crc32c_matches_the_standard_check_value(implementation):
+    assert implementation(b"123456789") == 0xE3069283  # the CRC-32C check value of RFC 3720
+    assert implementation(b"") == 0
+
+
+def test_c_crc32c_is_used_when_installed_and_equals_the_python_one():
+    pytest.importorskip("google_crc32c")
+    assert CRC32C_IMPLEMENTATION in ("google-crc32c", "crc32c")
+    rng = np.random.default_rng(0)
+    for size in (1, 7, 64, 1000, 65537):
+        data = rng.integers(0, 256, size, dtype=np.uint8).tobytes()
+        assert crc32c(data) == python_crc32c(data)
 
 
 def test_records_round_trip_with_checksums(tmp_path):
@@ -31,7 +50,7 @@ def test_corrupt_and_truncated_files_are_reported(tmp_path):
     raw = bytearray(path.read_bytes())
     raw[14] ^= 0xFF
     path.write_bytes(bytes(raw))
-    with pytest.raises(ValueError, match="record 0 has a wrong CRC"):
+    with pytest.raises(ValueError, match=r"record 0 \(byte 0\) has a wrong CRC"):
         list(read_records(path))
     path.write_bytes(bytes(raw[:-6]))
     with pytest.raises(ValueError, match="record 0 is truncated"):

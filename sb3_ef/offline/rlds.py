@@ -1,0 +1,199 @@
+"""RLDS / TFDS episode shards (Open X-Embodiment and other RLDS datasets) read without TensorFlow.
+
+A prepared TFDS dataset folder (``<name>/<version>/``) holds ``dataset_info.json``, ``features.json`` and shards
+``<name>-<split>.tfrecord-00000-of-00016``: TFRecord files whose records are ``tf.train.Example`` s, one per episode.
+TFDS flattens the nested episode with ``/`` and stacks the steps: ``steps/observation/image`` is a bytes list with
+one JPEG / PNG per step, ``steps/action`` (or ``steps/action/world_vector`` etc. when the action is a dict) a float
+list of steps x size, ``steps/is_first`` / ``steps/is_last`` int64 lists. Step ``t`` pairs observation ``t`` with
+action ``t``; the last step's action has no frame after it and is dropped (as LeRobot's and BAIR's).
+"""
+
+from __future__ import annotations
+
+import glob
+import io
+import os
+import re
+from collections.abc import Sequence
+
+import numpy as np
+
+from sb3_ef.offline.episodes import Episode, EpisodeError, make_episode
+from sb3_ef.offline.readers import EpisodeDataset, _offsets, _read_record, parse_record
+from sb3_ef.offline.tfrecord import Features
+
+STEPS = "steps/"
+#: TFDS shard names: ``<name>-<split>.tfrecord-<i>-of-<n>``.
+SHARD_PATTERN = re.compile(r".+\.tfrecord(-\d{5}-of-\d{5})?$")
+#: Image and action features of common Open X-Embodiment datasets (names as in their ``features.json``, without the
+#: ``steps/`` prefix). A dict action's parts are concatenated in the order given.
+_EEF = ("action/world_vector", "action/rotation_delta", "action/gripper_closedness_action")
+_EEF_OPEN = ("action/world_vector", "action/rotation_delta", "action/open_gripper")
+OXE_LAYOUTS: dict[str, tuple[str, tuple[str, ...]]] = {
+    "fractal20220817_data": ("observation/image", _EEF),
+    "kuka": ("observation/image", _EEF),
+    "bridge": ("observation/image", _EEF_OPEN),
+    "taco_play": ("observation/rgb_static", ("action/rel_actions_world",)),
+    "jaco_play": ("observation/image", ("action/world_vector", "action/gripper_closedness_action")),
+    "berkeley_autolab_ur5": ("observation/image", _EEF),
+    "roboturk": ("observation/front_rgb", _EEF),
+    "viola": ("observation/agentview_rgb", _EEF),
+    "toto": ("observation/image", _EEF_OPEN),
+    "language_table": ("observation/rgb", ("action",)),
+    "droid": ("observation/exterior_image_1_left", ("action",)),
+}
+#: Tried in turn when no layout is named: most datasets converted to RLDS use one of these.
+IMAGE_KEYS = (
+    "observation/image",
+    "observation/rgb",
+    "observation/image_0",
+    "observation/rgb_static",
+    "observation/agentview_rgb",
+    "observation/front_rgb",
+    "observation/exterior_image_1_left",
+)
+ACTION_PARTS = (
+    "action/world_vector",
+    "action/rotation_delta",
+    "action/gripper_closedness_action",
+    "action/open_gripper",
+)
+
+
+def rlds_shards(path: str | os.PathLike, split: str = "train") -> list[str]:
+    """The ``split`` shards of a TFDS folder (every TFRecord file when none is named after a split)."""
+    path = os.fspath(path)
+    if os.path.isfile(path):
+        return [path]
+    files = sorted(p for p in glob.glob(os.path.join(path, "*")) if SHARD_PATTERN.match(os.path.basename(p)))
+    named = [p for p in files if f"-{split}.tfrecord" in os.path.basename(p)]
+    return named or files
+
+
+def is_rlds_folder(path: str | os.PathLike) -> bool:
+    path = os.fspath(path)
+    return os.path.isdir(path) and (
+        os.path.isfile(os.path.join(path, "features.json")) or os.path.isfile(os.path.join(path, "dataset_info.json"))
+    )
+
+
+class RLDSDataset(EpisodeDataset):
+    """Episodes of RLDS / TFDS TFRecord shards: one image feature and the action(s) of each step.
+
+    Records are indexed on open from their length fields; ``dataset[i]`` reads record ``i`` (CRC-checked when
+    ``verify``), decodes its images with Pillow and concatenates its action features.
+
+    :param paths: a TFDS dataset folder (``<name>/<version>``), or shard files.
+    :param layout: an ``OXE_LAYOUTS`` name (default: the folder's dataset name when it is one, else auto-detected).
+    :param image_key: the image feature (without ``steps/``), e.g. ``"observation/image"``; overrides ``layout``.
+    :param action_keys: float features (without ``steps/``) concatenated into the action; overrides ``layout``.
+    :param image_size: resize frames to ``image_size`` x ``image_size`` (None: keep their size).
+    """
+
+    def __init__(
+        self,
+        paths: str | os.PathLike | Sequence[str | os.PathLike],
+        layout: str | None = None,
+        image_key: str | None = None,
+        action_keys: Sequence[str] | None = None,
+        split: str = "train",
+        image_size: int | None = None,
+        verify: bool = True,
+        min_frames: int = 2,
+    ):
+        super().__init__(min_frames)
+        if isinstance(paths, (str, os.PathLike)):
+            self.paths = rlds_shards(paths, split)
+            name = _dataset_name(os.fspath(paths))
+        else:
+            self.paths, name = [os.fspath(p) for p in paths], None
+        if not self.paths:
+            raise FileNotFoundError(f"No TFRecord shards (<name>-{split}.tfrecord-*) in {os.fspath(paths)!r}")
+        if layout is not None and layout not in OXE_LAYOUTS:
+            raise ValueError(f"Unknown RLDS layout {layout!r}; known: {sorted(OXE_LAYOUTS)}")
+        layout = layout or (name if name in OXE_LAYOUTS else None)
+        default_image, default_actions = OXE_LAYOUTS[layout] if layout else (None, None)
+        self.layout = layout
+        self.image_key = image_key or default_image
+        self.action_keys = tuple(action_keys) if action_keys else default_actions
+        self.image_size, self.verify = image_size, verify
+        self._offsets = [(path, offset) for path in self.paths for offset in _offsets(path)]
+
+    def __len__(self) -> int:
+        return len(self._offsets)
+
+    def lengths(self) -> list[int]:
+        """Frames per episode, from each record's step count (records are parsed, images not decoded)."""
+        return [len(self._resolve(*self._features(i))[0]) for i in range(len(self))]
+
+    def _features(self, index: int) -> tuple[Features, str]:
+        path, offset = self._offsets[index]
+        source = f"{path} (episode {index})"
+        return parse_record(_read_record(path, offset, source, self.verify), source), source
+
+    def _resolve(self, features: Features, source: str) -> tuple[list[bytes], list[np.ndarray]]:
+        """The image bytes of every step and the action feature arrays, by the configured or detected names."""
+        available = sorted(key[len(STEPS) :] for key in features if key.startswith(STEPS))
+        image_key = self.image_key or next((k for k in IMAGE_KEYS if STEPS + k in features), None)
+        if image_key is None or STEPS + image_key not in features:
+            raise EpisodeError(
+                f"{source}: no image feature {image_key or IMAGE_KEYS[0]!r} in steps; the step features are "
+                f"{available} (choose one with image_key=)"
+            )
+        images = features[STEPS + image_key]
+        if not isinstance(images, list):
+            raise EpisodeError(f"{source}: expected encoded images (bytes) in {image_key!r}, got numbers")
+        action_keys = self.action_keys
+        if action_keys is None:
+            action_keys = (
+                ("action",)
+                if isinstance(features.get(STEPS + "action"), np.ndarray)
+                else tuple(k for k in ACTION_PARTS if STEPS + k in features)
+            )
+        missing = [k for k in action_keys if STEPS + k not in features]
+        if not action_keys or missing:
+            raise EpisodeError(
+                f"{source}: no action feature {missing or ['action']}; the step features are {available} "
+                "(choose them with action_keys=)"
+            )
+        actions = []
+        for key in action_keys:
+            values = features[STEPS + key]
+            if isinstance(values, list) or len(values) % max(len(images), 1):
+                raise EpisodeError(
+                    f"{source}: expected {len(images)} steps x n numbers in {key!r}, got "
+                    f"{len(values)} {'byte strings' if isinstance(values, list) else 'numbers'}"
+                )
+            actions.append(np.asarray(values, dtype=np.float32).reshape(len(images), -1))
+        return images, actions
+
+    def __getitem__(self, index: int) -> Episode:
+        self._check_index(index)
+        features, source = self._features(index)
+        images, actions = self._resolve(features, source)
+        for flag, position in (("is_first", 0), ("is_last", -1)):
+            values = features.get(STEPS + flag)
+            if isinstance(values, np.ndarray) and len(values) == len(images) and not values[position]:
+                raise EpisodeError(f"{source}: expected steps/{flag} set on the {('first', 'last')[position]} step")
+        frames = np.stack([self._decode(data, f"{source} step {step}") for step, data in enumerate(images)])
+        return make_episode(frames, np.concatenate(actions, axis=1), None, source, self.min_frames)
+
+    def _decode(self, data: bytes, source: str) -> np.ndarray:
+        from PIL import Image
+
+        try:
+            image = Image.open(io.BytesIO(data)).convert("RGB")
+        except Exception as error:
+            raise EpisodeError(f"{source}: the image is not a JPEG / PNG ({len(data)} bytes)") from error
+        if self.image_size:
+            image = image.resize((self.image_size, self.image_size), Image.BILINEAR)
+        return np.asarray(image).transpose(2, 0, 1)
+
+
+def _dataset_name(path: str) -> str | None:
+    """``fractal20220817_data`` of ``.../fractal20220817_data/0.1.0`` (the folder above a version folder)."""
+    path = os.path.normpath(path)
+    if os.path.isfile(path):
+        return os.path.basename(path).split("-")[0]
+    base = os.path.basename(path)
+    return os.path.basename(os.path.dirname(path)) if re.fullmatch(r"\d+\.\d+\.\d+", base) else base

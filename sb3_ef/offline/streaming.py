@@ -1,0 +1,190 @@
+"""Training windows from datasets larger than memory: episodes indexed on open, decoded on demand into a bounded pool.
+
+:class:`StreamingWindowSampler` keeps a pool of decoded episodes, as many as fit in ``cache_mb``, and draws every
+batch uniformly over the windows of the pool (as :class:`~sb3_ef.offline.windows.WindowSampler` does over all
+episodes). Before each batch it swaps ``swap`` pool episodes for episodes drawn from the whole dataset in proportion
+to their window counts, so every window is drawn at the same long-run rate while only the pool is in memory; a
+window's neighbours in a batch are more often from the same episode than under fully uniform draws (the price of
+the bound, like a shuffle buffer). When the whole dataset fits, the pool is the dataset and the draws are exactly
+those of ``WindowSampler``. :class:`WindowStream` runs samplers in ``DataLoader`` worker processes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+
+import numpy as np
+import torch as th
+
+from sb3_ef.offline.episodes import Episode, EpisodeError
+from sb3_ef.offline.readers import EpisodeDataset
+from sb3_ef.offline.windows import Windows, WindowSampler, window_starts
+
+
+class EpisodeList(EpisodeDataset):
+    """Episodes already in memory, behind the reader interface."""
+
+    def __init__(self, episodes: Sequence[Episode], min_frames: int = 2):
+        super().__init__(min_frames)
+        self.episodes = list(episodes)
+
+    def __len__(self) -> int:
+        return len(self.episodes)
+
+    def __getitem__(self, index: int) -> Episode:
+        self._check_index(index)
+        episode = self.episodes[index]
+        if len(episode.frames) < self.min_frames:
+            raise EpisodeError(
+                f"{episode.source}: episode of {len(episode.frames)} frames is shorter than context + horizon = "
+                f"{self.min_frames} frames"
+            )
+        return episode
+
+    def lengths(self) -> list[int]:
+        return [len(episode.frames) for episode in self.episodes]
+
+
+def episode_bytes(episode: Episode) -> int:
+    return sum(array.nbytes for array in (episode.frames, episode.actions, episode.masks) if array is not None)
+
+
+def check_like(episode: Episode, first: Episode) -> Episode:
+    """``episode`` if its frame shape and action size equal ``first``'s, else an ``EpisodeError`` naming both."""
+    if episode.frame_shape != first.frame_shape or episode.action_dim != first.action_dim:
+        raise EpisodeError(
+            f"{episode.source}: frames {episode.frame_shape} and {episode.action_dim}-d actions differ from "
+            f"{first.source}: frames {first.frame_shape} and {first.action_dim}-d actions"
+        )
+    return episode
+
+
+class StreamingWindowSampler:
+    """Windows of ``context`` frames, ``horizon`` actions and frames from episodes ``indices`` of ``dataset``.
+
+    :param lengths: frames per episode of ``indices`` (default: ``dataset.lengths()``).
+    :param cache_mb: memory for decoded episodes; the pool holds as many as fit (at least one).
+    :param swap: pool episodes replaced before each batch when the dataset does not fit.
+    """
+
+    def __init__(
+        self,
+        dataset: EpisodeDataset,
+        indices: Sequence[int],
+        context: int,
+        horizon: int,
+        cache_mb: float = 1024,
+        swap: int = 1,
+        seed: int | None = None,
+        lengths: Sequence[int] | None = None,
+    ):
+        self.dataset, self.indices = dataset, list(indices)
+        self.context, self.horizon, self.swap = context, horizon, swap
+        if lengths is None:
+            all_lengths = dataset.lengths()
+            lengths = [all_lengths[i] for i in self.indices]
+        self.counts = np.maximum(np.asarray(lengths) - context - horizon + 1, 0)
+        if self.counts.sum() == 0:
+            raise ValueError(f"No episode has context + horizon = {context + horizon} frames")
+        self.first = dataset[self.indices[0]]
+        per_frame = episode_bytes(self.first) / len(self.first.frames)
+        self.pool_size = max(1, min(len(self.indices), int(cache_mb * 2**20 // (per_frame * np.mean(lengths)))))
+        self.streaming = self.pool_size < len(self.indices)
+        if self.streaming:
+            first_pool = np.random.default_rng(seed).choice(
+                len(self.indices), self.pool_size, replace=False, p=self.counts / self.counts.sum()
+            )
+        else:
+            first_pool = np.arange(len(self.indices))
+        self.pool = [int(i) for i in first_pool]
+        self.sampler = WindowSampler([self._load(i) for i in self.pool], context, horizon, seed)
+        self.loaded = len(self.pool)
+
+    def _load(self, position: int) -> Episode:
+        return check_like(self.dataset[self.indices[position]], self.first)
+
+    def sample(self, batch_size: int, device: th.device | str = "cpu") -> Windows:
+        if self.streaming:
+            for _ in range(self.swap):
+                self._swap()
+        return self.sampler.sample(batch_size, device)
+
+    def _swap(self) -> None:
+        """Replace a random pool episode by one outside the pool, drawn in proportion to its windows."""
+        rng, sampler = self.sampler.rng, self.sampler
+        weights = self.counts.astype(float)
+        weights[self.pool] = 0
+        if weights.sum() == 0:
+            return
+        incoming = int(rng.choice(len(self.indices), p=weights / weights.sum()))
+        slot = int(rng.integers(len(self.pool)))
+        episode = self._load(incoming)
+        self.pool[slot] = incoming
+        sampler.episodes[slot] = episode
+        sampler.starts[slot] = window_starts(episode, self.context, self.horizon)
+        sampler.counts[slot] = len(sampler.starts[slot])
+        self.loaded += 1
+
+    @property
+    def resident_bytes(self) -> int:
+        return sum(episode_bytes(episode) for episode in self.sampler.episodes)
+
+
+class WindowStream(th.utils.data.IterableDataset):
+    """Endless batches of windows for a ``DataLoader(stream, batch_size=None, num_workers=n)``: each worker runs
+    its own :class:`StreamingWindowSampler` (seeded ``seed + worker id``, with ``cache_mb / n`` of memory)."""
+
+    def __init__(
+        self,
+        dataset: EpisodeDataset,
+        indices: Sequence[int],
+        lengths: Sequence[int],
+        context: int,
+        horizon: int,
+        batch_size: int,
+        cache_mb: float,
+        workers: int,
+        seed: int = 0,
+    ):
+        super().__init__()
+        self.arguments = (dataset, list(indices), context, horizon)
+        self.lengths, self.batch_size, self.cache_mb, self.workers, self.seed = (
+            lengths,
+            batch_size,
+            cache_mb,
+            workers,
+            seed,
+        )
+
+    def __iter__(self) -> Iterator[Windows]:
+        info = th.utils.data.get_worker_info()
+        worker = info.id if info is not None else 0
+        sampler = StreamingWindowSampler(
+            *self.arguments,
+            cache_mb=self.cache_mb / max(self.workers, 1),
+            seed=self.seed + worker,
+            lengths=self.lengths,
+        )
+        while True:
+            yield sampler.sample(self.batch_size)
+
+
+def window_batches(
+    dataset: EpisodeDataset,
+    indices: Sequence[int],
+    lengths: Sequence[int],
+    context: int,
+    horizon: int,
+    batch_size: int,
+    cache_mb: float = 1024,
+    workers: int = 0,
+    seed: int = 0,
+) -> Iterator[Windows]:
+    """Endless window batches from ``dataset``: in this process, or decoded in ``workers`` worker processes."""
+    if workers == 0:
+        sampler = StreamingWindowSampler(dataset, indices, context, horizon, cache_mb, seed=seed, lengths=lengths)
+        while True:
+            yield sampler.sample(batch_size)
+    stream = WindowStream(dataset, indices, lengths, context, horizon, batch_size, cache_mb, workers, seed)
+    loader = th.utils.data.DataLoader(stream, batch_size=None, num_workers=workers, prefetch_factor=2)
+    yield from loader
