@@ -155,8 +155,8 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         super()._setup_model()
         self.exploration_schedule = get_step_schedule(self.exploration_std)
         self._create_aliases()
-        self._critic_and_auxiliary_loss = maybe_compile(self._critic_and_auxiliary_loss, self.compile)
-        self._actor_loss = maybe_compile(self._actor_loss, self.compile)
+        self._critic_and_auxiliary_loss = maybe_compile(self._critic_and_auxiliary_loss, self.compile)  # type: ignore[method-assign]
+        self._actor_loss = maybe_compile(self._actor_loss, self.compile)  # type: ignore[method-assign]
 
     def _optimise_auxiliary(self, auxiliary: AuxiliaryLoss) -> None:
         """The auxiliary module learns with the encoder and critic, from their joint loss."""

@@ -32,6 +32,7 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.save_util import open_path
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
 from stable_baselines3.common.utils import is_vectorized_observation
+from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
 
 from sb3_ef.common.augmentation import random_shift
@@ -107,7 +108,7 @@ class AuxiliaryHostMixin:
     """
 
     policy: Any
-    env: GymEnv | None
+    env: VecEnv | None
     logger: Logger
     seed: int | None
     device: th.device
@@ -174,7 +175,7 @@ class AuxiliaryHostMixin:
     @property
     def auxiliary(self) -> AuxiliaryLoss | None:
         """The auxiliary loss module (``policy.auxiliary``), or ``None`` for the plain algorithm."""
-        return getattr(self.policy, "auxiliary", None)
+        return getattr(getattr(self, "policy", None), "auxiliary", None)
 
     @property
     def ef(self) -> EgoForesight | None:
@@ -294,8 +295,20 @@ class EFMixin(AuxiliaryHostMixin):
     algorithm-level arguments (:meth:`_init_ef`), the EF window in the replay buffer, the horizon check against the
     episode length, and :meth:`_foresight` from which the host's ``_build_auxiliary`` builds EF's loss."""
 
-    beta: float
     ef_horizon: int
+    _beta: float
+
+    @property
+    def beta(self) -> float:
+        """Weight of EF's loss. Kept on the loss module once it is built, so that setting it changes the next
+        updates."""
+        return self._beta
+
+    @beta.setter
+    def beta(self, value: float) -> None:
+        self._beta = value
+        if isinstance(self.auxiliary, ForesightLoss):
+            self.auxiliary.beta = value
 
     def _init_ef(
         self, beta: float, ef_horizon: int, babbling_steps: int, babbling_mode: str, babbling_in_eval: bool

@@ -178,8 +178,8 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         self._use_sequence_buffer("TD-MPC2 trains on consecutive steps", horizon=self.window, n_steps=1)
         self.policy_kwargs.update(horizon=self.horizon, gamma=self.gamma)
         super()._setup_model()
-        self._world_model_losses = maybe_compile(self._world_model_losses, self.compile)
-        self._policy_loss = maybe_compile(self._policy_loss, self.compile)
+        self._world_model_losses = maybe_compile(self._world_model_losses, self.compile)  # type: ignore[method-assign]
+        self._policy_loss = maybe_compile(self._policy_loss, self.compile)  # type: ignore[method-assign]
 
     def _optimise_auxiliary(self, auxiliary: AuxiliaryLoss) -> None:
         """The auxiliary module joins the world model's optimiser as the group ``auxiliary`` (its gradient is

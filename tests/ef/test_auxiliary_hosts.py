@@ -123,3 +123,15 @@ def test_load_refuses_a_file_saved_by_another_algorithm(saved, loader, tmp_path)
         loader.load(stream)
     assert stream.tell() == 0
     assert type(saved.load(stream)) is saved
+
+
+def test_setting_beta_reweights_the_ef_loss_and_is_saved(tmp_path):
+    model = make(DrQv2EF)
+    model.learn(10)
+    model.beta = 0.25  # e.g. a schedule, or an intervention on a loaded checkpoint
+    observations, targets = model._augment_observations(model.replay_buffer.sample(4), pad=4)
+    weighted, logs = model.auxiliary(model.encode(observations), targets)
+    th.testing.assert_close(weighted, 0.25 * logs["ef_loss"])
+    model.save(tmp_path / "model")
+    loaded = DrQv2EF.load(tmp_path / "model")
+    assert loaded.beta == loaded.auxiliary.beta == 0.25
