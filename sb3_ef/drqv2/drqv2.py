@@ -378,4 +378,6 @@ class DrQv2EF(EFMixin, DrQv2):
     def _build_auxiliary(self) -> ForesightLoss:
         """Ego-Foresight on the encoder's features, sized by the policy (``agent_dim``, ``ef_kwargs``)."""
         policy = self.policy
+        if not isinstance(policy, DrQv2EFPolicy):
+            raise TypeError(f"DrQv2EF needs a DrQv2EFPolicy (EF's sizes), got {type(policy).__name__}")
         return self._foresight(policy.encoder.features_dim, policy.agent_dim, policy.ef_kwargs, policy.channels_last)

@@ -513,6 +513,8 @@ class TDMPC2EF(EFMixin, TDMPC2):
     def _build_auxiliary(self) -> ForesightLoss:
         """Ego-Foresight on the world model's latent, sized by the policy (``agent_dim``, ``ef_kwargs``)."""
         policy = self.policy
+        if not isinstance(policy, TDMPC2EFPolicy):
+            raise TypeError(f"TDMPC2EF needs a TDMPC2EFPolicy (EF's sizes), got {type(policy).__name__}")
         return self._foresight(policy.world_model.latent_dim, policy.agent_dim, policy.ef_kwargs, policy.channels_last)
 
 

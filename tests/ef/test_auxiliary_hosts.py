@@ -12,10 +12,11 @@ from torch import nn
 
 from sb3_ef import TDMPC2, TDMPC2EF, DrQv2, DrQv2EF
 from sb3_ef.common.augmentation import random_shift
-from sb3_ef.drqv2.policies import DrQv2Encoder
+from sb3_ef.drqv2.policies import DrQv2Encoder, DrQv2Policy
 from sb3_ef.ef import AuxiliaryLoss
 from sb3_ef.envs.toy import ToyAgentEnv
 from sb3_ef.sb3_hosts import AuxiliaryStepMixin
+from sb3_ef.tdmpc2.policies import TDMPC2Policy
 
 DRQV2 = {"policy_kwargs": {"net_arch": [8], "trunk_dim": 8, "features_dim": 16}}
 DRQV2_EF = {"policy_kwargs": {**DRQV2["policy_kwargs"], "agent_dim": 4}, "ef_horizon": 2, "babbling_steps": 0}
@@ -135,3 +136,12 @@ def test_setting_beta_reweights_the_ef_loss_and_is_saved(tmp_path):
     model.save(tmp_path / "model")
     loaded = DrQv2EF.load(tmp_path / "model")
     assert loaded.beta == loaded.auxiliary.beta == 0.25
+
+
+@pytest.mark.parametrize(("variant", "plain_policy"), [(DrQv2EF, DrQv2Policy), (TDMPC2EF, TDMPC2Policy)])
+def test_an_ef_variant_refuses_the_plain_policy(variant, plain_policy):
+    size, policy_kwargs = (64, TDMPC2_POLICY) if variant is TDMPC2EF else (32, DRQV2["policy_kwargs"])
+    message = rf"{variant.__name__} needs a {variant.__name__}Policy .*got {plain_policy.__name__}"
+    env = ToyAgentEnv(size=size, max_episode_steps=10)
+    with pytest.raises(TypeError, match=message):
+        variant(plain_policy, env, buffer_size=100, policy_kwargs=policy_kwargs)
