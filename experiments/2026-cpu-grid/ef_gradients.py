@@ -90,10 +90,10 @@ def diagnose_model(model, batch_size: int, seed: int) -> dict[str, float]:
         "actions_saturated_share": float((actions.abs() > 0.99).float().mean()),
         **state_dependence(model, features.detach(), actions),
     }
-    ef_loss = model._ef_loss(features, batch.future_actions, window)
-    if ef_loss is not None:
-        result["beta_ef_loss"] = float(model.beta * ef_loss.detach())
-        result["encoder_grad_norm_ef"] = encoder_grad_norm(model.beta * ef_loss, encoder)
+    if model.auxiliary is not None:
+        beta_ef_loss, _ = model.auxiliary(features, window)
+        result["beta_ef_loss"] = float(beta_ef_loss.detach())
+        result["encoder_grad_norm_ef"] = encoder_grad_norm(beta_ef_loss, encoder)
     return result
 
 

@@ -1,4 +1,5 @@
-"""DrQ-v2 networks: the pixel encoder (with Ego-Foresight's projection), the actor, the twin critic and the policy."""
+"""DrQ-v2 networks: the pixel encoder (with DrQv2-EF's projection), the actor, the twin critic, and the policies of
+DrQ-v2 and DrQv2-EF."""
 
 from __future__ import annotations
 
@@ -13,8 +14,7 @@ from stable_baselines3.common.type_aliases import Schedule
 from torch import nn
 
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_stacked_frames
-from sb3_ef.ef import EgoForesight
-from sb3_ef.ef.host import build_ef
+from sb3_ef.ef.auxiliary import AuxiliaryLoss
 
 # Conv stack of DrQ-v2: (kernel, stride) per layer, 32 filters each.
 _CONV_LAYERS = ((3, 2), (3, 1), (3, 1), (3, 1))
@@ -134,10 +134,12 @@ def _orthogonal_init(module: nn.Module) -> None:
 
 
 class DrQv2Policy(BasePolicy):
-    """Encoder, actor, critic, critic target and (optionally) the Ego-Foresight module of DrQv2-EF / DrQ-v2.
+    """Encoder, actor, critic and critic target of DrQ-v2, and the algorithm's auxiliary loss module, if any
+    (``auxiliary``, set by the algorithm: DrQv2-EF's Ego-Foresight).
 
-    Two optimisers: ``critic.optimizer`` trains the encoder, the critic and the EF module together (they share the
-    loss ``critic + beta * ef``); ``actor.optimizer`` trains the actor alone (it sees detached features).
+    Two optimisers: ``critic.optimizer`` trains the encoder and the critic (and the auxiliary module, which the
+    algorithm adds to it: they share the loss ``critic + auxiliary``); ``actor.optimizer`` trains the actor alone (it
+    sees detached features).
 
     :param observation_space: uint8 Box of shape (3 * frame_stack, height, width).
     :param action_space: Box action space.
@@ -146,14 +148,11 @@ class DrQv2Policy(BasePolicy):
     :param trunk_dim: size of the actor's and critic's trunk output.
     :param n_critics: number of Q heads (their minimum is used).
     :param features_dim: encoder projection size, ``None`` for DrQ-v2's unprojected conv features.
-    :param agent_dim: number of leading feature dimensions that are agent features (EF only).
-    :param ef_horizon: Ego-Foresight prediction horizon; ``None`` builds no EF module (plain DrQ-v2).
-    :param ef_kwargs: extra arguments for :class:`sb3_ef.ef.EgoForesight` (decoder / rollout options).
     :param optimizer_class: optimiser class.
     :param optimizer_kwargs: optimiser arguments other than the learning rate; ``None`` gives Adam's fused kernel
         (``fused=True``: the same update, several times faster on CPU for these multi-million-parameter nets).
-    :param channels_last: keep the conv weights of the encoder and the EF decoder in channels-last memory format
-        (the same maths, faster convolutions with oneDNN on CPU and tensor cores on GPU).
+    :param channels_last: keep the conv weights of the encoder (and of an auxiliary module's decoder) in
+        channels-last memory format (the same maths, faster convolutions with oneDNN on CPU and tensor cores on GPU).
     """
 
     def __init__(
@@ -164,10 +163,7 @@ class DrQv2Policy(BasePolicy):
         net_arch: list[int] | dict[str, list[int]] | None = None,
         trunk_dim: int = 50,
         n_critics: int = 2,
-        features_dim: int | None = 2048,
-        agent_dim: int = 32,
-        ef_horizon: int | None = 10,
-        ef_kwargs: dict[str, Any] | None = None,
+        features_dim: int | None = None,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
         channels_last: bool = True,
@@ -189,10 +185,8 @@ class DrQv2Policy(BasePolicy):
         self.trunk_dim = trunk_dim
         self.n_critics = n_critics
         self.features_dim = features_dim
-        self.agent_dim = agent_dim
-        self.ef_horizon = ef_horizon
-        self.ef_kwargs = ef_kwargs or {}
         self.channels_last = channels_last
+        self.auxiliary: AuxiliaryLoss | None = None
         self._build(lr_schedule)
 
     def _build(self, lr_schedule: Schedule) -> None:
@@ -207,16 +201,10 @@ class DrQv2Policy(BasePolicy):
         self.critic_target.load_state_dict(self.critic.state_dict())
         self.critic_target.train(False)
         self.critic_target.requires_grad_(False)
-
-        self.ef: EgoForesight | None = build_ef(
-            repr_dim, action_dim, self.frame_shape, self.agent_dim, self.ef_horizon, self.ef_kwargs, self.channels_last
-        )
         if self.channels_last:
             self.encoder.to(memory_format=th.channels_last)
 
         representation_params = [*self.encoder.parameters(), *self.critic.parameters()]
-        if self.ef is not None:
-            representation_params += list(self.ef.parameters())
         self.critic.optimizer = self.optimizer_class(representation_params, lr=lr_schedule(1), **self.optimizer_kwargs)  # type: ignore[call-arg]
         self.actor.optimizer = self.optimizer_class(self.actor.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)  # type: ignore[call-arg]
 
@@ -238,9 +226,6 @@ class DrQv2Policy(BasePolicy):
             trunk_dim=self.trunk_dim,
             n_critics=self.n_critics,
             features_dim=self.features_dim,
-            agent_dim=self.agent_dim,
-            ef_horizon=self.ef_horizon,
-            ef_kwargs=self.ef_kwargs,
             lr_schedule=self._dummy_schedule,
             optimizer_class=self.optimizer_class,
             optimizer_kwargs=self.optimizer_kwargs,
@@ -260,6 +245,34 @@ class DrQv2Policy(BasePolicy):
         self.encoder.train(mode)
         self.actor.train(mode)
         self.critic.train(mode)
-        if self.ef is not None:
-            self.ef.train(mode)
+        if self.auxiliary is not None:
+            self.auxiliary.train(mode)
         self.training = mode
+
+
+class DrQv2EFPolicy(DrQv2Policy):
+    """:class:`DrQv2Policy` of DrQv2-EF: the encoder projects to ``features_dim`` (2048) features, of which the first
+    ``agent_dim`` are the agent's; DrQv2EF builds its Ego-Foresight module from these sizes.
+
+    :param agent_dim: number of leading feature dimensions that are agent features.
+    :param ef_kwargs: extra arguments for :class:`sb3_ef.ef.EgoForesight` (decoder / rollout options).
+    :param features_dim: encoder projection size (``None``: DrQ-v2's unprojected conv features).
+    :param kwargs: the other arguments of :class:`DrQv2Policy`.
+    """
+
+    def __init__(
+        self,
+        observation_space: spaces.Box,
+        action_space: spaces.Box,
+        lr_schedule: Schedule,
+        agent_dim: int = 32,
+        ef_kwargs: dict[str, Any] | None = None,
+        features_dim: int | None = 2048,
+        **kwargs: Any,
+    ):
+        super().__init__(observation_space, action_space, lr_schedule, features_dim=features_dim, **kwargs)
+        self.agent_dim = agent_dim
+        self.ef_kwargs = ef_kwargs or {}
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        return {**super()._get_constructor_parameters(), "agent_dim": self.agent_dim, "ef_kwargs": self.ef_kwargs}

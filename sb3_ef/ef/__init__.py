@@ -1,8 +1,17 @@
-"""Ego-Foresight: agent/scene split, action-conditioned rollout, frame decoder and loss (algorithm-agnostic)."""
+"""Ego-Foresight: agent/scene split, action-conditioned rollout, frame decoder and loss (algorithm-agnostic), and the
+auxiliary-loss interface through which it joins a host."""
 
+from sb3_ef.ef.auxiliary import AuxiliaryLoss
 from sb3_ef.ef.decoder import FrameDecoder, decoder_layers
-from sb3_ef.ef.foresight import EgoForesight
-from sb3_ef.ef.rollout import RolloutBlock
-from sb3_ef.ef.steps import draw_rollout_steps
+from sb3_ef.ef.foresight import EgoForesight, ForesightLoss, ForesightTargets, RolloutBlock, draw_rollout_steps
 
-__all__ = ["EgoForesight", "FrameDecoder", "RolloutBlock", "decoder_layers", "draw_rollout_steps"]
+__all__ = [
+    "AuxiliaryLoss",
+    "EgoForesight",
+    "ForesightLoss",
+    "ForesightTargets",
+    "FrameDecoder",
+    "RolloutBlock",
+    "decoder_layers",
+    "draw_rollout_steps",
+]

@@ -1,13 +1,87 @@
-"""The Ego-Foresight module: agent/scene split, action-conditioned rollout, frame decoding and its loss."""
+"""Ego-Foresight: the module (agent/scene split, action-conditioned rollout, frame decoding and its loss), the rule
+that draws each update's rollout length, and EF as an auxiliary loss of a host algorithm (:class:`ForesightLoss`)."""
 
 from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import torch as th
 from torch import nn
 
+from sb3_ef.common.augmentation import random_shift
+from sb3_ef.common.layers import mlp
+from sb3_ef.ef.auxiliary import AuxiliaryLoss
 from sb3_ef.ef.decoder import FrameDecoder
-from sb3_ef.ef.rollout import RolloutBlock
-from sb3_ef.ef.steps import STEP_SAMPLINGS, draw_rollout_steps
+
+if TYPE_CHECKING:
+    from sb3_ef.common.buffers import SequenceReplayBufferSamples
+
+STEP_SAMPLINGS = ("batch", "sample")
+
+
+def draw_rollout_steps(
+    future_mask: th.Tensor, horizon: int, step_sampling: str = "batch", generator: th.Generator | None = None
+) -> th.Tensor:
+    """Draw k in [1, horizon] for each sample of a batch; returns a (B,) long tensor on the mask's device.
+
+    - ``"batch"``: one k ~ U{1..horizon} for the whole batch (the authors' code). Samples whose step k falls
+      outside their episode are then dropped from the loss by the host's ``valid`` (the mask at k).
+    - ``"sample"``: each sample draws its own k uniformly among its *valid* steps, so every sample with at
+      least one valid step contributes; a sample with no valid step draws from all steps and stays invalid.
+
+    :param future_mask: (B, H) bool, true where step t+i lies inside the episode; H >= horizon.
+    """
+    if step_sampling not in STEP_SAMPLINGS:
+        raise ValueError(f"step_sampling must be one of {STEP_SAMPLINGS}, got {step_sampling!r}")
+    if future_mask.dim() != 2 or future_mask.shape[1] < horizon:
+        raise ValueError(f"Expected future_mask of shape (batch, >= {horizon}), got {tuple(future_mask.shape)}")
+    batch = future_mask.shape[0]
+    device = generator.device if generator is not None else future_mask.device
+    if step_sampling == "batch":
+        steps = th.randint(1, horizon + 1, (1,), device=device, generator=generator).expand(batch)
+    else:
+        weights = future_mask[:, :horizon].to(device=device, dtype=th.float32)
+        weights[weights.sum(dim=1) == 0] = 1.0
+        steps = th.multinomial(weights, 1, generator=generator).squeeze(1) + 1
+    return steps.to(future_mask.device).contiguous()
+
+
+class RolloutBlock(nn.Module):
+    """A recurrent MLP ``h_a(t+1) = FC([h_a(t), a(t)])`` in TD-MPC2's style (Linear -> LayerNorm -> Mish blocks).
+
+    There is no residual connection: the block outputs the next agent features directly, as in the authors' code.
+    Only the agent part of the features goes in, so whatever it predicts must be explained by the actions.
+
+    :param agent_dim: size of the agent features ``h_a``.
+    :param action_dim: size of one action.
+    :param hidden_dims: widths of the hidden ``NormedLinear`` blocks.
+    """
+
+    def __init__(self, agent_dim: int, action_dim: int, hidden_dims: tuple[int, ...] | list[int] = (512, 512)):
+        super().__init__()
+        self.agent_dim = agent_dim
+        self.action_dim = action_dim
+        self.net = mlp(agent_dim + action_dim, tuple(hidden_dims), agent_dim)
+
+    def step(self, h_agent: th.Tensor, action: th.Tensor) -> th.Tensor:
+        """One step: (B, agent_dim), (B, action_dim) -> (B, agent_dim)."""
+        return self.net(th.cat([h_agent, action], dim=-1))
+
+    def forward(self, h_agent: th.Tensor, actions: th.Tensor) -> th.Tensor:
+        """Roll ``h_agent`` (B, agent_dim) through ``actions`` (B, T, action_dim); returns (B, T, agent_dim)."""
+        if h_agent.dim() != 2 or h_agent.shape[1] != self.agent_dim:
+            raise ValueError(f"Expected h_agent of shape (batch, {self.agent_dim}), got {tuple(h_agent.shape)}")
+        if actions.dim() != 3 or actions.shape[0] != h_agent.shape[0] or actions.shape[2] != self.action_dim:
+            raise ValueError(
+                f"Expected actions of shape ({h_agent.shape[0]}, steps, {self.action_dim}), got {tuple(actions.shape)}"
+            )
+        states = []
+        for t in range(actions.shape[1]):
+            h_agent = self.step(h_agent, actions[:, t])
+            states.append(h_agent)
+        if not states:
+            return h_agent.new_zeros(h_agent.shape[0], 0, self.agent_dim)
+        return th.stack(states, dim=1)
 
 
 class EgoForesight(nn.Module):
@@ -171,3 +245,67 @@ class EgoForesight(nn.Module):
         if low < 0.0 or high > 1.0:
             raise ValueError(f"A float target frame must lie in [0, 1], got values in [{low}, {high}]")
         return target
+
+
+class ForesightTargets(NamedTuple):
+    """What EF's loss compares against for one replay batch (from :meth:`ForesightLoss.prepare`)."""
+
+    steps: th.Tensor  # (B,) rollout lengths k
+    target: th.Tensor  # (B, 3, h, w) uint8 frame t+k, shifted together with the observation at t
+    valid: th.Tensor  # (B,) bool: step t+k lies inside the episode
+    actions: th.Tensor  # (B, H, action_dim) actions t .. t+H-1
+
+
+class ForesightLoss(AuxiliaryLoss):
+    """Ego-Foresight as an auxiliary loss of a host's encoder: ``beta * EgoForesight.loss`` on the features of the
+    observation at t, against frame t+k.
+
+    :param feature_dim: size of the host encoder's features h.
+    :param action_dim: size of one action.
+    :param frame_shape: (3, h, w) of one frame.
+    :param agent_dim: size of h_agent, the first features of h (scene features must remain).
+    :param horizon: H, the largest rollout length k.
+    :param beta: weight of the loss.
+    :param ef_kwargs: extra arguments of :class:`EgoForesight` (decoder / rollout options).
+    :param channels_last: keep the decoder's conv weights in channels-last memory format (same maths, faster
+        convolutions).
+    """
+
+    def __init__(
+        self,
+        feature_dim: int,
+        action_dim: int,
+        frame_shape: tuple[int, int, int],
+        agent_dim: int,
+        horizon: int,
+        beta: float = 1.0,
+        ef_kwargs: dict[str, Any] | None = None,
+        channels_last: bool = False,
+    ):
+        super().__init__()
+        if feature_dim <= agent_dim:
+            raise ValueError(
+                f"Ego-Foresight needs features_dim > agent_dim (scene features must remain), "
+                f"got features_dim={feature_dim}, agent_dim={agent_dim}"
+            )
+        self.beta = beta
+        self.ef = EgoForesight(
+            feature_dim, action_dim, frame_shape=frame_shape, agent_dim=agent_dim, horizon=horizon, **(ef_kwargs or {})
+        )
+        if channels_last:
+            self.ef.to(memory_format=th.channels_last)  # type: ignore[call-overload]
+
+    def prepare(
+        self, batch: SequenceReplayBufferSamples, pad: int, generator: th.Generator | None = None
+    ) -> tuple[th.Tensor, ForesightTargets]:
+        """Draw the rollout lengths k (from ``generator``, so that EF leaves the host's random draws as they are
+        without it) and random-shift the observations at t together with frame t+k."""
+        steps = self.ef.draw_steps(batch.future_mask, generator=generator)
+        rows = th.arange(steps.shape[0], device=steps.device)
+        observations, target = random_shift(batch.observations, batch.future_frames[rows, steps - 1], pad=pad)
+        return observations, ForesightTargets(steps, target, batch.future_mask[rows, steps - 1], batch.future_actions)
+
+    def forward(self, features: th.Tensor, targets: ForesightTargets) -> tuple[th.Tensor, dict[str, th.Tensor]]:
+        """``beta`` times EF's loss on ``features`` of the prepared observations; logs the unweighted ``ef_loss``."""
+        loss = self.ef.loss(features, targets.actions, targets.steps, targets.target, targets.valid)
+        return self.beta * loss, {"ef_loss": loss.detach()}

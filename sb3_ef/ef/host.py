@@ -1,18 +1,26 @@
-"""Ego-Foresight's integration into a host algorithm, in one place.
+"""What every sb3-ef host algorithm shares, and what makes one an Ego-Foresight variant.
 
-A host is an SB3 ``OffPolicyAlgorithm`` whose policy has an encoder and, when EF is on, an ``ef`` module (``None``
-when off: that is the only switch). :class:`EFHostMixin` gives it EF's training step (the window: rollout length k,
-frame t+k shifted together with the context, validity), the EF loss, motor babbling in its action selection, the
-sequence replay buffer, the accessors ``ef`` / ``encode`` / ``frame_shape`` read by ``sb3_ef.analysis``, and the
-optional finite-loss check. :func:`build_ef` builds the EF module for a policy.
+:class:`AuxiliaryHostMixin` is mixed into every host (DrQ-v2, TD-MPC2, and SB3's SAC / TD3 / TQC through
+``sb3_ef.sb3_hosts``): the sequence replay buffer; an optional auxiliary representation loss on the host's encoder
+(an :class:`~sb3_ef.ef.auxiliary.AuxiliaryLoss` that a subclass returns from ``_build_auxiliary``, kept on the policy
+as ``policy.auxiliary`` and trained by the optimiser the host names in ``_optimise_auxiliary``); motor babbling in
+its action selection; the accessors ``ef`` / ``encode`` / ``frame_shape`` read by ``sb3_ef.analysis``; the
+finite-loss check; logging; and a ``load`` that refuses a file another algorithm saved.
+
+:class:`EFMixin`, mixed in before a plain host (``class DrQv2EF(EFMixin, DrQv2)``), adds Ego-Foresight's arguments
+and its loss (:class:`~sb3_ef.ef.foresight.ForesightLoss`).
 """
 
 from __future__ import annotations
 
-import inspect
+import io
+import json
+import pathlib
 import warnings
-from collections.abc import Callable
-from typing import Any, NamedTuple, TypeVar
+import zipfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any, TypeVar
 
 import numpy as np
 import torch as th
@@ -20,63 +28,28 @@ from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.noise import ActionNoise
-from stable_baselines3.common.type_aliases import MaybeCallback
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.save_util import open_path
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
 from stable_baselines3.common.utils import is_vectorized_observation
+from stable_baselines3.common.vec_env import VecEnv
+from torch import nn
 
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
-from sb3_ef.common.env_checks import FRAME_CHANNELS, check_sequence_buffer
+from sb3_ef.common.env_checks import FRAME_CHANNELS, check_sequence_buffer, episode_steps
+from sb3_ef.ef.auxiliary import AuxiliaryLoss
 from sb3_ef.ef.babbling import babble, check_babbling
-from sb3_ef.ef.foresight import EgoForesight
+from sb3_ef.ef.foresight import EgoForesight, ForesightLoss
 
-SelfEFHost = TypeVar("SelfEFHost", bound="EFHostMixin")
-# The arguments through which a host algorithm takes Ego-Foresight (a plain variant takes none of them).
-EF_ARGUMENTS = ("beta", "ef_horizon", "babbling_steps", "babbling_mode", "babbling_in_eval")
-
-
-class EFWindow(NamedTuple):
-    """What one EF loss needs from a replay batch: rollout lengths k, the (shifted) frames t+k and their validity."""
-
-    steps: th.Tensor
-    target: th.Tensor
-    valid: th.Tensor
-
-
-def build_ef(
-    feature_dim: int,
-    action_dim: int,
-    frame_shape: tuple[int, int, int],
-    agent_dim: int,
-    horizon: int | None,
-    ef_kwargs: dict[str, Any] | None = None,
-    channels_last: bool = True,
-) -> EgoForesight | None:
-    """The EF module of a policy whose encoder gives ``feature_dim`` features; ``None`` when ``horizon`` is ``None``
-    (EF off). ``channels_last`` keeps the decoder's conv weights in channels-last memory format (same maths,
-    faster convolutions)."""
-    if horizon is None:
-        return None
-    if feature_dim <= agent_dim:
-        raise ValueError(
-            f"Ego-Foresight needs features_dim > agent_dim (scene features must remain), "
-            f"got features_dim={feature_dim}, agent_dim={agent_dim}"
-        )
-    ef = EgoForesight(
-        feature_dim, action_dim, frame_shape=frame_shape, agent_dim=agent_dim, horizon=horizon, **(ef_kwargs or {})
-    )
-    if channels_last:
-        ef.to(memory_format=th.channels_last)  # type: ignore[call-overload]
-    return ef
+SelfHost = TypeVar("SelfHost", bound="AuxiliaryHostMixin")
 
 
 def check_ef_arguments(
-    beta: float | None, ef_horizon: int | None, babbling_steps: int, babbling_mode: str, plain_variant: str
+    beta: float, ef_horizon: int, babbling_steps: int, babbling_mode: str, plain_variant: str
 ) -> None:
-    """Check EF's algorithm-level arguments; ``plain_variant`` names the class to use without EF (which passes
-    ``beta=None, ef_horizon=None``)."""
+    """Check EF's algorithm-level arguments; ``plain_variant`` names the class to use without EF."""
     check_babbling(babbling_steps, babbling_mode)
-    if beta is None and ef_horizon is None:
-        return
     if beta is None or not beta > 0:
         raise ValueError(
             f"beta must be a positive number (use {plain_variant} to train without Ego-Foresight), got {beta!r}"
@@ -92,34 +65,50 @@ def check_horizon_fits_episodes(ef_horizon: int | None, steps: int | None) -> No
         )
 
 
-def plain_variant_kwargs(kwargs: dict[str, Any], plain_variant: str, ef_variant: str) -> dict[str, Any]:
-    """The arguments a plain variant (EF off) gives its EF class: the caller's, with EF switched off. EF's own
-    arguments are rejected as Python rejects an unknown keyword."""
-    given = sorted(set(kwargs) & set(EF_ARGUMENTS))
-    if given:
-        raise TypeError(
-            f"{plain_variant} got Ego-Foresight arguments {given}: {plain_variant} trains without EF, use {ef_variant}"
-        )
-    return {**kwargs, "beta": None, "ef_horizon": None, "babbling_steps": 0}
+@contextmanager
+def frozen(module: nn.Module) -> Iterator[None]:
+    """Inside the block ``module``'s parameters take no gradient: a loss computed through it trains only what comes
+    before it (an actor through its critic). Kept out of compiled functions."""
+    module.requires_grad_(False)
+    try:
+        yield
+    finally:
+        module.requires_grad_(True)
 
 
-def plain_variant_signature(ef_init: Callable[..., None]) -> inspect.Signature:
-    """The signature of a plain variant's ``__init__``: its EF class's, without EF's arguments (what
-    ``inspect.signature`` shows users and what rl-zoo3 configs are checked against)."""
-    signature = inspect.signature(ef_init)
-    return signature.replace(parameters=[p for p in signature.parameters.values() if p.name not in EF_ARGUMENTS])
+def saved_algorithm(path: str | pathlib.Path | io.BufferedIOBase) -> str | None:
+    """The class name of the algorithm that saved a model file, or ``None`` when the file does not record one."""
+    file = open_path(path, "r", verbose=0, suffix="zip")
+    position = file.tell()
+    try:
+        with zipfile.ZipFile(file) as archive:
+            data = json.loads(archive.read("data"))
+    except (zipfile.BadZipFile, KeyError, ValueError):
+        return None  # SB3's load reports what is wrong with the file
+    finally:
+        if isinstance(path, io.BufferedIOBase):
+            file.seek(position)
+        else:
+            file.close()
+    name = data.get("algorithm")
+    return name if isinstance(name, str) else None
 
 
-class EFHostMixin:
-    """Mixed in first (``class Host(EFHostMixin, OffPolicyAlgorithm)``) by every algorithm that trains EF.
+class AuxiliaryHostMixin:
+    """Mixed in first by every host algorithm (``class DrQv2(AuxiliaryHostMixin, OffPolicyAlgorithm)``).
 
-    The host calls :meth:`_init_ef` in ``__init__``, :meth:`_use_sequence_buffer` before ``super()._setup_model()``
-    and, in its update, :meth:`_ef_window` (the context it encodes, and the EF window) and :meth:`_ef_loss`.
-    Babbling needs nothing from the host: while ``num_timesteps < babbling_steps`` the rollout actions are random
-    (own generator seeded from the model's ``seed``, saved with the model), logged as ``rollout/babbling``.
+    The host calls :meth:`_use_sequence_buffer` before ``super()._setup_model()``, and in its update
+    :meth:`_augment_observations` (the observations it encodes, and the auxiliary loss's targets), then adds
+    ``policy.auxiliary(features, targets)`` to the loss that trains its encoder (or steps it on its own optimiser) and
+    calls ``auxiliary.after_update(encoder)`` after its optimiser steps. A subclass supplies the auxiliary loss by
+    overriding :meth:`_build_auxiliary` (and :meth:`_auxiliary_horizon` when the loss reads future steps); the host
+    says in :meth:`_optimise_auxiliary` which optimiser trains it. Babbling needs nothing from the host: while
+    ``num_timesteps < babbling_steps`` the rollout actions are random (own generator seeded from the model's
+    ``seed``, saved with the model), logged as ``rollout/babbling``.
     """
 
     policy: Any
+    env: VecEnv | None
     logger: Logger
     seed: int | None
     device: th.device
@@ -130,36 +119,29 @@ class EFHostMixin:
     replay_buffer_kwargs: dict[str, Any]
     _n_updates: int
 
-    beta: float | None = None
-    ef_horizon: int | None = None
+    #: The class name, saved with the model: ``load`` refuses a file saved by another algorithm.
+    algorithm: str
     babbling_steps: int = 0
     babbling_mode: str = "sign"
     babbling_in_eval: bool = False
     check_finite_losses: bool = False
-    # Generators of EF's rollout lengths and of the babbling actions (training, evaluation); created in
+    # Generators of the auxiliary loss's draws and of the babbling actions (training, evaluation); created in
     # ``_setup_model`` from the seed, saved with the model so that a resumed run continues their streams.
-    _ef_generator: th.Generator | None = None
+    _auxiliary_generator: th.Generator | None = None
     _babbling_rng: np.random.Generator | None = None
     _eval_babbling_rng: np.random.Generator | None = None
 
-    def _init_ef(
-        self,
-        beta: float | None,
-        ef_horizon: int | None,
-        babbling_steps: int,
-        babbling_mode: str,
-        babbling_in_eval: bool,
-        check_finite_losses: bool,
-        plain_variant: str,
-    ) -> None:
-        """Check and keep EF's algorithm-level arguments (``beta=None, ef_horizon=None``: EF off)."""
-        check_ef_arguments(beta, ef_horizon, babbling_steps, babbling_mode, plain_variant)
-        self.beta = beta
-        self.ef_horizon = ef_horizon
-        self.babbling_steps = babbling_steps
-        self.babbling_mode = babbling_mode
-        self.babbling_in_eval = babbling_in_eval
-        self.check_finite_losses = check_finite_losses
+    def _build_auxiliary(self) -> AuxiliaryLoss | None:
+        """The auxiliary loss on this host's encoder, built after the policy (``None``: the plain algorithm)."""
+        return None
+
+    def _auxiliary_horizon(self) -> int:
+        """Steps after t of each replay sample that the auxiliary loss reads (the buffer's window); 0 for none."""
+        return 0
+
+    def _optimise_auxiliary(self, auxiliary: AuxiliaryLoss) -> None:
+        """Give the auxiliary module's parameters to the optimiser that trains them (each host decides)."""
+        raise NotImplementedError(f"{type(self).__name__} does not say which optimiser trains its auxiliary loss")
 
     def _use_sequence_buffer(self, why: str, horizon: int, **defaults: Any) -> None:
         """Make SB3's ``_setup_model`` build a :class:`SequenceReplayBuffer` with a window of ``horizon`` steps;
@@ -172,22 +154,34 @@ class EFHostMixin:
 
     def _setup_model(self) -> None:
         """SB3's ``_setup_model`` (the buffer's n-step returns are configured through its kwargs, so SB3's warning
-        that ``n_steps`` is ignored does not apply), then EF's generators unless they were loaded."""
+        that ``n_steps`` is ignored does not apply), then the auxiliary loss on the policy (moved to the model's
+        device, given to its optimiser), then the generators unless they were loaded."""
+        self.algorithm = type(self).__name__
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message=r"`n_steps=\d+` is ignored because a custom")
             super()._setup_model()  # type: ignore[misc]
-        if self._ef_generator is None:
+        auxiliary = self._build_auxiliary()
+        if auxiliary is not None:
+            self.policy.auxiliary = auxiliary.to(self.device)
+            self._optimise_auxiliary(auxiliary)
+        if self._auxiliary_generator is None:
             # On the CPU, so that a saved model loads on any device.
-            self._ef_generator = th.Generator()
-            self._ef_generator.manual_seed(int(np.random.randint(2**31)) if self.seed is None else self.seed)
+            self._auxiliary_generator = th.Generator()
+            self._auxiliary_generator.manual_seed(int(np.random.randint(2**31)) if self.seed is None else self.seed)
         if self._babbling_rng is None or self._eval_babbling_rng is None:
             seeds = np.random.SeedSequence(None if self.seed is None else self.seed % 2**32).spawn(2)
             self._babbling_rng, self._eval_babbling_rng = (np.random.default_rng(seed) for seed in seeds)
 
     @property
+    def auxiliary(self) -> AuxiliaryLoss | None:
+        """The auxiliary loss module (``policy.auxiliary``), or ``None`` for the plain algorithm."""
+        return getattr(getattr(self, "policy", None), "auxiliary", None)
+
+    @property
     def ef(self) -> EgoForesight | None:
-        """The Ego-Foresight module, or ``None`` when EF is off."""
-        return self.policy.ef
+        """The Ego-Foresight module when the auxiliary loss is EF's, else ``None``."""
+        auxiliary = self.auxiliary
+        return auxiliary.ef if isinstance(auxiliary, ForesightLoss) else None
 
     @property
     def frame_shape(self) -> tuple[int, int, int]:
@@ -199,25 +193,14 @@ class EFHostMixin:
         """Features h of uint8 stacked observations (no augmentation; gradients flow if the caller wants them)."""
         return self.policy.encode(observations.to(self.device))
 
-    def _ef_window(self, batch: SequenceReplayBufferSamples, pad: int) -> tuple[th.Tensor, EFWindow | None]:
-        """Random-shift the observations at t; with EF, draw the rollout lengths k (own generator, so EF leaves the
-        host's random draws unchanged) and shift frame t+k together with its context. The window is ``None`` when
-        EF is off."""
-        if self.ef is None:
+    def _augment_observations(self, batch: SequenceReplayBufferSamples, pad: int) -> tuple[th.Tensor, Any]:
+        """The observations at t as the host encodes them, and the auxiliary loss's targets (``None`` without one).
+        Without an auxiliary loss, a random shift of ``pad`` pixels; with one, its ``prepare`` augments (shifting
+        its targets along), drawing its own random numbers from the model's generator."""
+        if self.auxiliary is None:
             (observations,) = random_shift(batch.observations, pad=pad)
             return observations, None
-        steps = self.ef.draw_steps(batch.future_mask, generator=self._ef_generator)
-        rows = th.arange(steps.shape[0], device=steps.device)
-        observations, target = random_shift(batch.observations, batch.future_frames[rows, steps - 1], pad=pad)
-        return observations, EFWindow(steps, target, batch.future_mask[rows, steps - 1])
-
-    def _ef_loss(self, features: th.Tensor, future_actions: th.Tensor, window: EFWindow | None) -> th.Tensor | None:
-        """EF's loss (unweighted) for features of the window's context: roll the agent features k actions ahead and
-        reconstruct frame t+k. ``None`` without a window (EF off)."""
-        if window is None:
-            return None
-        assert self.ef is not None
-        return self.ef.loss(features, future_actions, window.steps, window.target, window.valid)
+        return self.auxiliary.prepare(batch, pad, self._auxiliary_generator)
 
     def _check_finite(self, **losses: th.Tensor) -> None:
         """With ``check_finite_losses``, raise before an optimiser step if a loss is NaN or infinite."""
@@ -268,14 +251,14 @@ class EFHostMixin:
         return super().predict(observation, state, episode_start, deterministic)  # type: ignore[misc]
 
     def learn(
-        self: SelfEFHost,
+        self: SelfHost,
         total_timesteps: int,
         callback: MaybeCallback = None,
         log_interval: int = 4,
         tb_log_name: str | None = None,
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
-    ) -> SelfEFHost:
+    ) -> SelfHost:
         """SB3's ``learn``; ``tb_log_name`` defaults to the class name (so plain and EF variants log apart)."""
         return super().learn(  # type: ignore[misc]
             total_timesteps=total_timesteps,
@@ -284,4 +267,76 @@ class EFHostMixin:
             tb_log_name=tb_log_name or type(self).__name__,
             reset_num_timesteps=reset_num_timesteps,
             progress_bar=progress_bar,
+        )
+
+    @classmethod
+    def load(  # type: ignore[override]
+        cls: type[SelfHost],
+        path: str | pathlib.Path | io.BufferedIOBase,
+        env: GymEnv | None = None,
+        device: th.device | str = "auto",
+        custom_objects: dict[str, Any] | None = None,
+        print_system_info: bool = False,
+        force_reset: bool = True,
+        **kwargs: Any,
+    ) -> SelfHost:
+        """SB3's ``load``, refusing a file that another algorithm saved (a ``DrQv2EF`` file read as ``DrQv2``
+        would carry EF's weights the plain class does not have)."""
+        saved = saved_algorithm(path)
+        if saved is not None and saved != cls.__name__:
+            raise ValueError(f"Cannot load {path} as {cls.__name__}: it was saved by {saved}, use {saved}.load")
+        return super().load(  # type: ignore[misc]
+            path, env, device, custom_objects, print_system_info, force_reset, **kwargs
+        )
+
+
+class EFMixin(AuxiliaryHostMixin):
+    """Mixed in before a plain host to make its Ego-Foresight variant (``class DrQv2EF(EFMixin, DrQv2)``): EF's
+    algorithm-level arguments (:meth:`_init_ef`), the EF window in the replay buffer, the horizon check against the
+    episode length, and :meth:`_foresight` from which the host's ``_build_auxiliary`` builds EF's loss."""
+
+    ef_horizon: int
+    _beta: float
+
+    @property
+    def beta(self) -> float:
+        """Weight of EF's loss. Kept on the loss module once it is built, so that setting it changes the next
+        updates."""
+        return self._beta
+
+    @beta.setter
+    def beta(self, value: float) -> None:
+        self._beta = value
+        if isinstance(self.auxiliary, ForesightLoss):
+            self.auxiliary.beta = value
+
+    def _init_ef(
+        self, beta: float, ef_horizon: int, babbling_steps: int, babbling_mode: str, babbling_in_eval: bool
+    ) -> None:
+        """Check and keep EF's algorithm-level arguments."""
+        plain = next(c for c in type(self).__mro__ if issubclass(c, OffPolicyAlgorithm) and not issubclass(c, EFMixin))
+        check_ef_arguments(beta, ef_horizon, babbling_steps, babbling_mode, plain.__name__)
+        self.beta = beta
+        self.ef_horizon = ef_horizon
+        self.babbling_steps = babbling_steps
+        self.babbling_mode = babbling_mode
+        self.babbling_in_eval = babbling_in_eval
+
+    def _auxiliary_horizon(self) -> int:
+        return self.ef_horizon
+
+    def _setup_model(self) -> None:
+        """Check that EF's window fits in an episode (here, so that ``load`` checks the saved ``ef_horizon``), then
+        the host's setup."""
+        if self.env is not None:
+            check_horizon_fits_episodes(self.ef_horizon, episode_steps(self.env))
+        super()._setup_model()
+
+    def _foresight(
+        self, feature_dim: int, agent_dim: int, ef_kwargs: dict[str, Any] | None, channels_last: bool
+    ) -> ForesightLoss:
+        """EF's loss on an encoder of ``feature_dim`` features, with this model's horizon and ``beta``."""
+        action_dim = int(np.prod(self.action_space.shape))  # type: ignore[arg-type]
+        return ForesightLoss(
+            feature_dim, action_dim, self.frame_shape, agent_dim, self.ef_horizon, self.beta, ef_kwargs, channels_last
         )

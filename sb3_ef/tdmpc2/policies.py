@@ -1,4 +1,4 @@
-"""The TD-MPC2 policy: world model, optional Ego-Foresight module, MPPI planner, optimisers and Q scale."""
+"""The TD-MPC2 policies: world model, MPPI planner, optimisers and Q scale (and TDMPC2-EF's Ego-Foresight sizes)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,7 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_stacked_frames
-from sb3_ef.ef import EgoForesight
-from sb3_ef.ef.host import build_ef
+from sb3_ef.ef.auxiliary import AuxiliaryLoss
 from sb3_ef.tdmpc2.math import TwoHot, planning_iterations
 from sb3_ef.tdmpc2.planner import MPPIPlanner
 from sb3_ef.tdmpc2.world_model import FRAME_SIZE, WorldModel
@@ -38,12 +37,14 @@ _DRQV2_ARGUMENTS = {
 
 
 class TDMPC2Policy(BasePolicy):
-    """Holds everything TD-MPC2 learns and plans with.
+    """Holds everything TD-MPC2 learns and plans with, and the algorithm's auxiliary loss module, if any
+    (``auxiliary``, set by the algorithm: TDMPC2-EF's Ego-Foresight).
 
-    ``optimizer`` trains the world model (encoder at ``encoder_lr_scale`` times the learning rate) and, with EF,
-    the Ego-Foresight module; ``pi_optimizer`` trains the policy prior. ``q_scale`` is the running 5-95 percentile
-    range of Q that normalises the policy loss. Actions come from MPPI planning (``plan``); ``predict`` keeps
-    one warm-start plan per env and resets it where ``episode_start`` is true.
+    ``optimizer`` trains the world model (parameter groups ``encoder``, at ``encoder_lr_scale`` times the learning
+    rate, and ``heads``; the algorithm adds an ``auxiliary`` group for its auxiliary module); ``pi_optimizer`` trains
+    the policy prior. ``q_scale`` is the running 5-95 percentile range of Q that normalises the policy loss. Actions
+    come from MPPI planning (``plan``); ``predict`` keeps one warm-start plan per env and resets it where
+    ``episode_start`` is true.
 
     :param observation_space: uint8 Box (3 * frame_stack, 64, 64).
     :param action_space: Box in [-1, 1].
@@ -61,14 +62,11 @@ class TDMPC2Policy(BasePolicy):
     :param gamma: discount of the planner's value estimate (set by the algorithm).
     :param planner_kwargs: MPPI settings, see :class:`MPPIPlanner` (``num_samples``, ``eval_action``, ...);
         ``iterations`` defaults to TD-MPC2's heuristic (6, or 8 when ``action_dim >= 20``).
-    :param ef_horizon: Ego-Foresight horizon, ``None`` without EF (set by the algorithm).
-    :param agent_dim: size of the agent part of the latent (a multiple of ``simnorm_dim``).
-    :param ef_kwargs: extra arguments of :class:`EgoForesight` (decoder and rollout options).
     :param optimizer_class: optimiser of both parameter sets.
     :param optimizer_kwargs: extra optimiser arguments; ``None`` with Adam gives its fused kernel (``fused=True``:
         the same update, faster on CPU and GPU).
-    :param channels_last: keep the conv weights of the encoder and the EF decoder in channels-last memory format
-        (the same maths, faster convolutions with oneDNN on CPU and tensor cores on GPU).
+    :param channels_last: keep the conv weights of the encoder (and of an auxiliary module's decoder) in
+        channels-last memory format (the same maths, faster convolutions with oneDNN on CPU and tensor cores on GPU).
     """
 
     def __init__(
@@ -88,9 +86,6 @@ class TDMPC2Policy(BasePolicy):
         horizon: int = 3,
         gamma: float = 0.99,
         planner_kwargs: dict[str, Any] | None = None,
-        ef_horizon: int | None = None,
-        agent_dim: int = 32,
-        ef_kwargs: dict[str, Any] | None = None,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
         channels_last: bool = True,
@@ -123,13 +118,11 @@ class TDMPC2Policy(BasePolicy):
             "horizon": horizon,
             "gamma": gamma,
             "planner_kwargs": planner_kwargs,
-            "ef_horizon": ef_horizon,
-            "agent_dim": agent_dim,
-            "ef_kwargs": ef_kwargs,
             "channels_last": channels_last,
         }
+        self.channels_last = channels_last
+        self.auxiliary: AuxiliaryLoss | None = None
         action_dim = int(np.prod(action_space.shape))
-        # The world model is built before EF so that TDMPC2 and TDMPC2EF with one seed start from the same weights.
         self.world_model = WorldModel(
             channels,
             action_dim,
@@ -139,13 +132,6 @@ class TDMPC2Policy(BasePolicy):
             dropout=dropout,
             simnorm_dim=simnorm_dim,
             two_hot=TwoHot(num_bins, vmin, vmax),
-        )
-        if ef_horizon is not None and agent_dim % simnorm_dim != 0:
-            raise ValueError(
-                f"agent_dim must cover whole SimNorm groups: expected a multiple of {simnorm_dim}, got {agent_dim}"
-            )
-        self.ef: EgoForesight | None = build_ef(
-            self.world_model.latent_dim, action_dim, self.frame_shape, agent_dim, ef_horizon, ef_kwargs, channels_last
         )
         if channels_last:
             self.world_model.encoder.to(memory_format=th.channels_last)  # type: ignore[call-overload]
@@ -163,8 +149,6 @@ class TDMPC2Policy(BasePolicy):
                 "params": [*model.dynamics.parameters(), *model.reward_head.parameters(), *model.q_heads.parameters()],
             },
         ]
-        if self.ef is not None:
-            groups.append({"name": "ef", "params": self.ef.parameters()})
         for group in groups:
             group["lr"] = learning_rate * group.get("lr_scale", 1.0)
         self.optimizer = self.optimizer_class(groups, lr=learning_rate, **self.optimizer_kwargs)
@@ -210,3 +194,34 @@ class TDMPC2Policy(BasePolicy):
     def reset_planner(self) -> None:
         """Forget the warm-start plans used by ``predict`` (every env starts from a zero mean)."""
         self._plan_mean = None
+
+
+class TDMPC2EFPolicy(TDMPC2Policy):
+    """:class:`TDMPC2Policy` of TDMPC2-EF: the first ``agent_dim`` dimensions of the latent are the agent's;
+    TDMPC2EF builds its Ego-Foresight module from these sizes.
+
+    :param agent_dim: size of the agent part of the latent (a multiple of ``simnorm_dim``, whole SimNorm groups).
+    :param ef_kwargs: extra arguments of :class:`sb3_ef.ef.EgoForesight` (decoder and rollout options).
+    :param kwargs: the arguments of :class:`TDMPC2Policy`.
+    """
+
+    def __init__(
+        self,
+        observation_space: spaces.Box,
+        action_space: spaces.Box,
+        lr_schedule: Schedule,
+        agent_dim: int = 32,
+        ef_kwargs: dict[str, Any] | None = None,
+        **kwargs: Any,
+    ):
+        super().__init__(observation_space, action_space, lr_schedule, **kwargs)
+        simnorm_dim = self._constructor_kwargs["simnorm_dim"]
+        if agent_dim % simnorm_dim != 0:
+            raise ValueError(
+                f"agent_dim must cover whole SimNorm groups: expected a multiple of {simnorm_dim}, got {agent_dim}"
+            )
+        self.agent_dim = agent_dim
+        self.ef_kwargs = ef_kwargs or {}
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        return {**super()._get_constructor_parameters(), "agent_dim": self.agent_dim, "ef_kwargs": self.ef_kwargs}

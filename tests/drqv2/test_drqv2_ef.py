@@ -12,6 +12,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from sb3_ef.common.buffers import SequenceReplayBuffer
 from sb3_ef.drqv2 import DrQv2, DrQv2EF
+from sb3_ef.ef.host import frozen
 
 PLAIN_POLICY = {key: TINY_POLICY[key] for key in ("net_arch", "trunk_dim")}
 PLAIN_ALGO = {key: value for key, value in TINY_ALGO.items() if key not in ("ef_horizon", "babbling_steps")}
@@ -59,13 +60,15 @@ def test_each_loss_reaches_only_its_networks():
 
     zero_grads(model)
     features = model.policy.encoder(observations)
-    model._ef_loss(features, batch.future_actions, window).backward()
+    model.auxiliary(features, window)[0].backward()
     assert reached(model.policy.encoder) and reached(model.ef)
     assert not reached(model.critic) and not reached(model.actor)
 
     zero_grads(model)
     features = model.policy.encoder(observations)
-    model._actor_loss(features.detach(), std).backward()
+    with frozen(model.critic):  # as the update computes the actor's loss
+        actor_loss = model._actor_loss(features.detach(), std)
+    actor_loss.backward()
     assert reached(model.actor)
     assert not reached(model.policy.encoder) and not reached(model.critic) and not reached(model.ef)
     assert all(param.requires_grad for param in model.critic.parameters())

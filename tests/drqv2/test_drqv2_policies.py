@@ -4,7 +4,7 @@ import torch as th
 from gymnasium import spaces
 
 from sb3_ef.common.env_checks import check_stacked_frames
-from sb3_ef.drqv2.policies import DrQv2Encoder, DrQv2Policy
+from sb3_ef.drqv2.policies import DrQv2EFPolicy, DrQv2Encoder, DrQv2Policy
 
 
 def image_space(size: int, channels: int = 9) -> spaces.Box:
@@ -12,7 +12,8 @@ def image_space(size: int, channels: int = 9) -> spaces.Box:
 
 
 ACTIONS = spaces.Box(-1.0, 1.0, (2,), np.float32)
-TINY = {"net_arch": [16], "trunk_dim": 8, "features_dim": 48, "agent_dim": 8}
+PLAIN = {"net_arch": [16], "trunk_dim": 8, "features_dim": 48}
+TINY = {**PLAIN, "agent_dim": 8}
 TINY_EF = {"rollout_hidden_dims": (8,), "decoder_channels": 4}
 
 
@@ -64,9 +65,9 @@ def test_encoder_centres_pixels():
         assert th.allclose(encoder.convnet(grey / 255.0 - 0.5), th.zeros(()))
 
 
-def make_policy(size: int = 32, ef_horizon: int | None = 3, **kwargs) -> DrQv2Policy:
+def make_policy(size: int = 32, **kwargs) -> DrQv2EFPolicy:
     params = {**TINY, "ef_kwargs": TINY_EF, **kwargs}
-    return DrQv2Policy(image_space(size), ACTIONS, lambda _: 1e-3, ef_horizon=ef_horizon, **params)
+    return DrQv2EFPolicy(image_space(size), ACTIONS, lambda _: 1e-3, **params)
 
 
 def test_policy_networks_and_shapes():
@@ -78,7 +79,7 @@ def test_policy_networks_and_shapes():
     assert actions.shape == (4, 2) and actions.abs().max() <= 1.0
     q_values = policy.critic(features, actions)
     assert len(q_values) == 2 and all(q.shape == (4, 1) for q in q_values)
-    assert policy.ef is not None and policy.ef.frame_shape == (3, 32, 32) and policy.ef.horizon == 3
+    assert (policy.agent_dim, policy.ef_kwargs) == (8, TINY_EF)
     assert policy.frame_shape == (3, 32, 32)
     assert th.equal(policy(observations), actions)
 
@@ -95,25 +96,22 @@ def test_optimisers_split_representation_and_actor():
     critic_params = {id(p) for group in policy.critic.optimizer.param_groups for p in group["params"]}
     actor_params = {id(p) for group in policy.actor.optimizer.param_groups for p in group["params"]}
     assert {id(p) for p in policy.encoder.parameters()} <= critic_params
-    assert {id(p) for p in policy.ef.parameters()} <= critic_params
     assert {id(p) for p in policy.critic.parameters()} <= critic_params
     assert actor_params == {id(p) for p in policy.actor.parameters()}
 
 
-def test_plain_policy_has_no_ef():
-    policy = make_policy(ef_horizon=None)
-    assert policy.ef is None
-
-
-def test_features_must_exceed_agent_dim():
-    with pytest.raises(ValueError, match=r"features_dim > agent_dim.*got features_dim=8, agent_dim=8"):
-        make_policy(features_dim=8, agent_dim=8)
+def test_plain_policy_has_the_reference_encoder_and_no_ef_sizes():
+    policy = DrQv2Policy(image_space(84), ACTIONS, lambda _: 1e-3, net_arch=[16], trunk_dim=8)
+    assert policy.encoder.features_dim == 32 * 35 * 35 and policy.auxiliary is None
+    with pytest.raises(TypeError, match="agent_dim"):
+        DrQv2Policy(image_space(32), ACTIONS, lambda _: 1e-3, agent_dim=8)
 
 
 def test_policy_rebuilds_from_constructor_parameters():
     policy = make_policy()
-    rebuilt = DrQv2Policy(**policy._get_constructor_parameters())
+    rebuilt = DrQv2EFPolicy(**policy._get_constructor_parameters())
     rebuilt.load_state_dict(policy.state_dict())
+    assert (rebuilt.agent_dim, rebuilt.ef_kwargs) == (policy.agent_dim, policy.ef_kwargs)
     observations = th.randint(0, 256, (3, 9, 32, 32), dtype=th.uint8)
     assert th.equal(rebuilt(observations), policy(observations))
 
@@ -130,7 +128,7 @@ def test_speed_options_keep_the_maths():
 
 def test_net_arch_dict_gives_actor_and_critic_their_own_sizes():
     """SB3's usual dict(pi=[...], qf=[...]) spelling."""
-    policy = DrQv2Policy(image_space(32), ACTIONS, lambda _: 1e-4, **{**TINY, "net_arch": {"pi": [16], "qf": [24, 8]}})
+    policy = DrQv2Policy(image_space(32), ACTIONS, lambda _: 1e-4, **{**PLAIN, "net_arch": {"pi": [16], "qf": [24, 8]}})
     actor_sizes = [layer.out_features for layer in policy.actor.mu if isinstance(layer, th.nn.Linear)]
     critic_sizes = [layer.out_features for layer in policy.critic.q_networks[0] if isinstance(layer, th.nn.Linear)]
     assert actor_sizes == [16, 2] and critic_sizes == [24, 8, 1]
@@ -149,7 +147,7 @@ def test_net_arch_dict_gives_actor_and_critic_their_own_sizes():
 )
 def test_bad_net_arch_is_named(net_arch, message):
     with pytest.raises(ValueError, match=message):
-        DrQv2Policy(image_space(32), ACTIONS, lambda _: 1e-4, **{**TINY, "net_arch": net_arch})
+        DrQv2Policy(image_space(32), ACTIONS, lambda _: 1e-4, **{**PLAIN, "net_arch": net_arch})
 
 
 @pytest.mark.parametrize("features_dim", [-5, 0, 2.5, True])

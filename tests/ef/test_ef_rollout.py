@@ -1,7 +1,7 @@
 import pytest
 import torch as th
 
-from sb3_ef.ef.rollout import RolloutBlock
+from sb3_ef.ef import RolloutBlock
 
 
 def test_rollout_is_recurrent_one_action_per_step():

@@ -1,7 +1,7 @@
 import pytest
 import torch as th
 
-from sb3_ef.ef.steps import draw_rollout_steps
+from sb3_ef.ef import draw_rollout_steps
 
 
 def test_batch_sampling_draws_one_k_for_all_and_covers_the_horizon():

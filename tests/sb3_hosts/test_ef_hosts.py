@@ -44,7 +44,7 @@ def make(algorithm, **kwargs):
 
 def named_parameters(model) -> dict[str, th.Tensor]:
     """Every parameter of the host's networks (EF's excluded), by name."""
-    return {name: p for name, p in model.policy.named_parameters() if not name.startswith("ef.")}
+    return {name: p for name, p in model.policy.named_parameters() if not name.startswith("auxiliary.")}
 
 
 @pytest.mark.parametrize("algorithm", HOSTS)
@@ -52,8 +52,8 @@ def test_ef_gradient_reaches_the_critic_encoder_and_nothing_else_of_the_hosts(al
     model = make(algorithm, learning_starts=100)
     model.learn(30)
     batch = model.replay_buffer.sample(8)
-    observations, window = model._ef_window(batch, pad=model.shift_pad)
-    model._ef_loss(model.encode(observations), batch.future_actions, window).backward()
+    observations, window = model._augment_observations(batch, pad=model.shift_pad)
+    model.auxiliary(model.encode(observations), window)[0].backward()
     reached = {name for name, p in named_parameters(model).items() if p.grad is not None and p.grad.abs().sum() > 0}
     encoder = {f"critic.features_extractor.{name}" for name, _ in model.critic.features_extractor.named_parameters()}
     assert reached == encoder
@@ -83,7 +83,7 @@ def test_save_load_is_exact(algorithm, tmp_path):
     loaded = algorithm.load(tmp_path / "model", env=toy_env())
     for (name, a), b in zip(model.policy.state_dict().items(), loaded.policy.state_dict().values(), strict=True):
         assert th.equal(a, b), name
-    saved, restored = model.ef_optimizer.state_dict()["state"], loaded.ef_optimizer.state_dict()["state"]
+    saved, restored = model.auxiliary_optimizer.state_dict()["state"], loaded.auxiliary_optimizer.state_dict()["state"]
     assert saved.keys() == restored.keys() and len(saved) > 0
     assert all(th.equal(saved[k]["exp_avg"], restored[k]["exp_avg"]) for k in saved)
     assert (loaded.beta, loaded.ef_horizon, loaded.agent_dim, loaded.babbling_steps) == (1.0, 3, 8, 15)

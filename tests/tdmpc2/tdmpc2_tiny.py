@@ -2,14 +2,20 @@
 
 import torch as th
 
+from sb3_ef.tdmpc2 import TDMPC2EF
+
 TINY_POLICY = {
     "num_channels": 4,
     "mlp_dim": 32,
     "num_q": 2,
-    "agent_dim": 16,
     "planner_kwargs": {"iterations": 2, "num_samples": 16, "num_elites": 4, "num_pi_trajs": 2},
-    "ef_kwargs": {"rollout_hidden_dims": (32,), "decoder_channels": 8},
 }
+TINY_EF_POLICY = {**TINY_POLICY, "agent_dim": 16, "ef_kwargs": {"rollout_hidden_dims": (32,), "decoder_channels": 8}}
+
+
+def tiny_policy(algorithm: type) -> dict:
+    """The tiny policy arguments of TDMPC2 or (with EF's sizes) TDMPC2EF."""
+    return TINY_EF_POLICY if issubclass(algorithm, TDMPC2EF) else TINY_POLICY
 
 
 def host_loss(model, losses: dict[str, th.Tensor]) -> th.Tensor:

@@ -5,7 +5,7 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
 from stable_baselines3.common.monitor import Monitor
-from tdmpc2_tiny import TINY_POLICY, host_loss
+from tdmpc2_tiny import TINY_EF_POLICY, host_loss, tiny_policy
 
 from sb3_ef.envs.toy import ToyAgentEnv
 from sb3_ef.tdmpc2 import TDMPC2, TDMPC2EF
@@ -21,7 +21,7 @@ def make(algorithm=TDMPC2EF, env=None, **kwargs):
         "batch_size": 4,
         "buffer_size": 300,
         "seed": 0,
-        "policy_kwargs": TINY_POLICY,
+        "policy_kwargs": tiny_policy(algorithm),
     }
     if algorithm is TDMPC2EF:
         arguments.update(ef_horizon=5, babbling_steps=0)
@@ -40,7 +40,7 @@ def filled_batch(model, steps: int = 40, batch_size: int = 8):
 
 
 def test_exposes_the_ef_contract_and_the_paper_defaults():
-    model = make(policy_kwargs={**TINY_POLICY, "num_channels": 8})
+    model = make(policy_kwargs={**TINY_EF_POLICY, "num_channels": 8})
     assert model.frame_shape == (3, 64, 64)
     assert model.ef is not None and model.ef.feature_dim == 128 and model.ef.agent_dim == 16
     assert model.replay_buffer.horizon == 5
@@ -99,7 +99,7 @@ def test_ef_loss_reaches_the_encoder_but_not_the_heads():
     batch = filled_batch(model)
     model.policy.set_training_mode(True)
     losses, _, _ = model.losses(batch)
-    losses["ef_loss"].backward()
+    losses["auxiliary_loss"].backward()  # beta * ef_loss
     assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in model.world_model.encoder.parameters())
     assert all(p.grad is None for p in model.world_model.q_heads.parameters())
     assert all(p.grad is None for p in model.world_model.dynamics.parameters())
@@ -210,7 +210,7 @@ class DiscreteActionEnv(ToyAgentEnv):
         (toy_env(max_episode_steps=4), {"ef_horizon": 5}, "ef_horizon <= 4"),
         (toy_env(), {"beta": 0.0}, "beta"),
         (toy_env(), {"policy_kwargs": {"horizon": 5}}, "not in policy_kwargs"),
-        (toy_env(), {"policy_kwargs": {**TINY_POLICY, "agent_dim": 12}}, "multiple of 8"),
+        (toy_env(), {"policy_kwargs": {**TINY_EF_POLICY, "agent_dim": 12}}, "multiple of 8"),
     ],
 )
 def test_bad_input_is_rejected_at_construction(env, kwargs, match):

@@ -11,8 +11,8 @@ SMALL_POLICY = {
     "mlp_dim": 128,
     "num_q": 2,
     "planner_kwargs": {"iterations": 3, "num_samples": 64, "num_elites": 8, "num_pi_trajs": 4},
-    "ef_kwargs": {"rollout_hidden_dims": (64,), "decoder_channels": 16},
 }
+EF_KWARGS = {"rollout_hidden_dims": (64,), "decoder_channels": 16}
 
 
 def random_return(episodes: int, seed: int) -> float:
@@ -36,7 +36,9 @@ def random_return(episodes: int, seed: int) -> float:
 def test_learns_to_move_the_toy_agent_to_the_centre(algorithm):
     # Reward: minus the agent's distance to the centre each step. Random actions leave it where it started
     # (about -16 per 50-step episode); moving to the centre and staying there gives about -2.
-    kwargs = {"babbling_steps": 100, "ef_horizon": 5} if algorithm is TDMPC2EF else {}
+    kwargs = {"policy_kwargs": SMALL_POLICY}
+    if algorithm is TDMPC2EF:
+        kwargs = {"babbling_steps": 100, "ef_horizon": 5, "policy_kwargs": {**SMALL_POLICY, "ef_kwargs": EF_KWARGS}}
     model = algorithm(
         "CnnPolicy",
         ToyAgentEnv(size=64, max_episode_steps=50),
@@ -44,7 +46,6 @@ def test_learns_to_move_the_toy_agent_to_the_centre(algorithm):
         batch_size=32,
         buffer_size=5000,
         seed=0,
-        policy_kwargs=SMALL_POLICY,
         **kwargs,
     )
     model.learn(2000)

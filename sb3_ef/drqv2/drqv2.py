@@ -1,4 +1,4 @@
-"""DrQv2-EF: DrQ-v2 whose encoder is also trained by Ego-Foresight; and DrQ-v2 itself (EF off)."""
+"""DrQ-v2, and DrQv2-EF: DrQ-v2 whose encoder is also trained by Ego-Foresight."""
 
 from __future__ import annotations
 
@@ -18,38 +18,32 @@ from torch.nn import functional as F
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBufferSamples
 from sb3_ef.common.compile import CompileOption, compile_kwargs, maybe_compile
-from sb3_ef.common.env_checks import check_box_actions, check_stacked_frames, episode_steps
+from sb3_ef.common.env_checks import check_box_actions, check_stacked_frames
 from sb3_ef.common.exploration import OwnExplorationMixin
 from sb3_ef.common.schedules import StepSchedule, get_step_schedule
-from sb3_ef.drqv2.policies import DrQv2Actor, DrQv2Critic, DrQv2Policy
-from sb3_ef.ef.host import (
-    EFHostMixin,
-    EFWindow,
-    check_horizon_fits_episodes,
-    plain_variant_kwargs,
-    plain_variant_signature,
-)
+from sb3_ef.drqv2.policies import DrQv2Actor, DrQv2Critic, DrQv2EFPolicy, DrQv2Policy
+from sb3_ef.ef.auxiliary import AuxiliaryLoss
+from sb3_ef.ef.foresight import ForesightLoss
+from sb3_ef.ef.host import AuxiliaryHostMixin, EFMixin, frozen
 
 SHIFT_PAD = 4
 # Keeps sampled actions strictly inside the action bounds, as DrQ-v2's truncated normal does.
 _ACTION_EPS = 1e-6
 
 
-class DrQv2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
-    """DrQv2-EF (Ego-Foresight on DrQ-v2): the encoder is trained by ``critic_loss + beta * ef_loss``.
+class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
+    """DrQ-v2 (Yarats et al., "Mastering Visual Continuous Control", 2021) with the Stable-Baselines3 interface.
 
-    DrQ-v2: random-shift augmentation, a shared conv encoder trained by the critic only, a deterministic actor on
-    detached features with a scheduled exploration std, clipped double Q with n-step returns and a critic target
-    (no target encoder). Ego-Foresight adds a pooled projection of the encoder output, a rollout of the agent part
-    of the features under the next actions and a decoder that predicts the frame ``k`` steps ahead; motor babbling
-    (random +-1 actions) fills the first ``babbling_steps`` agent steps.
+    Random-shift augmentation, a shared conv encoder trained by the critic only (the reference's unprojected output:
+    32 * 35 * 35 = 39200 features at 84x84), a deterministic actor on detached features with a scheduled
+    exploration std, clipped double Q with n-step returns and a critic target (no target encoder).
 
-    Paper: Nunes et al., "Ego-Foresight: Self-supervised Learning of Agent-Aware Representations for Improved RL"
-    (ICLR 2026); DrQ-v2: Yarats et al., "Mastering Visual Continuous Control" (2021).
+    An auxiliary representation loss (a subclass's ``_build_auxiliary``, e.g. :class:`DrQv2EF`'s Ego-Foresight) is
+    added to the critic's loss on the same encoder output and trained by the critic's optimiser.
 
     :param policy: the policy (``"CnnPolicy"``) or its class.
     :param env: the environment (uint8 stacked RGB frames, channels-first; Box actions) or its registered id.
-    :param learning_rate: Adam learning rate of every network (encoder, critic, actor, EF), or a schedule.
+    :param learning_rate: Adam learning rate of every network (encoder, critic, actor, auxiliary), or a schedule.
     :param buffer_size: replay buffer capacity in transitions.
     :param learning_starts: agent steps of uniform random actions before the first update.
     :param batch_size: minibatch size.
@@ -61,12 +55,6 @@ class DrQv2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     :param exploration_std: std of the rollout and target-policy noise, as a function of agent steps: a number, a
         ``"linear(initial, final, duration)"`` string or a callable.
     :param target_noise_clip: clip of the noise added to the actions of the target and the actor loss.
-    :param beta: weight of the Ego-Foresight loss (to switch EF off, use :class:`DrQv2`).
-    :param ef_horizon: Ego-Foresight prediction horizon H (the rollout length k is drawn in [1, H]).
-    :param babbling_steps: agent steps of motor babbling at the start (0: none).
-    :param babbling_mode: ``"sign"`` (random +-1) or ``"clamped_uniform"`` (the authors' code).
-    :param babbling_in_eval: ``predict`` also babbles while ``num_timesteps < babbling_steps`` (the EF authors'
-        Meta-World evaluation protocol).
     :param check_finite_losses: raise a ``ValueError`` naming the loss when one is NaN or infinite, before the
         optimiser step (one device sync per loss: for debugging).
     :param compile: ``torch.compile`` the update's loss computations (forward and backward; the optimiser steps
@@ -76,8 +64,8 @@ class DrQv2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     :param replay_buffer_kwargs: extra buffer arguments (``n_steps``, ``gamma`` and the horizon are filled in).
     :param stats_window_size: episodes averaged for the rollout logs.
     :param tensorboard_log: tensorboard log folder (``None``: no tensorboard).
-    :param policy_kwargs: policy arguments, see :class:`DrQv2Policy` (``agent_dim``, ``ef_kwargs``, ``net_arch``,
-        ``trunk_dim``, ``features_dim``, ...).
+    :param policy_kwargs: policy arguments, see :class:`DrQv2Policy` (``net_arch``, ``trunk_dim``, ``features_dim``,
+        ...).
     :param verbose: 0 silent, 1 info, 2 debug.
     :param seed: random seed.
     :param device: torch device; ``"auto"`` uses CUDA when available.
@@ -105,11 +93,6 @@ class DrQv2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         n_steps: int = 3,
         exploration_std: float | str | StepSchedule = "linear(1.0,0.1,500000)",
         target_noise_clip: float = 0.3,
-        beta: float = 1.0,
-        ef_horizon: int = 10,
-        babbling_steps: int = 12_500,
-        babbling_mode: str = "sign",
-        babbling_in_eval: bool = False,
         check_finite_losses: bool = False,
         compile: CompileOption = False,
         replay_buffer_class: type[ReplayBuffer] | None = None,
@@ -152,32 +135,32 @@ class DrQv2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         )
         self.exploration_std = exploration_std
         self.target_noise_clip = target_noise_clip
+        self.check_finite_losses = check_finite_losses
         compile_kwargs(compile)
         self.compile = compile
-        self._init_ef(beta, ef_horizon, babbling_steps, babbling_mode, babbling_in_eval, check_finite_losses, "DrQv2")
 
         if _init_setup_model:
             self._setup_model()
 
     def _setup_model(self) -> None:
-        """SB3's setup with a sequence replay buffer (it computes the n-step returns itself; plain DrQ-v2 reads no
-        EF window, the shortest one keeps sampling cheap), then the exploration schedule. Runs after the saved
-        attributes are restored on load, so the horizon is checked against the env with the model's own
-        ``ef_horizon``."""
-        if self.env is not None:
-            check_horizon_fits_episodes(self.ef_horizon, episode_steps(self.env))
+        """SB3's setup with a sequence replay buffer (it computes the n-step returns itself; without an auxiliary
+        loss reading future steps, the shortest window keeps sampling cheap), then the exploration schedule; the
+        losses are compiled in place with ``compile`` (same names, the optimiser steps stay eager)."""
         self._use_sequence_buffer(
-            "DrQ-v2 samples n-step discounts and DrQv2-EF its windows",
-            horizon=self.ef_horizon or 1,
+            "DrQ-v2 samples n-step discounts (and DrQv2-EF its windows)",
+            horizon=max(1, self._auxiliary_horizon()),
             n_steps=self.n_steps,
             gamma=self.gamma,
         )
-        self.policy_kwargs["ef_horizon"] = self.ef_horizon
         super()._setup_model()
         self.exploration_schedule = get_step_schedule(self.exploration_std)
         self._create_aliases()
-        self._critic_step_losses = maybe_compile(self._critic_and_ef_losses, self.compile)
-        self._actor_step_loss = maybe_compile(self._actor_objective, self.compile)
+        self._critic_and_auxiliary_loss = maybe_compile(self._critic_and_auxiliary_loss, self.compile)  # type: ignore[method-assign]
+        self._actor_loss = maybe_compile(self._actor_loss, self.compile)  # type: ignore[method-assign]
+
+    def _optimise_auxiliary(self, auxiliary: AuxiliaryLoss) -> None:
+        """The auxiliary module learns with the encoder and critic, from their joint loss."""
+        self.policy.critic.optimizer.add_param_group({"params": list(auxiliary.parameters())})
 
     def _create_aliases(self) -> None:
         self.actor = self.policy.actor
@@ -185,7 +168,7 @@ class DrQv2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         self.critic_target = self.policy.critic_target
 
     def train(self, gradient_steps: int, batch_size: int = 256) -> None:
-        """``gradient_steps`` DrQ-v2(-EF) updates (:meth:`_update`), then their mean losses are logged."""
+        """``gradient_steps`` updates (:meth:`_update`), then their mean losses are logged."""
         self.policy.set_training_mode(True)
         self._update_learning_rate([self.actor.optimizer, self.critic.optimizer])
         updates = []
@@ -196,59 +179,63 @@ class DrQv2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         self.logger.record("train/exploration_std", self.exploration_schedule(self.num_timesteps))
 
     def _update(self, batch: SequenceReplayBufferSamples) -> dict[str, th.Tensor]:
-        """One gradient update, EF's loss added to the critic's on the same encoder output: augment -> encode ->
-        critic (+ beta * EF) step on encoder, critic, EF -> actor step -> critic target. Returns the (detached)
-        scalars to log, without a device sync. With ``compile``, the losses are computed by the compiled functions
-        (the exploration std is passed as a tensor, so that its schedule does not recompile them)."""
+        """One gradient update: augment -> encode -> critic (+ auxiliary) step on encoder, critic and auxiliary
+        module -> actor step through the frozen critic -> critic target. Returns the (detached) scalars to log,
+        without a device sync. With ``compile`` the exploration std is passed as a tensor, so that its schedule
+        does not recompile the losses."""
         compiled = self.compile is not False
         if compiled:
             th.compiler.cudagraph_mark_step_begin()
         std = th.tensor(self.exploration_schedule(self.num_timesteps), device=self.device)
-        observations, next_observations, window = self._augment(batch)
-        loss, features, logs = self._critic_step_losses(observations, next_observations, window, batch, std)
-        self._check_finite(**{name: logs[name] for name in ("critic_loss", "ef_loss") if name in logs})
+        observations, next_observations, targets = self._augment(batch)
+        loss, features, logs = self._critic_and_auxiliary_loss(observations, next_observations, targets, batch, std)
+        self._check_finite(**logs)
         self.critic.optimizer.zero_grad()
         loss.backward()
         self.critic.optimizer.step()
 
-        actor_loss = self._actor_loss(features.detach(), std)
+        with frozen(self.critic):
+            actor_loss = self._actor_loss(features.detach(), std)
         self._check_finite(actor_loss=actor_loss)
         self.actor.optimizer.zero_grad()
         actor_loss.backward()
         self.actor.optimizer.step()
 
         polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
+        if self.auxiliary is not None:
+            self.auxiliary.after_update(self.policy.encoder)
         logs["actor_loss"] = actor_loss.detach()
         # CUDA graph outputs are overwritten by the next replay: keep copies.
         return {name: value.clone() for name, value in logs.items()} if compiled else logs
 
-    def _critic_and_ef_losses(
+    def _augment(self, batch: SequenceReplayBufferSamples) -> tuple[th.Tensor, th.Tensor, Any]:
+        """Random-shift the next observations, then the observations (by the auxiliary loss, with its targets)."""
+        (next_observations,) = random_shift(batch.next_observations, pad=SHIFT_PAD)
+        observations, targets = self._augment_observations(batch, pad=SHIFT_PAD)
+        return observations, next_observations, targets
+
+    def _critic_and_auxiliary_loss(
         self,
         observations: th.Tensor,
         next_observations: th.Tensor,
-        window: EFWindow | None,
+        targets: Any,
         batch: SequenceReplayBufferSamples,
         std: th.Tensor,
     ) -> tuple[th.Tensor, th.Tensor, dict[str, th.Tensor]]:
-        """The loss of the encoder, critic and EF step (``critic_loss + beta * ef_loss``), the encoder features of
-        the augmented observations, and the (detached) scalars to log."""
+        """The loss of the encoder, critic and auxiliary step (``critic_loss`` plus the auxiliary module's weighted
+        loss on the same features), the encoder features of the augmented observations, and the (detached) scalars
+        to log."""
         features = self.policy.encoder(observations)
         with th.no_grad():
             next_features = self.policy.encoder(next_observations)
         critic_loss, q_mean = self._critic_loss(features, batch, next_features, std)
         logs = {"critic_loss": critic_loss.detach(), "q_values": q_mean}
         loss = critic_loss
-        ef_loss = self._ef_loss(features, batch.future_actions, window)
-        if ef_loss is not None:
-            loss = loss + self.beta * ef_loss
-            logs["ef_loss"] = ef_loss.detach()
+        if self.auxiliary is not None:
+            auxiliary_loss, auxiliary_logs = self.auxiliary(features, targets)
+            loss = loss + auxiliary_loss
+            logs.update(auxiliary_logs)
         return loss, features, logs
-
-    def _augment(self, batch: SequenceReplayBufferSamples) -> tuple[th.Tensor, th.Tensor, EFWindow | None]:
-        """Random-shift the next observations, and the observations with EF's window (see ``_ef_window``)."""
-        (next_observations,) = random_shift(batch.next_observations, pad=SHIFT_PAD)
-        observations, window = self._ef_window(batch, pad=SHIFT_PAD)
-        return observations, next_observations, window
 
     def _noisy_actions(self, features: th.Tensor, std: float | th.Tensor) -> th.Tensor:
         """Actor mean plus clipped Gaussian noise, clamped to the action bounds with a straight-through gradient
@@ -273,17 +260,8 @@ class DrQv2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         return loss, th.cat(current_q, dim=1).mean().detach()
 
     def _actor_loss(self, features: th.Tensor, std: float | th.Tensor) -> th.Tensor:
-        """Deterministic policy gradient through the minimum of the Q heads, on detached features. The critic's
-        weights are frozen meanwhile: only the actor learns from this loss (and no weight gradients are computed
-        for the critic). The freezing stays out of the compiled function (``_actor_objective``)."""
-        self.critic.requires_grad_(False)
-        try:
-            return self._actor_step_loss(features, std)
-        finally:
-            self.critic.requires_grad_(True)
-
-    def _actor_objective(self, features: th.Tensor, std: float | th.Tensor) -> th.Tensor:
-        """The actor's loss: minus the smaller Q of the noisy actor actions, averaged."""
+        """Deterministic policy gradient: minus the smaller Q of the noisy actor actions, averaged, on detached
+        features (the update freezes the critic meanwhile, so that only the actor learns from it)."""
         q_values = th.cat(self.critic(features, self._noisy_actions(features, std)), dim=1)
         return -q_values.min(dim=1).values.mean()
 
@@ -302,25 +280,104 @@ class DrQv2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
             "critic",
             "critic_target",
             "exploration_schedule",
-            "_critic_step_losses",
-            "_actor_step_loss",
+            "_critic_and_auxiliary_loss",
+            "_actor_loss",
         ]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         return ["policy", "actor.optimizer", "critic.optimizer"], []
 
 
-class DrQv2(DrQv2EF):
-    """DrQ-v2 (Yarats et al., 2021): :class:`DrQv2EF` without Ego-Foresight, with the reference's unprojected
-    encoder output (32 * 35 * 35 = 39200 features at 84x84) and no motor babbling.
+class DrQv2EF(EFMixin, DrQv2):
+    """DrQv2-EF (Ego-Foresight on DrQ-v2): the encoder is trained by ``critic_loss + beta * ef_loss``.
 
-    Same arguments as :class:`DrQv2EF` minus the EF ones (``beta``, ``ef_horizon``, ``babbling_steps``,
-    ``babbling_mode``, ``babbling_in_eval``); ``policy_kwargs["features_dim"]`` defaults to ``None`` (no projection).
+    :class:`DrQv2` plus Ego-Foresight: a pooled projection of the encoder output (``features_dim`` 2048), a rollout
+    of the agent part of the features (the first ``agent_dim``) under the next actions and a decoder that predicts
+    the frame ``k`` steps ahead; motor babbling (random +-1 actions) fills the first ``babbling_steps`` agent steps.
+
+    Paper: Nunes et al., "Ego-Foresight: Self-supervised Learning of Agent-Aware Representations for Improved RL"
+    (ICLR 2026).
+
+    :param beta: weight of the Ego-Foresight loss (to train without EF, use :class:`DrQv2`).
+    :param ef_horizon: Ego-Foresight prediction horizon H (the rollout length k is drawn in [1, H]).
+    :param babbling_steps: agent steps of motor babbling at the start (0: none).
+    :param babbling_mode: ``"sign"`` (random +-1) or ``"clamped_uniform"`` (the authors' code).
+    :param babbling_in_eval: ``predict`` also babbles while ``num_timesteps < babbling_steps`` (the EF authors'
+        Meta-World evaluation protocol).
+    :param policy_kwargs: see :class:`DrQv2EFPolicy` (``agent_dim``, ``ef_kwargs``, ``features_dim``, and
+        :class:`DrQv2Policy`'s).
+
+    The other arguments are :class:`DrQv2`'s.
     """
 
-    def __init__(self, policy: str | type[DrQv2Policy], env: GymEnv | str, **kwargs: Any):
-        kwargs = plain_variant_kwargs(kwargs, "DrQv2", "DrQv2EF")
-        kwargs["policy_kwargs"] = {"features_dim": None, **(kwargs.get("policy_kwargs") or {})}
-        super().__init__(policy, env, **kwargs)
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"CnnPolicy": DrQv2EFPolicy}
+    policy: DrQv2EFPolicy
 
-    __init__.__signature__ = plain_variant_signature(DrQv2EF.__init__)  # type: ignore[attr-defined]
+    def __init__(
+        self,
+        policy: str | type[DrQv2EFPolicy],
+        env: GymEnv | str,
+        learning_rate: float | Schedule = 1e-4,
+        buffer_size: int = 1_000_000,
+        learning_starts: int = 2000,
+        batch_size: int = 256,
+        tau: float = 0.01,
+        gamma: float = 0.99,
+        train_freq: int | tuple[int, str] = 2,
+        gradient_steps: int = 1,
+        n_steps: int = 3,
+        exploration_std: float | str | StepSchedule = "linear(1.0,0.1,500000)",
+        target_noise_clip: float = 0.3,
+        beta: float = 1.0,
+        ef_horizon: int = 10,
+        babbling_steps: int = 12_500,
+        babbling_mode: str = "sign",
+        babbling_in_eval: bool = False,
+        check_finite_losses: bool = False,
+        compile: CompileOption = False,
+        replay_buffer_class: type[ReplayBuffer] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+    ):
+        super().__init__(
+            policy,
+            env,
+            learning_rate,
+            buffer_size,
+            learning_starts,
+            batch_size,
+            tau,
+            gamma,
+            train_freq,
+            gradient_steps,
+            n_steps=n_steps,
+            exploration_std=exploration_std,
+            target_noise_clip=target_noise_clip,
+            check_finite_losses=check_finite_losses,
+            compile=compile,
+            replay_buffer_class=replay_buffer_class,
+            replay_buffer_kwargs=replay_buffer_kwargs,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            policy_kwargs=policy_kwargs,
+            verbose=verbose,
+            seed=seed,
+            device=device,
+            _init_setup_model=False,
+        )
+        self._init_ef(beta, ef_horizon, babbling_steps, babbling_mode, babbling_in_eval)
+        if _init_setup_model:
+            self._setup_model()
+
+    def _build_auxiliary(self) -> ForesightLoss:
+        """Ego-Foresight on the encoder's features, sized by the policy (``agent_dim``, ``ef_kwargs``)."""
+        policy = self.policy
+        if not isinstance(policy, DrQv2EFPolicy):
+            raise TypeError(f"DrQv2EF needs a DrQv2EFPolicy (EF's sizes), got {type(policy).__name__}")
+        return self._foresight(policy.encoder.features_dim, policy.agent_dim, policy.ef_kwargs, policy.channels_last)

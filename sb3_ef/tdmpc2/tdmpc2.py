@@ -1,4 +1,4 @@
-"""TDMPC2-EF: TD-MPC2 whose world-model encoder is also trained by Ego-Foresight; and TD-MPC2 itself (EF off)."""
+"""TD-MPC2, and TDMPC2-EF: TD-MPC2 whose world-model encoder is also trained by Ego-Foresight."""
 
 from __future__ import annotations
 
@@ -18,20 +18,16 @@ from sb3_ef.common.buffers import SequenceReplayBufferSamples
 from sb3_ef.common.compile import CompileOption, compile_kwargs, maybe_compile
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_box_actions, episode_steps
 from sb3_ef.common.exploration import OwnExplorationMixin
-from sb3_ef.ef.host import (
-    EFHostMixin,
-    EFWindow,
-    check_horizon_fits_episodes,
-    plain_variant_kwargs,
-    plain_variant_signature,
-)
+from sb3_ef.ef.auxiliary import AuxiliaryLoss
+from sb3_ef.ef.foresight import ForesightLoss
+from sb3_ef.ef.host import AuxiliaryHostMixin, EFMixin, frozen
 from sb3_ef.tdmpc2.math import discount_from_episode_length, seed_steps_from_episode_length
-from sb3_ef.tdmpc2.policies import TDMPC2Policy, check_pixel_space
+from sb3_ef.tdmpc2.policies import TDMPC2EFPolicy, TDMPC2Policy, check_pixel_space
 from sb3_ef.tdmpc2.world_model import WorldModel
 
 SHIFT_PAD = 3
 # Set by the algorithm itself, so they cannot come through policy_kwargs.
-_ALGORITHM_POLICY_KWARGS = ("horizon", "gamma", "ef_horizon")
+_ALGORITHM_POLICY_KWARGS = ("horizon", "gamma")
 
 
 class Sequence(NamedTuple):
@@ -42,21 +38,22 @@ class Sequence(NamedTuple):
     actions: th.Tensor  # (H, B, A)
     rewards: th.Tensor  # (H, B)
     valid: th.Tensor  # (H, B) float: step t+i was taken inside the episode
-    ef_window: EFWindow | None  # EF's rollout lengths k and frames t+k (shifted with ``first``); None without EF
+    auxiliary_targets: Any  # the auxiliary loss's targets, augmented with ``first``; None without one
 
 
-class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
-    """TDMPC2-EF (Ego-Foresight on TD-MPC2): the world model is trained by ``L_TDMPC + beta * L_ef``.
+class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
+    """TD-MPC2 (Hansen et al., "TD-MPC2: Scalable, Robust World Models for Continuous Control", ICLR 2024) for
+    pixels, a standalone model-based algorithm with SB3's interface.
 
     TD-MPC2 learns an implicit world model (SimNorm latent, latent dynamics, two-hot reward and Q-ensemble heads)
     with a latent consistency loss, reward and TD-value cross-entropies over a short horizon, a max-entropy policy
-    prior on detached latents, and acts by MPPI planning with that model. Ego-Foresight reads the encoder latent
-    of the first observation (agent part: the first ``agent_dim`` features), rolls the agent part forward with the
-    next ``k`` actions and decodes frame ``t+k``; motor babbling (random +-1 actions) fills the first
-    ``babbling_steps`` steps. After ``learning_starts`` seed steps, as many updates as seed steps at once (TD-MPC2's
-    pretraining on the seed data), then one gradient update per environment step.
+    prior on detached latents, and acts by MPPI planning with that model. After ``learning_starts`` seed steps, as
+    many updates as seed steps at once (TD-MPC2's pretraining on the seed data), then one gradient update per
+    environment step.
 
-    Papers: Nunes et al., "Ego-Foresight" (ICLR 2026); Hansen et al., "TD-MPC2" (ICLR 2024).
+    An auxiliary representation loss (a subclass's ``_build_auxiliary``, e.g. :class:`TDMPC2EF`'s Ego-Foresight)
+    reads the encoder latent of the first observation; it joins the world model's optimiser (group ``auxiliary``)
+    and its gradient is clipped on its own.
 
     :param policy: ``"CnnPolicy"`` or a :class:`TDMPC2Policy` (sub)class.
     :param env: the environment (uint8 stacked 64x64 RGB frames, channels-first; Box actions) or its id.
@@ -74,15 +71,9 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     :param entropy_coef: weight of the policy prior's (action-dim scaled) entropy bonus.
     :param rho: per-step decay of the loss weights over the horizon.
     :param max_grad_norm: gradient clipping: one global norm over the world model for the host's loss (as TD-MPC2),
-        one over the encoder and EF's module for EF's loss, one for the policy prior.
+        one over the encoder and the auxiliary module for an auxiliary loss, one for the policy prior.
     :param seed_burst: when the seed steps end, run as many updates as seed steps at once (TD-MPC2); ``False``: one
         update per step from the start (cheaper on CPU, not the reference's schedule).
-    :param beta: weight of the Ego-Foresight loss (to switch EF off, use :class:`TDMPC2`).
-    :param ef_horizon: Ego-Foresight prediction horizon H (the rollout length k is drawn in [1, H]).
-    :param babbling_steps: steps of motor babbling at the start (0: none).
-    :param babbling_mode: ``"sign"`` (random +-1) or ``"clamped_uniform"``.
-    :param babbling_in_eval: ``predict`` also babbles while ``num_timesteps < babbling_steps`` (the EF authors'
-        Meta-World evaluation protocol).
     :param check_finite_losses: raise a ``ValueError`` naming the loss when one is NaN or infinite, before the
         optimiser step (one device sync per loss: for debugging).
     :param compile: ``torch.compile`` the update's loss computations (world model and policy prior, forward and
@@ -94,7 +85,7 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     :param stats_window_size: episodes averaged for the rollout logs.
     :param tensorboard_log: tensorboard log folder (``None``: no tensorboard).
     :param policy_kwargs: see :class:`TDMPC2Policy` (``num_channels``, ``mlp_dim``, ``num_q``, ``planner_kwargs``,
-        ``agent_dim``, ``ef_kwargs``, ...).
+        ...).
     :param verbose: 0 silent, 1 info, 2 debug.
     :param seed: random seed.
     :param device: torch device; ``"auto"`` uses CUDA when available.
@@ -122,11 +113,6 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         rho: float = 0.5,
         max_grad_norm: float = 20.0,
         seed_burst: bool = True,
-        beta: float = 1.0,
-        ef_horizon: int = 10,
-        babbling_steps: int = 1250,
-        babbling_mode: str = "sign",
-        babbling_in_eval: bool = False,
         check_finite_losses: bool = False,
         compile: CompileOption = False,
         replay_buffer_class: type[ReplayBuffer] | None = None,
@@ -175,32 +161,37 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         self.rho = rho
         self.max_grad_norm = max_grad_norm
         self.seed_burst = seed_burst
+        self.check_finite_losses = check_finite_losses
         compile_kwargs(compile)
         self.compile = compile
-        self._init_ef(beta, ef_horizon, babbling_steps, babbling_mode, babbling_in_eval, check_finite_losses, "TDMPC2")
         self._rollout_plan: th.Tensor | None = None
 
         if _init_setup_model:
             self._setup_model()
 
     def _setup_model(self) -> None:
-        """SB3's setup with a sequence replay buffer (window ``max(horizon, ef_horizon)``); the planner's horizon
-        and discount and EF's horizon are passed to the policy from the algorithm's arguments."""
+        """SB3's setup with a sequence replay buffer (window :attr:`window`); the planner's horizon and discount are
+        passed to the policy from the algorithm's arguments. The losses are compiled in place with ``compile`` (same
+        names; gradient clipping and the optimiser steps stay eager)."""
         self._check_episode_length()
         self._derive_seed_steps()
         self._use_sequence_buffer("TD-MPC2 trains on consecutive steps", horizon=self.window, n_steps=1)
-        self.policy_kwargs.update(horizon=self.horizon, gamma=self.gamma, ef_horizon=self.ef_horizon)
+        self.policy_kwargs.update(horizon=self.horizon, gamma=self.gamma)
         super()._setup_model()
-        self._model_losses = maybe_compile(self._sequence_losses, self.compile)
-        self._policy_step_loss = maybe_compile(self._policy_objective, self.compile)
+        self._world_model_losses = maybe_compile(self._world_model_losses, self.compile)  # type: ignore[method-assign]
+        self._policy_loss = maybe_compile(self._policy_loss, self.compile)  # type: ignore[method-assign]
+
+    def _optimise_auxiliary(self, auxiliary: AuxiliaryLoss) -> None:
+        """The auxiliary module joins the world model's optimiser as the group ``auxiliary`` (its gradient is
+        clipped on its own, see :meth:`_world_model_gradients`)."""
+        self.policy.optimizer.add_param_group({"name": "auxiliary", "params": list(auxiliary.parameters())})
 
     def _check_episode_length(self) -> None:
-        """Derive ``gamma`` from the episode length when it is ``None``, and check that EF's window fits in an
-        episode (done here, not in ``__init__``, so that ``load`` checks the saved values)."""
-        steps = None if self.env is None else episode_steps(self.env)
+        """Derive ``gamma`` from the episode length when it is ``None`` (done here, not in ``__init__``, so that
+        ``load`` keeps the saved value)."""
         if self.gamma is None:
+            steps = None if self.env is None else episode_steps(self.env)
             self.gamma = discount_from_episode_length(_known_episode_steps(steps, "gamma"))
-        check_horizon_fits_episodes(self.ef_horizon, steps)
 
     def _derive_seed_steps(self) -> None:
         """``learning_starts=None``: TD-MPC2's seed steps from the episode length (a saved model keeps its own)."""
@@ -211,8 +202,8 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
 
     @property
     def window(self) -> int:
-        """Steps of the replay window: the world-model horizon, or EF's when it is longer."""
-        return max(self.horizon, self.ef_horizon or 0)
+        """Steps of the replay window: the world-model horizon, or the auxiliary loss's when it is longer."""
+        return max(self.horizon, self._auxiliary_horizon())
 
     @property
     def world_model(self) -> WorldModel:
@@ -220,8 +211,8 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         return self.policy.world_model
 
     def train(self, gradient_steps: int, batch_size: int = 256) -> None:
-        """TD-MPC2's update, EF added to the world-model loss: world-model step (encoder, dynamics, reward, Q and
-        EF), policy-prior step on detached latents, then the target Q-ensemble."""
+        """TD-MPC2's update (:meth:`_update`): world-model step (encoder, dynamics, reward, Q, and the auxiliary
+        module), policy-prior step on detached latents, then the target Q-ensemble."""
         self.policy.set_training_mode(True)
         self._update_learning_rates()
         updates = []
@@ -245,24 +236,27 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
             th.compiler.cudagraph_mark_step_begin()
         losses, latents, valid = self.losses(batch)
         self._check_finite(**losses)
+        auxiliary_loss = losses.pop("auxiliary_loss", None)
         host_loss = (
             self.consistency_coef * losses["consistency_loss"]
             + self.reward_coef * losses["reward_loss"]
             + self.value_coef * losses["value_loss"]
         )
-        ef_loss = losses.get("ef_loss")
-        loss = host_loss if ef_loss is None else host_loss + self.beta * ef_loss
+        loss = host_loss if auxiliary_loss is None else host_loss + auxiliary_loss
         self.policy.optimizer.zero_grad()
-        grad_norms = self._world_model_gradients(host_loss, ef_loss)
+        grad_norms = self._world_model_gradients(host_loss, auxiliary_loss)
         self.policy.optimizer.step()
 
-        pi_loss = self._policy_loss(latents.detach(), valid)
+        with frozen(self.world_model.q_heads):  # only the prior learns from its loss
+            pi_loss = self._policy_loss(latents.detach(), valid)
         self._check_finite(pi_loss=pi_loss)
         self.policy.pi_optimizer.zero_grad()
         pi_loss.backward()
         th.nn.utils.clip_grad_norm_(self.world_model.pi_head.parameters(), self.max_grad_norm)
         self.policy.pi_optimizer.step()
         self.world_model.soft_update_target_q(self.tau)
+        if self.auxiliary is not None:
+            self.auxiliary.after_update(self.world_model.encoder)
 
         logs = {key: value.detach() for key, value in losses.items()}
         logs.update(total_loss=loss.detach(), pi_loss=pi_loss.detach())
@@ -271,25 +265,27 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         # CUDA graph outputs are overwritten by the next replay: keep copies.
         return {name: value.clone() for name, value in logs.items()} if compiled else logs
 
-    def _world_model_gradients(self, host_loss: th.Tensor, ef_loss: th.Tensor | None) -> dict[str, th.Tensor]:
+    def _world_model_gradients(self, host_loss: th.Tensor, auxiliary_loss: th.Tensor | None) -> dict[str, th.Tensor]:
         """Backpropagate the world-model losses and clip; returns the gradient norms before clipping.
 
         The host's gradient gets TD-MPC2's one global clip over the world model (encoder, dynamics, reward, Q).
-        EF's gradient (``beta * ef_loss``, summed over pixels: norms in the thousands) is computed apart, clipped to
-        the same norm over the encoder and EF's module, and added: one shared clip would shrink the host's update by
-        EF's norm."""
+        The auxiliary loss's gradient (weighted; EF's is summed over pixels: norms in the thousands) is computed
+        apart, clipped to the same norm over the encoder and the auxiliary module, and added: one shared clip would
+        shrink the host's update by the auxiliary norm."""
         groups = {group["name"]: group["params"] for group in self.policy.optimizer.param_groups}
-        host_params = [param for name, params in groups.items() if name != "ef" for param in params]
-        ef_params = [*groups["encoder"], *groups.get("ef", [])]
-        ef_grads = None
-        if ef_loss is not None:
-            ef_grads = th.autograd.grad(self.beta * ef_loss, ef_params, retain_graph=True, allow_unused=True)
+        host_params = [param for name, params in groups.items() if name != "auxiliary" for param in params]
+        auxiliary_params = [*groups["encoder"], *groups.get("auxiliary", [])]
+        auxiliary_grads = None
+        if auxiliary_loss is not None:
+            auxiliary_grads = th.autograd.grad(auxiliary_loss, auxiliary_params, retain_graph=True, allow_unused=True)
         host_loss.backward()
         norms = {"grad_norm": th.nn.utils.clip_grad_norm_(host_params, self.max_grad_norm)}
-        if ef_grads is not None:
-            pairs = [(param, grad) for param, grad in zip(ef_params, ef_grads, strict=True) if grad is not None]
-            ef_norm = th.nn.utils.get_total_norm([grad for _, grad in pairs])
-            scale = (self.max_grad_norm / (ef_norm + 1e-6)).clamp(max=1.0)
+        if auxiliary_grads is not None:
+            pairs = [
+                (param, grad) for param, grad in zip(auxiliary_params, auxiliary_grads, strict=True) if grad is not None
+            ]
+            auxiliary_norm = th.nn.utils.get_total_norm([grad for _, grad in pairs])
+            scale = (self.max_grad_norm / (auxiliary_norm + 1e-6)).clamp(max=1.0)
             for param, grad in pairs:
                 if param.grad is None:
                     # In the parameter's memory layout (autograd.grad's may differ: channels-last decoder weights),
@@ -297,18 +293,17 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
                     param.grad = th.empty_like(param).copy_(grad).mul_(scale)
                 else:
                     param.grad.add_(grad * scale)
-            norms["ef_grad_norm"] = ef_norm
+            norms["auxiliary_grad_norm"] = auxiliary_norm
         return norms
 
     def losses(self, batch: SequenceReplayBufferSamples) -> tuple[dict[str, th.Tensor], th.Tensor, th.Tensor]:
-        """World-model losses of one batch: ``consistency_loss``, ``reward_loss``, ``value_loss`` (and ``ef_loss``
-        with EF), unweighted; also the latents ``(H+1, B, L)`` of the model rollout and their validity. The
-        augmentation and EF's draws run eagerly, the rest in :meth:`_sequence_losses` (compiled with ``compile``)."""
-        return self._model_losses(self._sequence(batch), batch.future_actions)
+        """World-model losses of one batch: ``consistency_loss``, ``reward_loss``, ``value_loss``, unweighted; with
+        an auxiliary loss also ``auxiliary_loss`` (weighted, as the update adds it) and its logged parts (EF's
+        ``ef_loss``, detached). Also the latents ``(H+1, B, L)`` of the model rollout and their validity. The
+        augmentation runs eagerly, the rest in :meth:`_world_model_losses` (compiled with ``compile``)."""
+        return self._world_model_losses(self._sequence(batch))
 
-    def _sequence_losses(
-        self, sequence: Sequence, future_actions: th.Tensor
-    ) -> tuple[dict[str, th.Tensor], th.Tensor, th.Tensor]:
+    def _world_model_losses(self, sequence: Sequence) -> tuple[dict[str, th.Tensor], th.Tensor, th.Tensor]:
         """The world-model losses, rollout latents and validity of :meth:`losses` from an augmented sequence."""
         model, horizon = self.world_model, self.horizon
         weights = self.rho ** th.arange(horizon, device=self.device, dtype=th.float32)
@@ -334,15 +329,15 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
             "reward_loss": (weights * _masked_mean(reward_ce, sequence.valid)).sum() / horizon,
             "value_loss": (weights * _masked_mean(value_ce, sequence.valid)).sum() / horizon,
         }
-        ef_loss = self._ef_loss(first_latent, future_actions, sequence.ef_window)
-        if ef_loss is not None:
-            losses["ef_loss"] = ef_loss
+        if self.auxiliary is not None:
+            auxiliary_loss, logs = self.auxiliary(first_latent, sequence.auxiliary_targets)
+            losses.update(auxiliary_loss=auxiliary_loss, **logs)
         first_valid = th.ones_like(sequence.valid[:1])
         return losses, rollout, th.cat([first_valid, sequence.valid])
 
     def _sequence(self, batch: SequenceReplayBufferSamples) -> Sequence:
-        """Rebuild the stacked observations t+1..t+H from the context and the future frames, and augment: the
-        observation at t shares its shift with EF's target frame, later observations get their own shifts."""
+        """Rebuild the stacked observations t+1..t+H from the context and the future frames, and augment: later
+        observations get their own shifts, the observation at t is augmented with the auxiliary loss's targets."""
         observations = batch.observations
         size, channels, height, width = observations.shape
         stack = channels // FRAME_CHANNELS
@@ -353,28 +348,20 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         following = th.stack([frames[:, t : t + stack].flatten(1, 2) for t in range(1, self.horizon + 1)])
         (following,) = random_shift(following.flatten(0, 1), pad=SHIFT_PAD)
         valid = batch.future_mask[:, : self.horizon].float().cumprod(dim=1).T
-        first, ef_window = self._ef_window(batch, pad=SHIFT_PAD)
+        first, auxiliary_targets = self._augment_observations(batch, pad=SHIFT_PAD)
         return Sequence(
             first=first,
             following=following.unflatten(0, (self.horizon, size)),
             actions=batch.future_actions[:, : self.horizon].transpose(0, 1),
             rewards=batch.future_rewards[:, : self.horizon].T,
             valid=valid,
-            ef_window=ef_window,
+            auxiliary_targets=auxiliary_targets,
         )
 
     def _policy_loss(self, latents: th.Tensor, valid: th.Tensor) -> th.Tensor:
-        """Max-entropy policy prior: maximise Q (scaled by its running 5-95% range) plus the entropy bonus, with the
-        Q-ensemble frozen so that only the prior learns (the freezing stays out of the compiled function,
-        ``_policy_objective``)."""
-        self.world_model.q_heads.requires_grad_(False)
-        try:
-            return self._policy_step_loss(latents, valid)
-        finally:
-            self.world_model.q_heads.requires_grad_(True)
-
-    def _policy_objective(self, latents: th.Tensor, valid: th.Tensor) -> th.Tensor:
-        """The policy prior's loss, and the running Q scale's update."""
+        """Max-entropy policy prior: maximise Q (scaled by its running 5-95% range) plus the entropy bonus (the
+        update freezes the Q-ensemble meanwhile, so that only the prior learns); also updates the running Q
+        scale."""
         model = self.world_model
         sample = model.pi(latents)
         q_values = model.q_value(latents, sample.action, reduce="avg")
@@ -424,23 +411,111 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         return super()._setup_learn(total_timesteps, callback, *args, **kwargs)
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_rollout_plan", "_model_losses", "_policy_step_loss"]
+        return [*super()._excluded_save_params(), "_rollout_plan", "_world_model_losses", "_policy_loss"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         return ["policy", "policy.optimizer", "policy.pi_optimizer"], []
 
 
-class TDMPC2(TDMPC2EF):
-    """TD-MPC2 (Hansen et al., 2024) for pixels: :class:`TDMPC2EF` without Ego-Foresight and motor babbling.
+class TDMPC2EF(EFMixin, TDMPC2):
+    """TDMPC2-EF (Ego-Foresight on TD-MPC2): the world model is trained by ``L_TDMPC + beta * L_ef``.
 
-    Same arguments as :class:`TDMPC2EF` minus ``beta``, ``ef_horizon``, ``babbling_steps``, ``babbling_mode`` and
-    ``babbling_in_eval``.
+    :class:`TDMPC2` plus Ego-Foresight: it reads the encoder latent of the first observation (agent part: the first
+    ``agent_dim`` features), rolls the agent part forward with the next ``k`` actions and decodes frame ``t+k``;
+    motor babbling (random +-1 actions) fills the first ``babbling_steps`` steps. TD-MPC2's own ``horizon`` stays
+    the world model's and the planner's; EF's window is ``ef_horizon``.
+
+    Paper: Nunes et al., "Ego-Foresight: Self-supervised Learning of Agent-Aware Representations for Improved RL"
+    (ICLR 2026).
+
+    :param beta: weight of the Ego-Foresight loss (to train without EF, use :class:`TDMPC2`).
+    :param ef_horizon: Ego-Foresight prediction horizon H (the rollout length k is drawn in [1, H]).
+    :param babbling_steps: steps of motor babbling at the start (0: none).
+    :param babbling_mode: ``"sign"`` (random +-1) or ``"clamped_uniform"``.
+    :param babbling_in_eval: ``predict`` also babbles while ``num_timesteps < babbling_steps`` (the EF authors'
+        Meta-World evaluation protocol).
+    :param policy_kwargs: see :class:`TDMPC2EFPolicy` (``agent_dim``, ``ef_kwargs``, and :class:`TDMPC2Policy`'s).
+
+    The other arguments are :class:`TDMPC2`'s.
     """
 
-    def __init__(self, policy: str | type[TDMPC2Policy], env: GymEnv | str, **kwargs: Any):
-        super().__init__(policy, env, **plain_variant_kwargs(kwargs, "TDMPC2", "TDMPC2EF"))
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"CnnPolicy": TDMPC2EFPolicy}
+    policy: TDMPC2EFPolicy
 
-    __init__.__signature__ = plain_variant_signature(TDMPC2EF.__init__)  # type: ignore[attr-defined]
+    def __init__(
+        self,
+        policy: str | type[TDMPC2EFPolicy],
+        env: GymEnv | str,
+        learning_rate: float | Schedule = 3e-4,
+        buffer_size: int = 1_000_000,
+        learning_starts: int | None = None,
+        batch_size: int = 256,
+        tau: float = 0.01,
+        gamma: float | None = None,
+        horizon: int = 3,
+        consistency_coef: float = 20.0,
+        reward_coef: float = 0.1,
+        value_coef: float = 0.1,
+        entropy_coef: float = 1e-4,
+        rho: float = 0.5,
+        max_grad_norm: float = 20.0,
+        seed_burst: bool = True,
+        beta: float = 1.0,
+        ef_horizon: int = 10,
+        babbling_steps: int = 1250,
+        babbling_mode: str = "sign",
+        babbling_in_eval: bool = False,
+        check_finite_losses: bool = False,
+        compile: CompileOption = False,
+        replay_buffer_class: type[ReplayBuffer] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+    ):
+        super().__init__(
+            policy,
+            env,
+            learning_rate,
+            buffer_size,
+            learning_starts,
+            batch_size,
+            tau,
+            gamma,
+            horizon=horizon,
+            consistency_coef=consistency_coef,
+            reward_coef=reward_coef,
+            value_coef=value_coef,
+            entropy_coef=entropy_coef,
+            rho=rho,
+            max_grad_norm=max_grad_norm,
+            seed_burst=seed_burst,
+            check_finite_losses=check_finite_losses,
+            compile=compile,
+            replay_buffer_class=replay_buffer_class,
+            replay_buffer_kwargs=replay_buffer_kwargs,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            policy_kwargs=policy_kwargs,
+            verbose=verbose,
+            seed=seed,
+            device=device,
+            _init_setup_model=False,
+        )
+        self._init_ef(beta, ef_horizon, babbling_steps, babbling_mode, babbling_in_eval)
+        if _init_setup_model:
+            self._setup_model()
+
+    def _build_auxiliary(self) -> ForesightLoss:
+        """Ego-Foresight on the world model's latent, sized by the policy (``agent_dim``, ``ef_kwargs``)."""
+        policy = self.policy
+        if not isinstance(policy, TDMPC2EFPolicy):
+            raise TypeError(f"TDMPC2EF needs a TDMPC2EFPolicy (EF's sizes), got {type(policy).__name__}")
+        return self._foresight(policy.world_model.latent_dim, policy.agent_dim, policy.ef_kwargs, policy.channels_last)
 
 
 def _masked_mean(values: th.Tensor, valid: th.Tensor) -> th.Tensor:

@@ -1,0 +1,119 @@
+"""An auxiliary representation loss on an SB3 off-policy algorithm from pixels, as a step of its own.
+
+SB3's ``train()`` has no hook for an extra loss, so the auxiliary loss runs as its own step after each of the host's
+updates, as CURL's reference trains its contrastive loss: sample a batch, augment it (the loss's ``prepare``), encode
+with the critic's features extractor and take one step of a separate Adam on that extractor and the auxiliary
+module. The host's updates, losses and optimisers are SB3's own.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch as th
+from stable_baselines3.common.base_class import maybe_make_env
+from stable_baselines3.common.type_aliases import GymEnv
+
+from sb3_ef.common.buffers import SequenceReplayBufferSamples
+from sb3_ef.common.env_checks import check_box_actions, check_stacked_frames
+from sb3_ef.ef.auxiliary import AuxiliaryLoss
+from sb3_ef.ef.host import AuxiliaryHostMixin
+from sb3_ef.sb3_hosts.shifted_buffer import ShiftedSequenceReplayBuffer
+
+
+class AuxiliaryStepMixin(AuxiliaryHostMixin):
+    """Trains the auxiliary loss a subclass builds (``_build_auxiliary``) on the critic's ``features_extractor`` of an
+    SB3 off-policy algorithm (a CNN on stacked RGB frames), mixed in before it: ``class SACEF(..., SAC)``.
+
+    The mixin's arguments are keyword-only; every other argument is the host's own and goes to it unchanged.
+
+    :param shift_pad: random shift (pixels) ``prepare`` applies to the observations of the auxiliary step and its
+        targets; 0 for none. With a :class:`ShiftedSequenceReplayBuffer` (``replay_buffer_class``), which shifts every
+        batch of the host and of the auxiliary step, the step adds no shift of its own.
+    :param auxiliary_learning_rate: learning rate of the auxiliary step's Adam; ``None`` uses the host's
+        ``learning_rate`` (schedule).
+    :param check_finite_losses: raise a ``ValueError`` when the auxiliary loss is NaN or infinite, before its
+        optimiser step (the host's own losses are computed inside SB3's ``train()`` and are not checked).
+    """
+
+    policy: Any
+    critic: Any
+    auxiliary_optimizer: th.optim.Optimizer
+
+    def __init__(
+        self,
+        policy: Any,
+        env: GymEnv | str | None,
+        *,
+        shift_pad: int = 4,
+        auxiliary_learning_rate: float | None = None,
+        check_finite_losses: bool = False,
+        _init_setup_model: bool = True,
+        **kwargs: Any,
+    ):
+        if env is not None:
+            env = maybe_make_env(env, kwargs.get("verbose", 0))
+            check_stacked_frames(env.observation_space, type(self).__name__)
+            check_box_actions(env.action_space, type(self).__name__)
+        for name in ("policy_kwargs", "replay_buffer_kwargs"):
+            kwargs[name] = dict(kwargs.get(name) or {})
+        super().__init__(policy, env, _init_setup_model=False, **kwargs)  # type: ignore[call-arg]
+        if shift_pad < 0:
+            raise ValueError(f"shift_pad must be >= 0, got {shift_pad}")
+        self.shift_pad = shift_pad
+        self.auxiliary_learning_rate = auxiliary_learning_rate
+        self.check_finite_losses = check_finite_losses
+        if _init_setup_model:
+            self._setup_model()
+
+    def _setup_model(self) -> None:
+        """The host's setup with a sequence replay buffer, then the auxiliary module (on the policy, so that it is
+        saved with it) and its optimiser."""
+        self._use_sequence_buffer(
+            f"{type(self).__name__} samples the auxiliary loss's batches",
+            horizon=max(1, self._auxiliary_horizon()),
+            n_steps=self.n_steps,  # type: ignore[attr-defined]
+            gamma=self.gamma,  # type: ignore[attr-defined]
+        )
+        super()._setup_model()
+
+    def _optimise_auxiliary(self, auxiliary: AuxiliaryLoss) -> None:
+        """A separate Adam over the auxiliary module and the critic's features extractor."""
+        learning_rate = self.auxiliary_learning_rate or self.lr_schedule(1)  # type: ignore[attr-defined]
+        encoder = self.critic.features_extractor
+        self.auxiliary_optimizer = th.optim.Adam([*auxiliary.parameters(), *encoder.parameters()], lr=learning_rate)
+
+    def encode(self, observations: th.Tensor) -> th.Tensor:
+        """Features h of the critic's encoder for uint8 stacked observations (no augmentation)."""
+        return self.critic.extract_features(observations.to(self.device), self.critic.features_extractor)
+
+    def train(self, gradient_steps: int, batch_size: int = 64) -> None:
+        """The host's ``gradient_steps`` updates, unchanged, then as many auxiliary steps (:meth:`_auxiliary_step`)."""
+        super().train(gradient_steps, batch_size)  # type: ignore[misc]
+        if self.auxiliary is None:
+            return
+        if self.auxiliary_learning_rate is None:
+            self._update_learning_rate(self.auxiliary_optimizer)  # type: ignore[attr-defined]
+        self.auxiliary.train(True)
+        updates = [
+            self._auxiliary_step(self.replay_buffer.sample(batch_size, env=self._vec_normalize_env))  # type: ignore[attr-defined]
+            for _ in range(gradient_steps)
+        ]
+        self._record_updates(updates)
+
+    def _auxiliary_step(self, batch: SequenceReplayBufferSamples) -> dict[str, th.Tensor]:
+        """One step on the critic's encoder and the auxiliary module; returns the (detached) logs, without a sync."""
+        assert self.auxiliary is not None
+        pad = 0 if isinstance(self.replay_buffer, ShiftedSequenceReplayBuffer) else self.shift_pad  # type: ignore[attr-defined]
+        observations, targets = self._augment_observations(batch, pad=pad)
+        loss, logs = self.auxiliary(self.encode(observations), targets)
+        self._check_finite(**logs)
+        self.auxiliary_optimizer.zero_grad()
+        loss.backward()
+        self.auxiliary_optimizer.step()
+        self.auxiliary.after_update(self.critic.features_extractor)
+        return logs
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        state_dicts, variables = super()._get_torch_save_params()  # type: ignore[misc]
+        return ([*state_dicts, "auxiliary_optimizer"] if self.auxiliary is not None else state_dicts), variables
