@@ -18,8 +18,14 @@ from torch.nn import functional as F
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBufferSamples
 from sb3_ef.common.compile import CompileOption, compile_kwargs, maybe_compile
-from sb3_ef.common.env_checks import check_box_actions, check_stacked_frames, episode_steps
+from sb3_ef.common.env_checks import (
+    check_box_actions,
+    check_stacked_frames,
+    episode_steps,
+    policy_observation_space,
+)
 from sb3_ef.common.exploration import OwnExplorationMixin
+from sb3_ef.common.policy_arguments import policy_built_with
 from sb3_ef.common.schedules import StepSchedule, get_step_schedule
 from sb3_ef.drqv2.policies import DrQv2Actor, DrQv2Critic, DrQv2Policy
 from sb3_ef.ef.host import (
@@ -48,7 +54,8 @@ class DrQv2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     (ICLR 2026); DrQ-v2: Yarats et al., "Mastering Visual Continuous Control" (2021).
 
     :param policy: the policy (``"CnnPolicy"``) or its class.
-    :param env: the environment (uint8 stacked RGB frames, channels-first; Box actions) or its registered id.
+    :param env: the environment (uint8 stacked RGB frames, channels-first, or channels-last which SB3 transposes;
+        Box actions) or its registered id.
     :param learning_rate: Adam learning rate of every network (encoder, critic, actor, EF), or a schedule.
     :param buffer_size: replay buffer capacity in transitions.
     :param learning_starts: agent steps of uniform random actions before the first update.
@@ -85,6 +92,8 @@ class DrQv2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"CnnPolicy": DrQv2Policy}
+    # Policy arguments of this variant where the user's policy_kwargs do not set them.
+    _policy_defaults: ClassVar[dict[str, Any]] = {}
     policy: DrQv2Policy
     actor: DrQv2Actor
     critic: DrQv2Critic
@@ -124,7 +133,7 @@ class DrQv2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     ):
         if env is not None:
             env = maybe_make_env(env, verbose)
-            check_stacked_frames(env.observation_space, "DrQ-v2")
+            check_stacked_frames(policy_observation_space(env.observation_space), "DrQ-v2")
             check_box_actions(env.action_space, "DrQ-v2")
         super().__init__(
             policy,
@@ -172,8 +181,8 @@ class DrQv2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
             n_steps=self.n_steps,
             gamma=self.gamma,
         )
-        self.policy_kwargs["ef_horizon"] = self.ef_horizon
-        super()._setup_model()
+        with policy_built_with(self, self._policy_defaults, ef_horizon=self.ef_horizon):
+            super()._setup_model()
         self.exploration_schedule = get_step_schedule(self.exploration_std)
         self._create_aliases()
         self._critic_step_losses = maybe_compile(self._critic_and_ef_losses, self.compile)
@@ -318,9 +327,9 @@ class DrQv2(DrQv2EF):
     ``babbling_mode``, ``babbling_in_eval``); ``policy_kwargs["features_dim"]`` defaults to ``None`` (no projection).
     """
 
+    _policy_defaults: ClassVar[dict[str, Any]] = {"features_dim": None}
+
     def __init__(self, policy: str | type[DrQv2Policy], env: GymEnv | str, **kwargs: Any):
-        kwargs = plain_variant_kwargs(kwargs, "DrQv2", "DrQv2EF")
-        kwargs["policy_kwargs"] = {"features_dim": None, **(kwargs.get("policy_kwargs") or {})}
-        super().__init__(policy, env, **kwargs)
+        super().__init__(policy, env, **plain_variant_kwargs(kwargs, "DrQv2", "DrQv2EF"))
 
     __init__.__signature__ = plain_variant_signature(DrQv2EF.__init__)  # type: ignore[attr-defined]
