@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -26,6 +28,24 @@ def check_pixel_space(observation_space: spaces.Space) -> tuple[int, int, int]:
             f"TD-MPC2's encoder expects {FRAME_SIZE}x{FRAME_SIZE} frames (make_env(..., size=64)), got {height}x{width}"
         )
     return channels, height, width
+
+
+#: Seed of the planner's random draws in ``predict(..., deterministic=True)``, fixed so that the action is a
+#: function of the observation, the warm-start plan and the weights (SB3's ``evaluate_policy`` relies on it).
+DETERMINISTIC_SEED = 0
+
+
+@contextmanager
+def _seeded_draws(device: th.device, seed: int) -> Iterator[None]:
+    """Within the block, torch's generators of the CPU and of ``device`` start from ``seed``; afterwards they are
+    restored to their state before it."""
+    on_cuda = device.type == "cuda"
+    with th.random.fork_rng(devices=[device] if on_cuda else []):
+        th.default_generator.manual_seed(seed)
+        if on_cuda:
+            with th.cuda.device(device):
+                th.cuda.manual_seed(seed)
+        yield
 
 
 #: DrQ-v2 policy arguments a TD-MPC2 policy does not take, with what sizes it has instead.
@@ -173,7 +193,15 @@ class TDMPC2Policy(BasePolicy):
         )
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
-        return {**super()._get_constructor_parameters(), **self._constructor_kwargs}
+        data = super()._get_constructor_parameters()
+        del data["normalize_images"]  # fixed: the encoder scales images itself
+        data.update(
+            self._constructor_kwargs,
+            lr_schedule=self._dummy_schedule,
+            optimizer_class=self.optimizer_class,
+            optimizer_kwargs=self.optimizer_kwargs,
+        )
+        return data
 
     def encode(self, observations: th.Tensor) -> th.Tensor:
         """Latent z (the features h that EF splits) of uint8 stacked observations, without augmentation."""
@@ -201,10 +229,18 @@ class TDMPC2Policy(BasePolicy):
         return super().predict(observation, state, episode_start, deterministic)
 
     def _predict(self, observation: PyTorchObs, deterministic: bool = False) -> th.Tensor:
+        """The planner's actions, warm-started from the previous call's plans. With ``deterministic``, the planner's
+        random draws (samples, policy-prior noise, Q heads, elite draw) come from generators seeded with
+        :data:`DETERMINISTIC_SEED` at each call: the same observation and warm start give the same action, and the
+        global generators are left as they were (an evaluation does not shift training's random stream)."""
         assert isinstance(observation, th.Tensor)
         if self._plan_mean is not None and self._plan_mean.shape[0] != observation.shape[0]:
             self._plan_mean = None
-        actions, self._plan_mean = self.plan(observation, self._plan_mean, deterministic)
+        if not deterministic:
+            actions, self._plan_mean = self.plan(observation, self._plan_mean, deterministic)
+            return actions
+        with _seeded_draws(observation.device, DETERMINISTIC_SEED):
+            actions, self._plan_mean = self.plan(observation, self._plan_mean, deterministic)
         return actions
 
     def reset_planner(self) -> None:
