@@ -18,8 +18,15 @@ from stable_baselines3.common.base_class import maybe_make_env
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.type_aliases import GymEnv
 
+from sb3_ef.common.batch_norm import running_stats_kept
 from sb3_ef.common.buffers import SequenceReplayBufferSamples
-from sb3_ef.common.env_checks import check_box_actions, check_stacked_frames, episode_steps
+from sb3_ef.common.env_checks import (
+    check_box_actions,
+    check_stacked_frames,
+    episode_steps,
+    policy_observation_space,
+)
+from sb3_ef.ef.foresight import EgoForesight
 from sb3_ef.ef.host import EFHostMixin, build_ef, check_horizon_fits_episodes
 from sb3_ef.sb3_hosts.shifted_buffer import ShiftedSequenceReplayBuffer
 
@@ -48,6 +55,7 @@ class AuxiliaryEFMixin(EFHostMixin):
 
     policy: Any
     critic: Any
+    ef_module: EgoForesight | None = None
     ef_optimizer: th.optim.Optimizer
 
     def __init__(
@@ -73,7 +81,7 @@ class AuxiliaryEFMixin(EFHostMixin):
         )
         if env is not None:
             env = maybe_make_env(env, kwargs.get("verbose", 0))
-            check_stacked_frames(env.observation_space, type(self).__name__)
+            check_stacked_frames(policy_observation_space(env.observation_space), type(self).__name__)
             check_box_actions(env.action_space, type(self).__name__)
         for name in ("policy_kwargs", "replay_buffer_kwargs"):
             kwargs[name] = dict(kwargs.get(name) or {})
@@ -91,8 +99,8 @@ class AuxiliaryEFMixin(EFHostMixin):
             self._setup_model()
 
     def _setup_model(self) -> None:
-        """The host's setup with a sequence replay buffer, then the EF module (on the policy, so that it is saved
-        with it) and EF's optimiser over EF and the critic's features extractor."""
+        """The host's setup with a sequence replay buffer, then the EF module (saved with the model as
+        ``ef_module``) and EF's optimiser over EF and the critic's features extractor."""
         if self.env is not None:
             check_horizon_fits_episodes(self.ef_horizon, episode_steps(self.env))
         self._use_sequence_buffer(
@@ -114,10 +122,16 @@ class AuxiliaryEFMixin(EFHostMixin):
                 self.ef_kwargs,
                 channels_last=False,
             )
-        self.policy.ef = None if ef is None else ef.to(self.device)
+        self.ef_module = None if ef is None else ef.to(self.device)
         if ef is not None:
             learning_rate = self.ef_learning_rate or self.lr_schedule(1)  # type: ignore[attr-defined]
             self.ef_optimizer = th.optim.Adam([*ef.parameters(), *encoder.parameters()], lr=learning_rate)
+
+    @property
+    def ef(self) -> EgoForesight | None:
+        """The Ego-Foresight module. It is kept on the algorithm, not on the policy, so that the policy stays the
+        host's own: ``policy.save`` and the host policy class's ``load`` work as in SB3."""
+        return self.ef_module
 
     def encode(self, observations: th.Tensor) -> th.Tensor:
         """Features h of the critic's encoder for uint8 stacked observations (no augmentation)."""
@@ -141,7 +155,9 @@ class AuxiliaryEFMixin(EFHostMixin):
         """One EF step on the critic's encoder and the EF module; returns the (detached) loss, without a sync."""
         pad = 0 if isinstance(self.replay_buffer, ShiftedSequenceReplayBuffer) else self.shift_pad
         observations, window = self._ef_window(batch, pad=pad)
-        ef_loss = self._ef_loss(self.encode(observations), batch.future_actions, window)
+        with running_stats_kept(self.critic.features_extractor):  # the host's batch-norm statistics stay its own
+            features = self.encode(observations)
+        ef_loss = self._ef_loss(features, batch.future_actions, window)
         assert ef_loss is not None and self.beta is not None
         self._check_finite(ef_loss=ef_loss)
         self.ef_optimizer.zero_grad()
@@ -151,7 +167,7 @@ class AuxiliaryEFMixin(EFHostMixin):
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()  # type: ignore[misc]
-        return ([*state_dicts, "ef_optimizer"] if self.ef is not None else state_dicts), variables
+        return ([*state_dicts, "ef_module", "ef_optimizer"] if self.ef is not None else state_dicts), variables
 
 
 class SACEF(AuxiliaryEFMixin, SAC):
