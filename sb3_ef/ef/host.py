@@ -20,6 +20,7 @@ from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.noise import ActionNoise
+from stable_baselines3.common.preprocessing import maybe_transpose
 from stable_baselines3.common.type_aliases import MaybeCallback
 from stable_baselines3.common.utils import is_vectorized_observation
 
@@ -261,7 +262,10 @@ class EFHostMixin:
         """SB3's ``predict``; with ``babbling_in_eval``, babbling actions while ``num_timesteps < babbling_steps``
         (the EF authors' Meta-World evaluation protocol), from a generator separate from training's."""
         if self.babbling_in_eval and self.num_timesteps < self.babbling_steps:
-            vectorized = is_vectorized_observation(observation, self.observation_space)
+            # Transposed first, as SB3's predict does (an env of channels-last frames gives channels-last observations).
+            vectorized = is_vectorized_observation(
+                maybe_transpose(observation, self.observation_space), self.observation_space
+            )
             n_envs = len(observation) if vectorized else 1  # type: ignore[arg-type]
             actions = self.policy.unscale_action(self._babble(n_envs, self._eval_babbling_rng))
             return (actions if vectorized else actions[0]), state

@@ -86,6 +86,16 @@ def test_channels_last_frames_are_transposed_as_sb3_does(size, frame_stack):
     np.testing.assert_array_equal(action, channels_first)
 
 
+def test_channels_last_observations_while_babbling_in_evaluation():
+    env = ChannelsLast(ToyAgentEnv(size=32, frame_stack=3, max_episode_steps=20))
+    model = make(DrQv2EF, env=env, babbling_steps=100, babbling_in_eval=True)
+    observation = env.reset(seed=0)[0]
+    action, _ = model.predict(observation)
+    assert action.shape == (2,) and np.all(np.abs(action) == 1.0)  # one babbling action
+    actions, _ = model.predict(np.stack([observation] * 3))
+    assert actions.shape == (3, 2)
+
+
 class Frames(gym.Env):
     """An env that only declares its spaces (the checks run at construction)."""
 
