@@ -28,6 +28,7 @@ from sb3_ef.common.env_checks import (
 )
 from sb3_ef.ef.foresight import EgoForesight
 from sb3_ef.ef.host import EFHostMixin, build_ef, check_horizon_fits_episodes
+from sb3_ef.sb3_hosts.legacy import ef_weights_apart
 from sb3_ef.sb3_hosts.shifted_buffer import ShiftedSequenceReplayBuffer
 
 
@@ -164,6 +165,12 @@ class AuxiliaryEFMixin(EFHostMixin):
         (self.beta * ef_loss).backward()
         self.ef_optimizer.step()
         return {"ef_loss": ef_loss.detach()}
+
+    def set_parameters(
+        self, load_path_or_dict: str | dict[str, Any], exact_match: bool = True, device: th.device | str = "auto"
+    ) -> None:
+        """SB3's; the EF weights of a model saved by sb3-ef 0.1.0 (inside its policy's) go to ``ef_module``."""
+        super().set_parameters(ef_weights_apart(load_path_or_dict, device), exact_match, device)  # type: ignore[misc]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()  # type: ignore[misc]

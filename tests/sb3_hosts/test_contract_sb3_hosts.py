@@ -1,6 +1,8 @@
 """SB3's contract on SAC-EF, TD3-EF and TQC-EF: policy-only save/load, load with the constructor's policy_kwargs,
 batch-norm statistics of the critic target, channels-last frames."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch as th
@@ -130,3 +132,18 @@ def test_channels_last_frames_are_transposed_as_sb3_does(frame_stack):
     assert model.observation_space.shape == (3 * frame_stack, 32, 32)
     action, _ = model.predict(env.reset(seed=0)[0], deterministic=True)
     assert action.shape == (2,)
+
+
+def test_a_model_saved_by_sb3_ef_0_1_0_loads(tmp_path):
+    # Written by data/make_sacef_zip.py under sb3-ef 0.1.0, which saved EF's weights inside the policy's.
+    data = Path(__file__).parent / "data"
+    expected = np.load(data / "sacef_0.1.0_expected.npz")
+    model = SACEF.load(data / "sacef_0.1.0.zip", env=toy_env(), device="cpu")
+    assert not any(name.startswith("ef.") for name in model.policy.state_dict())
+    for name, value in model.ef.state_dict().items():
+        np.testing.assert_array_equal(value.numpy(), expected[f"ef/{name}"])
+    observations = np.stack([toy_env().reset(seed=seed)[0] for seed in range(3)])
+    np.testing.assert_array_equal(model.predict(observations, deterministic=True)[0], expected["actions"])
+    model.learn(2, reset_num_timesteps=False)  # EF's optimiser state came back with it and steps on
+    model.save(tmp_path / "model.zip")
+    assert SACEF.load(tmp_path / "model.zip", env=toy_env()).ef is not None
