@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from typing import Any
 
 import numpy as np
@@ -236,10 +236,7 @@ class TDMPC2Policy(BasePolicy):
         assert isinstance(observation, th.Tensor)
         if self._plan_mean is not None and self._plan_mean.shape[0] != observation.shape[0]:
             self._plan_mean = None
-        if not deterministic:
-            actions, self._plan_mean = self.plan(observation, self._plan_mean, deterministic)
-            return actions
-        with _seeded_draws(observation.device, DETERMINISTIC_SEED):
+        with _seeded_draws(observation.device, DETERMINISTIC_SEED) if deterministic else nullcontext():
             actions, self._plan_mean = self.plan(observation, self._plan_mean, deterministic)
         return actions
 
