@@ -8,7 +8,8 @@ import math
 import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
-from stable_baselines3.common.vec_env import VecEnv
+from stable_baselines3.common.preprocessing import is_image_space, is_image_space_channels_first
+from stable_baselines3.common.vec_env import VecEnv, VecTransposeImage
 
 from sb3_ef.common.buffers import SequenceReplayBuffer
 
@@ -16,8 +17,22 @@ from sb3_ef.common.buffers import SequenceReplayBuffer
 FRAME_CHANNELS = 3
 
 
+def policy_observation_space(observation_space: spaces.Space) -> spaces.Space:
+    """The observation space an SB3 algorithm gives its policy for an env with ``observation_space``: SB3 wraps
+    an env of channels-last images (uint8, bounds 0 and 255, smallest dimension not first) in ``VecTransposeImage``,
+    which makes them channels-first; any other space is the env's own."""
+    if (
+        isinstance(observation_space, spaces.Box)
+        and is_image_space(observation_space)
+        and not is_image_space_channels_first(observation_space)
+    ):
+        return VecTransposeImage.transpose_space(observation_space)
+    return observation_space
+
+
 def check_stacked_frames(observation_space: spaces.Space, algorithm: str) -> tuple[int, int, int]:
-    """Check for stacked uint8 RGB frames, channels-first, and return their ``(channels, height, width)``."""
+    """Check for stacked uint8 RGB frames, channels-first, and return their ``(channels, height, width)``. An
+    algorithm checks its env's space as its policy will see it (:func:`policy_observation_space`)."""
     if (
         not isinstance(observation_space, spaces.Box)
         or observation_space.dtype != np.uint8
@@ -26,7 +41,8 @@ def check_stacked_frames(observation_space: spaces.Space, algorithm: str) -> tup
     ):
         raise ValueError(
             f"{algorithm} expects stacked RGB frames: a uint8 Box of shape (3 * frame_stack, height, width), "
-            f"got {observation_space}"
+            f"got {observation_space} (an env's channels-last frames, (height, width, 3 * frame_stack) with bounds "
+            "0 and 255, are accepted too: SB3 transposes them)"
         )
     channels, height, width = observation_space.shape
     return channels, height, width

@@ -18,7 +18,7 @@ from torch.nn import functional as F
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBufferSamples
 from sb3_ef.common.compile import CompileOption, compile_kwargs, maybe_compile
-from sb3_ef.common.env_checks import check_box_actions, check_stacked_frames
+from sb3_ef.common.env_checks import check_box_actions, check_stacked_frames, policy_observation_space
 from sb3_ef.common.exploration import OwnExplorationMixin
 from sb3_ef.common.schedules import StepSchedule, get_step_schedule
 from sb3_ef.drqv2.policies import DrQv2Actor, DrQv2Critic, DrQv2EFPolicy, DrQv2Policy
@@ -42,7 +42,8 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     added to the critic's loss on the same encoder output and trained by the critic's optimiser.
 
     :param policy: the policy (``"CnnPolicy"``) or its class.
-    :param env: the environment (uint8 stacked RGB frames, channels-first; Box actions) or its registered id.
+    :param env: the environment (uint8 stacked RGB frames, channels-first, or channels-last which SB3 transposes;
+        Box actions) or its registered id.
     :param learning_rate: Adam learning rate of every network (encoder, critic, actor, auxiliary), or a schedule.
     :param buffer_size: replay buffer capacity in transitions.
     :param learning_starts: agent steps of uniform random actions before the first update.
@@ -107,7 +108,7 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     ):
         if env is not None:
             env = maybe_make_env(env, verbose)
-            check_stacked_frames(env.observation_space, "DrQ-v2")
+            check_stacked_frames(policy_observation_space(env.observation_space), "DrQ-v2")
             check_box_actions(env.action_space, "DrQ-v2")
         super().__init__(
             policy,

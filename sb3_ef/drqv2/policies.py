@@ -14,7 +14,7 @@ from stable_baselines3.common.type_aliases import Schedule
 from torch import nn
 
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_stacked_frames
-from sb3_ef.ef.auxiliary import AuxiliaryLoss
+from sb3_ef.ef.auxiliary import AuxiliaryLoss, CarriesAuxiliary
 
 # Conv stack of DrQ-v2: (kernel, stride) per layer, 32 filters each.
 _CONV_LAYERS = ((3, 2), (3, 1), (3, 1), (3, 1))
@@ -133,7 +133,7 @@ def _orthogonal_init(module: nn.Module) -> None:
         nn.init.zeros_(module.bias)
 
 
-class DrQv2Policy(BasePolicy):
+class DrQv2Policy(CarriesAuxiliary, BasePolicy):
     """Encoder, actor, critic and critic target of DrQ-v2, and the algorithm's auxiliary loss module, if any
     (``auxiliary``, set by the algorithm: DrQv2-EF's Ego-Foresight).
 

@@ -13,12 +13,14 @@ host calls, in this order:
 4. ``aux.after_update(encoder)`` once the optimisers have stepped (CURL's momentum key encoder follows the
    online encoder here).
 
-The module lives on the host's policy, so its weights are saved and loaded with the policy.
+The module is saved with the model: DrQ-v2 and TD-MPC2 keep it on their policy (``policy.auxiliary``), SB3's
+algorithms on the algorithm (``auxiliary_module``), so that their policy stays SB3's own.
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Mapping
 from typing import Any
 
 import torch as th
@@ -38,3 +40,14 @@ class AuxiliaryLoss(nn.Module, ABC):
 
     def after_update(self, encoder: nn.Module) -> None:
         """Called after the optimiser steps of each update; nothing by default."""
+
+
+class CarriesAuxiliary:
+    """For a policy that carries its algorithm's auxiliary module as ``policy.auxiliary``: loaded on its own
+    (``Policy.load``, to act), the policy has no such module, and the module's saved weights are set aside (only
+    training uses them)."""
+
+    def load_state_dict(self, state_dict: Mapping[str, Any], strict: bool = True, assign: bool = False) -> Any:
+        if getattr(self, "auxiliary", None) is None:
+            state_dict = {name: value for name, value in state_dict.items() if not name.startswith("auxiliary.")}
+        return super().load_state_dict(state_dict, strict, assign)  # type: ignore[misc]

@@ -29,6 +29,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.preprocessing import maybe_transpose
 from stable_baselines3.common.save_util import open_path
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
 from stable_baselines3.common.utils import is_vectorized_observation
@@ -162,7 +163,7 @@ class AuxiliaryHostMixin:
             super()._setup_model()  # type: ignore[misc]
         auxiliary = self._build_auxiliary()
         if auxiliary is not None:
-            self.policy.auxiliary = auxiliary.to(self.device)
+            self._keep_auxiliary(auxiliary.to(self.device))
             self._optimise_auxiliary(auxiliary)
         if self._auxiliary_generator is None:
             # On the CPU, so that a saved model loads on any device.
@@ -171,6 +172,10 @@ class AuxiliaryHostMixin:
         if self._babbling_rng is None or self._eval_babbling_rng is None:
             seeds = np.random.SeedSequence(None if self.seed is None else self.seed % 2**32).spawn(2)
             self._babbling_rng, self._eval_babbling_rng = (np.random.default_rng(seed) for seed in seeds)
+
+    def _keep_auxiliary(self, auxiliary: AuxiliaryLoss) -> None:
+        """Keep the auxiliary module where it is saved with the model: on the policy (``policy.auxiliary``)."""
+        self.policy.auxiliary = auxiliary
 
     @property
     def auxiliary(self) -> AuxiliaryLoss | None:
@@ -244,7 +249,10 @@ class AuxiliaryHostMixin:
         """SB3's ``predict``; with ``babbling_in_eval``, babbling actions while ``num_timesteps < babbling_steps``
         (the EF authors' Meta-World evaluation protocol), from a generator separate from training's."""
         if self.babbling_in_eval and self.num_timesteps < self.babbling_steps:
-            vectorized = is_vectorized_observation(observation, self.observation_space)
+            # Transposed first, as SB3's predict does (an env of channels-last frames gives channels-last observations).
+            vectorized = is_vectorized_observation(
+                maybe_transpose(observation, self.observation_space), self.observation_space
+            )
             n_envs = len(observation) if vectorized else 1  # type: ignore[arg-type]
             actions = self.policy.unscale_action(self._babble(n_envs, self._eval_babbling_rng))
             return (actions if vectorized else actions[0]), state

@@ -96,7 +96,3 @@ class DMCPixelEnv(PixelEnv):
         scaled = self._action_low + (action.astype(np.float64) + 1.0) * 0.5 * (self._action_high - self._action_low)
         _, reward, terminated, _, info = self._env.step(scaled)
         return float(reward), terminated, info
-
-    def close(self) -> None:
-        super().close()
-        self._env.close()

@@ -7,6 +7,7 @@ everything the observation contract of docs/architecture.md asks for lives here,
 from __future__ import annotations
 
 from collections import deque
+from functools import partial
 from typing import Any
 
 import gymnasium as gym
@@ -69,7 +70,11 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
         self.metadata = {**self.metadata, "render_fps": round(1.0 / (sim_timestep * action_repeat))}
         self.observation_space = spaces.Box(0, 255, (3 * frame_stack, size, size), np.uint8)
         self.action_space = spaces.Box(-1.0, 1.0, (action_dim,), np.float32)
-        self._renderer = FrameRenderer(model, size, camera, fast=fast_render, flip=flip, agent_geoms=agent_geoms(model))
+        self._open_renderer = partial(
+            FrameRenderer, model, size, camera, fast=fast_render, flip=flip, agent_geoms=agent_geoms(model)
+        )
+        self._renderer: FrameRenderer | None = self._open_renderer()
+        self._camera = self._renderer.camera
         self._frames: deque[np.ndarray] = deque(maxlen=frame_stack)
         self._masks: deque[np.ndarray] | None = None  # with agent_masks: those of the last frame_stack + 1 frames
         self._sim_steps = 0
@@ -91,13 +96,19 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
     @property
     def camera(self) -> int:
         """Index of the camera that renders the observations."""
-        return self._renderer.camera
+        return self._camera
+
+    def _frame_renderer(self) -> FrameRenderer:
+        """The renderer, opened again when the env is used after ``close()`` (as SB3's ``check_env`` does)."""
+        if self._renderer is None:
+            self._renderer = self._open_renderer()
+        return self._renderer
 
     def _observation(self) -> np.ndarray:
         return np.concatenate(self._frames, axis=0)
 
     def _render_frame(self) -> np.ndarray:
-        return self._renderer.rgb(self._physics()[1]).transpose(2, 0, 1)
+        return self._frame_renderer().rgb(self._physics()[1]).transpose(2, 0, 1)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
         super().reset(seed=seed)
@@ -149,7 +160,7 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
 
         Which geoms are the agent's is decided by :func:`sb3_ef.envs.agent_geoms.agent_geoms`.
         """
-        return self._renderer.agent_mask(self._physics()[1])
+        return self._frame_renderer().agent_mask(self._physics()[1])
 
     def render(self) -> np.ndarray | None:
         """The newest frame as ``(size, size, 3)`` uint8 (no extra rendering) when ``render_mode='rgb_array'``."""
@@ -158,6 +169,9 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
         return self._frames[-1].transpose(1, 2, 0)
 
     def close(self) -> None:
-        """Free the renderer; subclasses also close their simulator."""
-        self._renderer.close()
+        """Free the renderer's OpenGL context. The simulator is kept (freed with the env), so that the env can be
+        reset again after ``close()``, as Gymnasium envs can; a new context is opened then."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
         super().close()

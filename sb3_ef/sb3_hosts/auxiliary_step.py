@@ -14,10 +14,12 @@ import torch as th
 from stable_baselines3.common.base_class import maybe_make_env
 from stable_baselines3.common.type_aliases import GymEnv
 
+from sb3_ef.common.batch_norm import running_stats_kept
 from sb3_ef.common.buffers import SequenceReplayBufferSamples
-from sb3_ef.common.env_checks import check_box_actions, check_stacked_frames
+from sb3_ef.common.env_checks import check_box_actions, check_stacked_frames, policy_observation_space
 from sb3_ef.ef.auxiliary import AuxiliaryLoss
 from sb3_ef.ef.host import AuxiliaryHostMixin
+from sb3_ef.sb3_hosts.legacy import saved_by_0_1_0_renamed
 from sb3_ef.sb3_hosts.shifted_buffer import ShiftedSequenceReplayBuffer
 
 
@@ -38,6 +40,9 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
 
     policy: Any
     critic: Any
+    #: The auxiliary module, kept on the algorithm rather than on the host's policy, so that the policy stays SB3's
+    #: own (``policy.save`` and the host policy class's ``load`` work as in SB3); saved with the model.
+    auxiliary_module: AuxiliaryLoss | None = None
     auxiliary_optimizer: th.optim.Optimizer
 
     def __init__(
@@ -53,7 +58,7 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
     ):
         if env is not None:
             env = maybe_make_env(env, kwargs.get("verbose", 0))
-            check_stacked_frames(env.observation_space, type(self).__name__)
+            check_stacked_frames(policy_observation_space(env.observation_space), type(self).__name__)
             check_box_actions(env.action_space, type(self).__name__)
         for name in ("policy_kwargs", "replay_buffer_kwargs"):
             kwargs[name] = dict(kwargs.get(name) or {})
@@ -67,8 +72,8 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
             self._setup_model()
 
     def _setup_model(self) -> None:
-        """The host's setup with a sequence replay buffer, then the auxiliary module (on the policy, so that it is
-        saved with it) and its optimiser."""
+        """The host's setup with a sequence replay buffer, then the auxiliary module (``auxiliary_module``) and its
+        optimiser."""
         self._use_sequence_buffer(
             f"{type(self).__name__} samples the auxiliary loss's batches",
             horizon=max(1, self._auxiliary_horizon()),
@@ -76,6 +81,14 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
             gamma=self.gamma,  # type: ignore[attr-defined]
         )
         super()._setup_model()
+
+    def _keep_auxiliary(self, auxiliary: AuxiliaryLoss) -> None:
+        self.auxiliary_module = auxiliary
+
+    @property
+    def auxiliary(self) -> AuxiliaryLoss | None:
+        """The auxiliary loss module (``auxiliary_module``), or ``None``."""
+        return self.auxiliary_module
 
     def _optimise_auxiliary(self, auxiliary: AuxiliaryLoss) -> None:
         """A separate Adam over the auxiliary module and the critic's features extractor."""
@@ -106,7 +119,9 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
         assert self.auxiliary is not None
         pad = 0 if isinstance(self.replay_buffer, ShiftedSequenceReplayBuffer) else self.shift_pad  # type: ignore[attr-defined]
         observations, targets = self._augment_observations(batch, pad=pad)
-        loss, logs = self.auxiliary(self.encode(observations), targets)
+        with running_stats_kept(self.critic.features_extractor):  # the host's batch-norm statistics stay its own
+            features = self.encode(observations)
+        loss, logs = self.auxiliary(features, targets)
         self._check_finite(**logs)
         self.auxiliary_optimizer.zero_grad()
         loss.backward()
@@ -114,6 +129,13 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
         self.auxiliary.after_update(self.critic.features_extractor)
         return logs
 
+    def set_parameters(
+        self, load_path_or_dict: str | dict[str, Any], exact_match: bool = True, device: th.device | str = "auto"
+    ) -> None:
+        """SB3's; a model saved by sb3-ef 0.1.0 (EF's weights inside its policy's) loads too."""
+        super().set_parameters(saved_by_0_1_0_renamed(load_path_or_dict, device), exact_match, device)  # type: ignore[misc]
+
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()  # type: ignore[misc]
-        return ([*state_dicts, "auxiliary_optimizer"] if self.auxiliary is not None else state_dicts), variables
+        extra = ["auxiliary_module", "auxiliary_optimizer"] if self.auxiliary is not None else []
+        return [*state_dicts, *extra], variables

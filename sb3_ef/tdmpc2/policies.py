@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager, nullcontext
 from typing import Any
 
 import numpy as np
@@ -11,7 +13,7 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_stacked_frames
-from sb3_ef.ef.auxiliary import AuxiliaryLoss
+from sb3_ef.ef.auxiliary import AuxiliaryLoss, CarriesAuxiliary
 from sb3_ef.tdmpc2.math import TwoHot, planning_iterations
 from sb3_ef.tdmpc2.planner import MPPIPlanner
 from sb3_ef.tdmpc2.world_model import FRAME_SIZE, WorldModel
@@ -27,6 +29,24 @@ def check_pixel_space(observation_space: spaces.Space) -> tuple[int, int, int]:
     return channels, height, width
 
 
+#: Seed of the planner's random draws in ``predict(..., deterministic=True)``, fixed so that the action is a
+#: function of the observation, the warm-start plan and the weights (SB3's ``evaluate_policy`` relies on it).
+DETERMINISTIC_SEED = 0
+
+
+@contextmanager
+def _seeded_draws(device: th.device, seed: int) -> Iterator[None]:
+    """Within the block, torch's generators of the CPU and of ``device`` start from ``seed``; afterwards they are
+    restored to their state before it."""
+    on_cuda = device.type == "cuda"
+    with th.random.fork_rng(devices=[device] if on_cuda else []):
+        th.default_generator.manual_seed(seed)
+        if on_cuda:
+            with th.cuda.device(device):
+                th.cuda.manual_seed(seed)
+        yield
+
+
 #: DrQ-v2 policy arguments a TD-MPC2 policy does not take, with what sizes it has instead.
 _DRQV2_ARGUMENTS = {
     "net_arch": "mlp_dim (width of every MLP)",
@@ -36,7 +56,7 @@ _DRQV2_ARGUMENTS = {
 }
 
 
-class TDMPC2Policy(BasePolicy):
+class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
     """Holds everything TD-MPC2 learns and plans with, and the algorithm's auxiliary loss module, if any
     (``auxiliary``, set by the algorithm: TDMPC2-EF's Ego-Foresight).
 
@@ -157,7 +177,15 @@ class TDMPC2Policy(BasePolicy):
         )
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
-        return {**super()._get_constructor_parameters(), **self._constructor_kwargs}
+        data = super()._get_constructor_parameters()
+        del data["normalize_images"]  # fixed: the encoder scales images itself
+        data.update(
+            self._constructor_kwargs,
+            lr_schedule=self._dummy_schedule,
+            optimizer_class=self.optimizer_class,
+            optimizer_kwargs=self.optimizer_kwargs,
+        )
+        return data
 
     def encode(self, observations: th.Tensor) -> th.Tensor:
         """Latent z (the features h that EF splits) of uint8 stacked observations, without augmentation."""
@@ -185,10 +213,15 @@ class TDMPC2Policy(BasePolicy):
         return super().predict(observation, state, episode_start, deterministic)
 
     def _predict(self, observation: PyTorchObs, deterministic: bool = False) -> th.Tensor:
+        """The planner's actions, warm-started from the previous call's plans. With ``deterministic``, the planner's
+        random draws (samples, policy-prior noise, Q heads, elite draw) come from generators seeded with
+        :data:`DETERMINISTIC_SEED` at each call: the same observation and warm start give the same action, and the
+        global generators are left as they were (an evaluation does not shift training's random stream)."""
         assert isinstance(observation, th.Tensor)
         if self._plan_mean is not None and self._plan_mean.shape[0] != observation.shape[0]:
             self._plan_mean = None
-        actions, self._plan_mean = self.plan(observation, self._plan_mean, deterministic)
+        with _seeded_draws(observation.device, DETERMINISTIC_SEED) if deterministic else nullcontext():
+            actions, self._plan_mean = self.plan(observation, self._plan_mean, deterministic)
         return actions
 
     def reset_planner(self) -> None:

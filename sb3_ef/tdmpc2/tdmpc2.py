@@ -16,8 +16,9 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedul
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBufferSamples
 from sb3_ef.common.compile import CompileOption, compile_kwargs, maybe_compile
-from sb3_ef.common.env_checks import FRAME_CHANNELS, check_box_actions, episode_steps
+from sb3_ef.common.env_checks import FRAME_CHANNELS, check_box_actions, episode_steps, policy_observation_space
 from sb3_ef.common.exploration import OwnExplorationMixin
+from sb3_ef.common.policy_arguments import policy_built_with
 from sb3_ef.ef.auxiliary import AuxiliaryLoss
 from sb3_ef.ef.foresight import ForesightLoss
 from sb3_ef.ef.host import AuxiliaryHostMixin, EFMixin, frozen
@@ -56,7 +57,8 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     and its gradient is clipped on its own.
 
     :param policy: ``"CnnPolicy"`` or a :class:`TDMPC2Policy` (sub)class.
-    :param env: the environment (uint8 stacked 64x64 RGB frames, channels-first; Box actions) or its id.
+    :param env: the environment (uint8 stacked 64x64 RGB frames, channels-first, or channels-last which SB3
+        transposes; Box actions) or its id.
     :param learning_rate: Adam learning rate (the encoder uses ``policy_kwargs["encoder_lr_scale"]`` times it).
     :param buffer_size: replay buffer capacity (frames).
     :param learning_starts: seed steps of uniform random actions before the first updates; ``None`` derives them from
@@ -128,7 +130,7 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         _check_arguments(horizon, policy_kwargs)
         if env is not None:
             env = maybe_make_env(env, verbose)
-            check_pixel_space(env.observation_space)
+            check_pixel_space(policy_observation_space(env.observation_space))
             check_box_actions(env.action_space, "TD-MPC2")
         super().__init__(
             policy,
@@ -176,8 +178,8 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         self._check_episode_length()
         self._derive_seed_steps()
         self._use_sequence_buffer("TD-MPC2 trains on consecutive steps", horizon=self.window, n_steps=1)
-        self.policy_kwargs.update(horizon=self.horizon, gamma=self.gamma)
-        super()._setup_model()
+        with policy_built_with(self, horizon=self.horizon, gamma=self.gamma):
+            super()._setup_model()
         self._world_model_losses = maybe_compile(self._world_model_losses, self.compile)  # type: ignore[method-assign]
         self._policy_loss = maybe_compile(self._policy_loss, self.compile)  # type: ignore[method-assign]
 

@@ -5,16 +5,21 @@ a *converter* (``trial.params -> constructor kwargs``, used by rl-zoo3 when ``--
 The sampler only suggests raw values and hands them to the converter, so both always agree.
 
 EF parameters: ``beta`` (loss weight), ``agent_dim`` (size of h_a, a policy argument), ``ef_horizon`` and
-``babbling_steps``. Hosts: learning rate and batch size for both; DrQ-v2's n-step return and exploration-std
-schedule; TD-MPC2's planning / world-model horizon.
+``babbling_steps``; a trial whose ``agent_dim`` is not smaller than the encoder's features is pruned. Hosts:
+learning rate and batch size for both; DrQ-v2's n-step return and exploration-std schedule; TD-MPC2's planning /
+world-model horizon.
 """
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
 from typing import Any
 
 import optuna
+
+from sb3_ef.drqv2.policies import DrQv2Policy
+from sb3_ef.tdmpc2.policies import TDMPC2Policy
 
 Params = dict[str, Any]
 
@@ -57,7 +62,35 @@ def convert_params(params: Params, base_policy_kwargs: Params | None = None) -> 
     return hyperparams
 
 
-def _sampler(suggest_host: Callable[[optuna.Trial], None], babbling_choices: list[int] | None) -> Callable[..., Params]:
+def _policy_default(policy_class: type, name: str) -> Any:
+    return inspect.signature(policy_class).parameters[name].default
+
+
+def _drqv2_feature_dim(policy_kwargs: Params) -> int | None:
+    """Size of DrQv2-EF's features (its projection); ``None``: DrQ-v2's unprojected conv output, always larger."""
+    return policy_kwargs.get("features_dim", _policy_default(DrQv2Policy, "features_dim"))
+
+
+def _tdmpc2_feature_dim(policy_kwargs: Params) -> int:
+    """Size of TD-MPC2's latent: 16 per conv channel (its encoder maps 64x64 frames to a 4x4 grid)."""
+    return 16 * policy_kwargs.get("num_channels", _policy_default(TDMPC2Policy, "num_channels"))
+
+
+def _prune_if_no_scene_features(trial: optuna.Trial, feature_dim: int | None) -> None:
+    """Prune a trial whose sampled ``agent_dim`` takes every feature (EF needs ``agent_dim < features``): the
+    model could not be built, and rl-zoo3 would stop the whole study on that error."""
+    agent_dim = trial.params["agent_dim"]
+    if feature_dim is not None and agent_dim >= feature_dim:
+        raise optuna.TrialPruned(
+            f"agent_dim={agent_dim} leaves no scene features: the encoder gives {feature_dim} features"
+        )
+
+
+def _sampler(
+    suggest_host: Callable[[optuna.Trial], None],
+    babbling_choices: list[int] | None,
+    feature_dim: Callable[[Params], int | None] | None = None,
+) -> Callable[..., Params]:
     def sample(
         trial: optuna.Trial,
         n_actions: int,
@@ -68,15 +101,17 @@ def _sampler(suggest_host: Callable[[optuna.Trial], None], babbling_choices: lis
         suggest_host(trial)
         if babbling_choices is not None:
             _suggest_ef(trial, babbling_choices)
+        if feature_dim is not None:
+            _prune_if_no_scene_features(trial, feature_dim(base_policy_kwargs or {}))
         return convert_params(trial.params, base_policy_kwargs)
 
     return sample
 
 
 # Babbling choices around the paper's defaults: 12500 agent steps for DrQv2-EF, 1250 for TD-MPC2-EF.
-sample_drqv2_ef_params = _sampler(_suggest_drqv2, [0, 5_000, 12_500, 25_000])
+sample_drqv2_ef_params = _sampler(_suggest_drqv2, [0, 5_000, 12_500, 25_000], _drqv2_feature_dim)
 sample_drqv2_params = _sampler(_suggest_drqv2, None)
-sample_tdmpc2_ef_params = _sampler(_suggest_tdmpc2, [0, 625, 1_250, 2_500])
+sample_tdmpc2_ef_params = _sampler(_suggest_tdmpc2, [0, 625, 1_250, 2_500], _tdmpc2_feature_dim)
 sample_tdmpc2_params = _sampler(_suggest_tdmpc2, None)
 
 SAMPLERS: dict[str, Callable[..., Params]] = {
