@@ -26,6 +26,7 @@ from stable_baselines3.common.utils import is_vectorized_observation
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_sequence_buffer
+from sb3_ef.common.validation import check_learn, check_model_path, check_observation
 from sb3_ef.ef.babbling import babble, check_babbling
 from sb3_ef.ef.foresight import EgoForesight
 
@@ -251,6 +252,12 @@ class EFHostMixin:
         buffer_action = self._babble(n_envs, self._babbling_rng)
         return self.policy.unscale_action(buffer_action), buffer_action
 
+    @classmethod
+    def load(cls, path: Any, *args: Any, **kwargs: Any) -> Any:
+        """SB3's ``load``; a missing or non-zip file is named as given."""
+        check_model_path(path)
+        return super().load(path, *args, **kwargs)  # type: ignore[misc]
+
     def predict(
         self,
         observation: np.ndarray | dict[str, np.ndarray],
@@ -260,6 +267,7 @@ class EFHostMixin:
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
         """SB3's ``predict``; with ``babbling_in_eval``, babbling actions while ``num_timesteps < babbling_steps``
         (the EF authors' Meta-World evaluation protocol), from a generator separate from training's."""
+        check_observation(observation, self.observation_space)
         if self.babbling_in_eval and self.num_timesteps < self.babbling_steps:
             vectorized = is_vectorized_observation(observation, self.observation_space)
             n_envs = len(observation) if vectorized else 1  # type: ignore[arg-type]
@@ -277,6 +285,7 @@ class EFHostMixin:
         progress_bar: bool = False,
     ) -> SelfEFHost:
         """SB3's ``learn``; ``tb_log_name`` defaults to the class name (so plain and EF variants log apart)."""
+        check_learn(self, total_timesteps, reset_num_timesteps)
         return super().learn(  # type: ignore[misc]
             total_timesteps=total_timesteps,
             callback=callback,

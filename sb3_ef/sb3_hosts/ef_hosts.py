@@ -20,6 +20,7 @@ from stable_baselines3.common.type_aliases import GymEnv
 
 from sb3_ef.common.buffers import SequenceReplayBufferSamples
 from sb3_ef.common.env_checks import check_box_actions, check_stacked_frames, episode_steps
+from sb3_ef.common.validation import check_algorithm_arguments
 from sb3_ef.ef.host import EFHostMixin, build_ef, check_horizon_fits_episodes
 from sb3_ef.sb3_hosts.shifted_buffer import ShiftedSequenceReplayBuffer
 
@@ -68,6 +69,7 @@ class AuxiliaryEFMixin(EFHostMixin):
         _init_setup_model: bool = True,
         **kwargs: Any,
     ):
+        check_algorithm_arguments(type(self), locals())
         host = next(
             c for c in type(self).__mro__ if issubclass(c, OffPolicyAlgorithm) and not issubclass(c, EFHostMixin)
         )

@@ -18,6 +18,7 @@ from sb3_ef.common.buffers import SequenceReplayBufferSamples
 from sb3_ef.common.compile import CompileOption, compile_kwargs, maybe_compile
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_box_actions, episode_steps
 from sb3_ef.common.exploration import OwnExplorationMixin
+from sb3_ef.common.validation import check_algorithm_arguments
 from sb3_ef.ef.host import (
     EFHostMixin,
     EFWindow,
@@ -139,6 +140,7 @@ class TDMPC2EF(EFHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ):
+        check_algorithm_arguments(type(self), locals())
         _check_arguments(horizon, policy_kwargs)
         if env is not None:
             env = maybe_make_env(env, verbose)
