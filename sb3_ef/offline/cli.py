@@ -30,9 +30,9 @@ def collect_parser() -> argparse.ArgumentParser:
 
 
 def collect_main(argv: list[str] | None = None) -> int:
+    args = collect_parser().parse_args(argv)
     from sb3_ef.offline.collect import collect
 
-    args = collect_parser().parse_args(argv)
     paths = collect(
         args.env,
         args.out,
@@ -78,9 +78,9 @@ def pretrain_parser() -> argparse.ArgumentParser:
 
 
 def pretrain_main(argv: list[str] | None = None) -> int:
+    args = pretrain_parser().parse_args(argv)
     from sb3_ef.offline.pretrain import pretrain
 
-    args = pretrain_parser().parse_args(argv)
     if args.threads:
         import torch
 
@@ -125,11 +125,11 @@ def predict_parser() -> argparse.ArgumentParser:
 
 
 def predict_main(argv: list[str] | None = None) -> int:
+    args = predict_parser().parse_args(argv)
     from sb3_ef.offline.model import load_pretrained
     from sb3_ef.offline.predict import predict_episode
     from sb3_ef.offline.readers import open_dataset
 
-    args = predict_parser().parse_args(argv)
     model, _ = load_pretrained(args.model)
     episode = open_dataset(args.dataset, min_frames=model.config.context + 1)[args.episode]
     written = predict_episode(model, episode, args.out, args.start, args.actions, args.steps, args.video)
