@@ -247,9 +247,9 @@ CLI_CASES = [
     Case("train unknown option", lambda: ["train", "--bad-arg"], SystemExit, r"unrecognized arguments: --bad-arg$"),
     Case(
         "train option typo",
-        lambda: ["train", "--eval-episode", "3"],
+        lambda: ["train", "--eval-episdes", "3"],
         SystemExit,
-        r"unrecognized arguments: --eval-episode 3 \(did you mean '--eval-episodes'\?\)",
+        r"unrecognized arguments: --eval-episdes 3 \(did you mean '--eval-episodes'\?\)",
     ),
     Case(
         "hyperparams with =",

@@ -94,7 +94,11 @@ def _gradient_steps(name: str, value: Any) -> None:
 
 
 def _train_freq(name: str, value: Any) -> None:
-    if isinstance(value, (tuple, list)) and len(value) == 2 and value[1] in ("step", "episode"):
+    if (
+        isinstance(value, (tuple, list))
+        and len(value) == 2
+        and getattr(value[1], "value", value[1]) in ("step", "episode")
+    ):
         value = value[0]
     if not _is_int(value) or value < 1:
         raise ValueError(f"{name} must be a positive integer or a pair (n, 'step' | 'episode'), got {_received(value)}")

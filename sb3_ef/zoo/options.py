@@ -155,7 +155,7 @@ def _pair(option: str):
 
 def build_parser(options: Sequence[Option], prog: str) -> argparse.ArgumentParser:
     """A parser of ``options`` that raises :class:`UsageError` (values unevaluated, defaults ``None``)."""
-    parser = _Parser(prog=prog, add_help=False, allow_abbrev=False)
+    parser = _Parser(prog=prog, add_help=False)  # abbreviations allowed, as rl-zoo3's parsers allow them
     for option in options:
         if option.kind == "flag":
             parser.add_argument(*option.names, action="store_true", default=None)

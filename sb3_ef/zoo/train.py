@@ -133,7 +133,7 @@ class _ParserBuilt(Exception):
     """Carries the parser rl-zoo3's ``train()`` built, instead of letting it parse."""
 
 
-def zoo_help_parser() -> argparse.ArgumentParser:
+def zoo_help_parser(prog: str = "sb3-ef train") -> argparse.ArgumentParser:
     """``sb3-ef train``'s full parser, for ``--help``: rl-zoo3's own (built inside its ``train()``; taken when that
     function would parse) with sb3-ef's options added."""
     from rl_zoo3 import train as zoo_train
@@ -150,7 +150,7 @@ def zoo_help_parser() -> argparse.ArgumentParser:
         parser: argparse.ArgumentParser = built.args[0]
     finally:
         zoo_train.argparse = saved
-    parser.prog = "sb3-ef train"
+    parser.prog = prog
     parser.description = "Train (or with -optimize, tune) an sb3-ef agent with rl-zoo3."
     group = parser.add_argument_group("sb3-ef options")
     for option in SB3_EF_TRAIN_OPTIONS:
@@ -235,7 +235,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     argv = list(sys.argv[1:] if argv is None else argv)
     if "-h" in argv or "--help" in argv:
         register_algorithms()  # the --algo choices list sb3-ef's algorithms
-        zoo_help_parser().print_help()
+        zoo_help_parser("sb3-ef optimize" if "-optimize" in argv else "sb3-ef train").print_help()
         return
     check_train_argv(argv)
     options, _ = _sb3_ef_parser().parse_known_args(argv)
