@@ -73,7 +73,7 @@ def truncated_copy(saved: Path, folder: Path) -> Path:
 
 
 API_CASES = [
-    Case("beta as a string", lambda: drqv2_ef(beta="1"), ValueError, r"beta must be a number > 0, got str '1'"),
+    Case("beta as a string", lambda: drqv2_ef(beta="1"), ValueError, r"beta must be a number, got str '1'"),
     Case(
         "learning_rate as a string",
         lambda: drqv2_ef(learning_rate="0.001"),
@@ -88,27 +88,27 @@ API_CASES = [
     ),
     Case("policy name typo", lambda: DrQv2EF("CnnPolcy", toy_env()), ValueError, r"did you mean 'CnnPolicy'"),
     Case(
-        "batch_size 0", lambda: drqv2_ef(batch_size=0), ValueError, r"batch_size must be a positive integer, got int 0"
+        "batch_size 0", lambda: drqv2_ef(batch_size=0), ValueError, r"batch_size must be a positive integer, got 0"
     ),
     Case(
         "negative buffer_size", lambda: drqv2_ef(buffer_size=-1), ValueError, r"buffer_size must be a positive integer"
     ),
     Case(
-        "gamma above 1", lambda: drqv2_ef(gamma=1.5), ValueError, r"gamma must be a number in \[0, 1\], got float 1.5"
+        "gamma above 1", lambda: drqv2_ef(gamma=1.5), ValueError, r"gamma must be a number in \[0, 1\], got 1.5"
     ),
     Case("negative tau", lambda: drqv2_ef(tau=-0.1), ValueError, r"tau must be a number in \[0, 1\]"),
     Case(
         "negative learning_starts",
         lambda: drqv2_ef(learning_starts=-1),
         ValueError,
-        r"learning_starts must be an integer >= 0, got int -1",
+        r"learning_starts must be >= 0, got -1",
     ),
     Case("ef_horizon 0", lambda: drqv2_ef(ef_horizon=0), ValueError, r"ef_horizon must be a positive integer"),
     Case(
         "negative babbling_steps",
         lambda: drqv2_ef(babbling_steps=-5),
         ValueError,
-        r"babbling_steps must be an integer >= 0",
+        r"babbling_steps must be >= 0, got -5",
     ),
     Case(
         "train_freq 0", lambda: drqv2_ef(train_freq=0), ValueError, r"train_freq must be a positive integer or a pair"
@@ -128,7 +128,7 @@ API_CASES = [
     Case(
         "device typo", lambda: drqv2_ef(device="cdua"), ValueError, r"device must be 'auto', 'cpu', 'cuda'.*got 'cdua'"
     ),
-    Case("SAC-EF beta as a string", lambda: sac_ef(beta="1"), ValueError, r"SACEF: beta must be a number > 0"),
+    Case("SAC-EF beta as a string", lambda: sac_ef(beta="1"), ValueError, r"SACEF: beta must be a number"),
     Case(
         "SAC-EF host argument as a string",
         lambda: sac_ef(learning_rate="3e-4"),
@@ -149,7 +149,7 @@ API_CASES = [
         "learn(-5)",
         lambda: drqv2_ef().learn(-5),
         ValueError,
-        r"total_timesteps must be a whole number of steps >= 0, got int -5",
+        r"total_timesteps must be a whole number of steps >= 0, got -5",
     ),
     Case("learn(2.5)", lambda: drqv2_ef().learn(2.5), ValueError, r"total_timesteps must be a whole number"),
     Case(
@@ -343,7 +343,7 @@ CLI_CASES = [
         "beta as a string in the config",
         lambda tmp_path: small_train("-f", str(tmp_path), "--hyperparams", "beta:'1'"),
         SystemExit,
-        r"DrQv2EF: beta must be a number > 0, got str '1'",
+        r"DrQv2EF: beta must be a number, got str '1'",
     ),
     Case("enjoy unknown option", lambda: ["enjoy", "--bad-arg"], SystemExit, r"unrecognized arguments: --bad-arg"),
     Case(

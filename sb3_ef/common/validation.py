@@ -51,7 +51,8 @@ def _is_int(value: Any) -> bool:
 
 
 def _received(value: Any) -> str:
-    return f"{type(value).__name__} {value!r}"
+    """The value as the message shows it: numbers as they are, anything else with its type (``str '1'``)."""
+    return repr(value) if _is_number(value) else f"{type(value).__name__} {value!r}"
 
 
 def _positive_int(name: str, value: Any) -> None:
@@ -60,13 +61,20 @@ def _positive_int(name: str, value: Any) -> None:
 
 
 def _non_negative_int(name: str, value: Any) -> None:
-    if not _is_int(value) or value < 0:
+    if not _is_int(value):
         raise ValueError(f"{name} must be an integer >= 0, got {_received(value)}")
+    if value < 0:
+        raise ValueError(f"{name} must be >= 0, got {value}")
 
 
 def _non_negative_number(name: str, value: Any) -> None:
     if not _is_number(value) or value < 0:
         raise ValueError(f"{name} must be a number >= 0, got {_received(value)}")
+
+
+def _number(name: str, value: Any) -> None:
+    if not _is_number(value):
+        raise ValueError(f"{name} must be a number, got {_received(value)}")
 
 
 def _positive_number(name: str, value: Any) -> None:
@@ -118,7 +126,7 @@ ARGUMENT_CHECKS: dict[str, Callable[[str, Any], None]] = {
     "gradient_steps": _gradient_steps,
     "n_steps": _positive_int,
     "stats_window_size": _positive_int,
-    "beta": _positive_number,
+    "beta": _number,  # its sign is checked with EF's arguments, whose message names the host without EF
     "ef_horizon": _positive_int,
     "horizon": _positive_int,
     "agent_dim": _positive_int,

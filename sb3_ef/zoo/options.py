@@ -17,8 +17,9 @@ This module imports only the standard library.
 from __future__ import annotations
 
 import argparse
+import types
 from collections.abc import Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 from sb3_ef.common.validation import did_you_mean
 
@@ -195,3 +196,26 @@ def check_train_argv(argv: Sequence[str]) -> argparse.Namespace:
 def check_enjoy_argv(argv: Sequence[str]) -> argparse.Namespace:
     """Check the arguments of ``sb3-ef enjoy``."""
     return check_zoo_argv(argv, ENJOY_OPTIONS, "sb3-ef enjoy")
+
+
+class _ParserBuilt(Exception):
+    """Carries the parser an rl-zoo3 entry point built, instead of letting it parse."""
+
+
+def rl_zoo3_parser(module: types.ModuleType, function: str) -> argparse.ArgumentParser:
+    """The parser rl-zoo3's ``module.function()`` (``train`` or ``enjoy``) builds inside itself, taken at the moment
+    it would parse: what ``--help`` shows and what the tables above are tested against."""
+
+    class Capture(argparse.ArgumentParser):
+        def parse_args(self, *args: Any, **kwargs: Any) -> Any:  # type: ignore[override]
+            raise _ParserBuilt(self)
+
+    saved = module.argparse
+    module.argparse = types.SimpleNamespace(ArgumentParser=Capture)  # type: ignore[attr-defined]
+    try:
+        getattr(module, function)()
+    except _ParserBuilt as built:
+        return built.args[0]
+    finally:
+        module.argparse = saved  # type: ignore[attr-defined]
+    raise RuntimeError(f"{module.__name__}.{function}() returned without parsing arguments")

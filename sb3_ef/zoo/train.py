@@ -23,7 +23,6 @@ import itertools
 import json
 import os
 import sys
-import types
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -34,10 +33,10 @@ from rl_zoo3 import exp_manager, hyperparams_opt, utils
 
 import sb3_ef  # noqa: F401  (registers the environments)
 from sb3_ef.common.checkpoints import Checkpoint, checkpoint_for, latest_checkpoint
-from sb3_ef.common.validation import did_you_mean
+from sb3_ef.common.validation import did_you_mean, is_intact
 from sb3_ef.zoo import config
 from sb3_ef.zoo.hyperparams_opt import SAMPLERS
-from sb3_ef.zoo.options import SB3_EF_TRAIN_OPTIONS, check_train_argv
+from sb3_ef.zoo.options import SB3_EF_TRAIN_OPTIONS, check_train_argv, rl_zoo3_parser
 from sb3_ef.zoo.registration import register_algorithms
 from sb3_ef.zoo.resume import ARGV_FILE, CheckpointOptions, ResumingExperimentManager
 
@@ -129,27 +128,11 @@ def _sb3_ef_parser() -> argparse.ArgumentParser:
     return parser
 
 
-class _ParserBuilt(Exception):
-    """Carries the parser rl-zoo3's ``train()`` built, instead of letting it parse."""
-
-
 def zoo_help_parser(prog: str = "sb3-ef train") -> argparse.ArgumentParser:
-    """``sb3-ef train``'s full parser, for ``--help``: rl-zoo3's own (built inside its ``train()``; taken when that
-    function would parse) with sb3-ef's options added."""
+    """``sb3-ef train``'s full parser, for ``--help``: rl-zoo3's own with sb3-ef's options added."""
     from rl_zoo3 import train as zoo_train
 
-    class Capture(argparse.ArgumentParser):
-        def parse_args(self, *args: Any, **kwargs: Any) -> Any:  # type: ignore[override]
-            raise _ParserBuilt(self)
-
-    saved = zoo_train.argparse
-    zoo_train.argparse = types.SimpleNamespace(ArgumentParser=Capture)  # type: ignore[assignment]
-    try:
-        zoo_train.train()
-    except _ParserBuilt as built:
-        parser: argparse.ArgumentParser = built.args[0]
-    finally:
-        zoo_train.argparse = saved
+    parser = rl_zoo3_parser(zoo_train, "train")
     parser.prog = prog
     parser.description = "Train (or with -optimize, tune) an sb3-ef agent with rl-zoo3."
     group = parser.add_argument_group("sb3-ef options")
@@ -184,11 +167,10 @@ def resume_point(run_dir: Path, env_folder: str) -> Checkpoint:
     if checkpoint is not None:
         candidates.append(checkpoint)
     final = run_dir / f"{env_folder}.zip"
-    if final.is_file():
-        try:
-            candidates.append(checkpoint_for(final))
-        except (ValueError, KeyError, OSError) as error:
-            warnings.warn(f"The final model {final} is damaged ({error}): it is not resumed from", stacklevel=2)
+    if final.is_file() and is_intact(final):
+        candidates.append(checkpoint_for(final))
+    elif final.is_file():
+        warnings.warn(f"The final model {final} is damaged (not a readable model zip): not resumed from", stacklevel=2)
     if not candidates:
         raise ValueError(
             f"--resume: {str(run_dir)!r} holds no intact checkpoint (train with --save-freq) and no final model"

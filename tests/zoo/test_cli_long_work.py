@@ -11,7 +11,6 @@ import statistics
 import subprocess
 import sys
 import time
-import types
 from pathlib import Path
 
 import pytest
@@ -20,32 +19,11 @@ from zoo_tiny import ENV_KWARGS, HYPERPARAMS, cli_pairs
 from sb3_ef import DrQv2EF, cli
 from sb3_ef.common.checkpoints import latest_checkpoint
 from sb3_ef.envs.toy import ToyAgentEnv
-from sb3_ef.zoo.options import ENJOY_OPTIONS, TRAIN_OPTIONS, Option
+from sb3_ef.zoo.options import ENJOY_OPTIONS, TRAIN_OPTIONS, Option, rl_zoo3_parser
 
 COMMANDS = ("train", "enjoy", "optimize", "analyze", "benchmark", "collect", "pretrain", "predict")
 #: Generous bound on the answer to a bad argument (the target is under 3 s on a quiet machine).
 FAST_ANSWER_S = 6.0
-
-
-def rl_zoo3_parser(module: types.ModuleType, function: str) -> argparse.ArgumentParser:
-    """The parser rl-zoo3 builds inside ``module.function()``, taken when it would parse."""
-
-    class Built(Exception):
-        pass
-
-    class Capture(argparse.ArgumentParser):
-        def parse_args(self, *args, **kwargs):
-            raise Built(self)
-
-    saved = module.argparse
-    module.argparse = types.SimpleNamespace(ArgumentParser=Capture)
-    try:
-        getattr(module, function)()
-    except Built as built:
-        return built.args[0]
-    finally:
-        module.argparse = saved
-    raise AssertionError("rl-zoo3 parsed nothing")
 
 
 def as_options(parser: argparse.ArgumentParser) -> set[tuple[tuple[str, ...], str, tuple[str, ...] | None]]:
