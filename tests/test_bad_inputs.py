@@ -87,15 +87,11 @@ API_CASES = [
         r"unknown policy 'MlpPolicy'.*; expected one of 'CnnPolicy' or a policy class",
     ),
     Case("policy name typo", lambda: DrQv2EF("CnnPolcy", toy_env()), ValueError, r"did you mean 'CnnPolicy'"),
-    Case(
-        "batch_size 0", lambda: drqv2_ef(batch_size=0), ValueError, r"batch_size must be a positive integer, got 0"
-    ),
+    Case("batch_size 0", lambda: drqv2_ef(batch_size=0), ValueError, r"batch_size must be a positive integer, got 0"),
     Case(
         "negative buffer_size", lambda: drqv2_ef(buffer_size=-1), ValueError, r"buffer_size must be a positive integer"
     ),
-    Case(
-        "gamma above 1", lambda: drqv2_ef(gamma=1.5), ValueError, r"gamma must be a number in \[0, 1\], got 1.5"
-    ),
+    Case("gamma above 1", lambda: drqv2_ef(gamma=1.5), ValueError, r"gamma must be a number in \[0, 1\], got 1.5"),
     Case("negative tau", lambda: drqv2_ef(tau=-0.1), ValueError, r"tau must be a number in \[0, 1\]"),
     Case(
         "negative learning_starts",
