@@ -10,7 +10,6 @@ most every ``interval_s`` seconds of wall time, e.g.::
 from __future__ import annotations
 
 import datetime
-import sys
 import time
 
 import numpy as np
@@ -26,12 +25,14 @@ class ProgressLogCallback(BaseCallback):
 
     :param total_timesteps: the step the run trains to (``num_timesteps`` counts on across a resume).
     :param interval_s: least wall time between two lines.
+    :param prefix: put before every line (e.g. the run's id when several runs print to one terminal).
     """
 
-    def __init__(self, total_timesteps: int, interval_s: float = 10.0):
+    def __init__(self, total_timesteps: int, interval_s: float = 10.0, prefix: str = ""):
         super().__init__()
         self.total_timesteps = total_timesteps
         self.interval_s = interval_s
+        self.prefix = prefix
         self._start_time = 0.0
         self._start_step = 0
         self._last_line = 0.0
@@ -39,13 +40,13 @@ class ProgressLogCallback(BaseCallback):
     def _on_training_start(self) -> None:
         self._start_time = self._last_line = time.monotonic()
         self._start_step = self.num_timesteps
-        print(f"Training from step {self.num_timesteps} to {self.total_timesteps}", flush=True)
+        print(f"{self.prefix}Training from step {self.num_timesteps} to {self.total_timesteps}", flush=True)
 
     def _on_step(self) -> bool:
         now = time.monotonic()
         if now - self._last_line >= self.interval_s:
             self._last_line = now
-            print(self.line(now), file=sys.stdout, flush=True)
+            print(f"{self.prefix}{self.line(now)}", flush=True)
         return True
 
     def line(self, now: float) -> str:
