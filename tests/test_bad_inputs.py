@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 import torch as th
 
-from sb3_ef import SACEF, TDMPC2EF, DrQv2EF, cli, make_env
+from sb3_ef import SACEF, TDMPC2EF, DrQv2, DrQv2EF, cli, make_env
 from sb3_ef.drqv2.policies import DrQv2Encoder
 from sb3_ef.envs.toy import ToyAgentEnv
 
@@ -175,6 +175,18 @@ API_CASES = [
         lambda saved_model, tmp_path: DrQv2EF.load(truncated_copy(saved_model, tmp_path)),
         ValueError,
         r"damaged.zip is not a saved model: expected a zip archive",
+    ),
+    Case(
+        "plain DrQv2 loads a DrQv2EF zip",
+        lambda saved_model: DrQv2.load(saved_model),
+        ValueError,
+        r"model.zip was saved with Ego-Foresight \(beta=1.0\): load it with DrQv2EF, not DrQv2",
+    ),
+    Case(
+        "TDMPC2EF loads a DrQv2EF zip",
+        lambda saved_model: TDMPC2EF.load(saved_model),
+        ValueError,
+        r"model.zip was saved by DrQv2EF or DrQv2, not TDMPC2EF: load it with DrQv2EF or DrQv2",
     ),
     Case(
         "env name typo",

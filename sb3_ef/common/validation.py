@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import difflib
 import inspect
+import json
 import math
 import numbers
 import os
@@ -253,12 +254,12 @@ def is_intact(model_path: str | os.PathLike) -> bool:
         return False
 
 
-def check_model_path(path: Any) -> None:
+def check_model_path(path: Any) -> Path | None:
     """Raise when ``path`` (str or path-like; file objects pass) names no readable model zip: ``FileNotFoundError``
     naming the path as given (SB3 would report ``<path>.zip`` when ``path`` already ends in ``.zip``), or
-    ``ValueError`` for a damaged file (:func:`is_intact`)."""
+    ``ValueError`` for a damaged file (:func:`is_intact`). Returns the zip's path (``None`` for a file object)."""
     if not isinstance(path, (str, os.PathLike)):
-        return
+        return None
     given = Path(path)
     candidates = [given] if given.suffix == ".zip" else [given, given.with_name(f"{given.name}.zip")]
     found = next((candidate for candidate in candidates if candidate.is_file()), None)
@@ -268,4 +269,35 @@ def check_model_path(path: Any) -> None:
     if not is_intact(found):
         raise ValueError(
             f"{found} is not a saved model: expected a zip archive written by save() (the file may be truncated)"
+        )
+    return found
+
+
+#: Module of a saved policy class -> the sb3-ef algorithms that save it.
+POLICY_OWNERS = {
+    "sb3_ef.drqv2.policies": "DrQv2EF or DrQv2",
+    "sb3_ef.tdmpc2.policies": "TDMPC2EF or TDMPC2",
+    "stable_baselines3.sac.policies": "SACEF",
+    "stable_baselines3.td3.policies": "TD3EF",
+    "sb3_contrib.tqc.policies": "TQCEF",
+}
+
+
+def check_saved_algorithm(algo_class: type, path: Path | None) -> None:
+    """Raise ``ValueError`` naming the algorithm to use when the model zip at ``path`` was saved by another one:
+    its policy is another sb3-ef algorithm's (SB3 would fail on an unexpected keyword), or it trained Ego-Foresight
+    and ``algo_class`` is a plain variant, without EF's ``beta`` (SB3 would load a "plain" model with EF inside)."""
+    if path is None:
+        return
+    plain_variant = "beta" not in inspect.signature(algo_class).parameters
+    with zipfile.ZipFile(path) as archive:
+        data = json.loads(archive.read("data"))
+    saved = (data.get("policy_class") or {}).get("__module__")
+    expected = {policy.__module__ for policy in getattr(algo_class, "policy_aliases", {}).values()}
+    name = algo_class.__name__
+    if saved in POLICY_OWNERS and expected and saved not in expected:  # a user's own policy class is let through
+        raise ValueError(f"{path} was saved by {POLICY_OWNERS[saved]}, not {name}: load it with {POLICY_OWNERS[saved]}")
+    if plain_variant and data.get("beta") is not None:
+        raise ValueError(
+            f"{path} was saved with Ego-Foresight (beta={data['beta']}): load it with {name}EF, not {name}"
         )

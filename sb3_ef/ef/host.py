@@ -26,7 +26,7 @@ from stable_baselines3.common.utils import is_vectorized_observation
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_sequence_buffer
-from sb3_ef.common.validation import check_learn, check_model_path, check_observation
+from sb3_ef.common.validation import check_learn, check_model_path, check_observation, check_saved_algorithm
 from sb3_ef.ef.babbling import babble, check_babbling
 from sb3_ef.ef.foresight import EgoForesight
 
@@ -254,8 +254,8 @@ class EFHostMixin:
 
     @classmethod
     def load(cls, path: Any, *args: Any, **kwargs: Any) -> Any:
-        """SB3's ``load``; a missing or non-zip file is named as given."""
-        check_model_path(path)
+        """SB3's ``load``; a missing or damaged file, or one another algorithm saved, is named at once."""
+        check_saved_algorithm(cls, check_model_path(path))
         return super().load(path, *args, **kwargs)  # type: ignore[misc]
 
     def predict(
