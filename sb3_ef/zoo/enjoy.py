@@ -79,7 +79,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     for key, algo_class in classes.items():
         utils.ALGOS[key] = InferenceLoader(algo_class)  # type: ignore[assignment]
     try:
-        run_with_argv(enjoy, with_gym_package(argv))
+        run_with_argv(enjoy, with_gym_package(argv), "sb3-ef enjoy")
     finally:
         utils.ALGOS.update(classes)
 

@@ -200,10 +200,10 @@ def _check_trained_agent(argv: list[str]) -> None:
             raise ValueError(f"{arg} expects the path of a saved model .zip, got {value!r}")
 
 
-def run_with_argv(function: Callable[[], None], argv: Sequence[str]) -> None:
-    """Call an rl-zoo3 entry point (which parses ``sys.argv``) on ``argv``."""
+def run_with_argv(function: Callable[[], None], argv: Sequence[str], prog: str) -> None:
+    """Call an rl-zoo3 entry point (which parses ``sys.argv``) on ``argv``; its usage and errors name ``prog``."""
     saved = sys.argv
-    sys.argv = [saved[0], *argv]
+    sys.argv = [prog, *argv]
     try:
         function()
     finally:
@@ -233,7 +233,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     saved = zoo_train.ExperimentManager
     zoo_train.ExperimentManager = manager  # type: ignore[misc]  # rl-zoo3's train builds it by this name
     try:
-        run_with_argv(zoo_train.train, zoo_argv)
+        run_with_argv(zoo_train.train, zoo_argv, "sb3-ef optimize" if "-optimize" in argv else "sb3-ef train")
     finally:
         zoo_train.ExperimentManager = saved
 
