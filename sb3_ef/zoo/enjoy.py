@@ -41,8 +41,9 @@ class InferenceLoader:
 
 def check_run_folder(folder: str, algo: str, env: str, exp_id: int) -> None:
     """Raise ``ValueError`` naming the runs there are when ``--exp-id`` (0: the latest run) names none (rl-zoo3
-    asserts); ``-1`` (no run folder) is left to rl-zoo3."""
-    if exp_id < 0:
+    asserts); ``-1`` (no run folder) is left to rl-zoo3, and so is its ``rl-trained-agents`` folder, which it fills
+    from the Hugging Face hub."""
+    if exp_id < 0 or "rl-trained-agents" in folder:
         return
     env_name = utils.EnvironmentName(env)
     runs = sorted(
