@@ -2,9 +2,10 @@
 ``benchmark`` (sb3_ef.grid) and ``collect``, ``pretrain``, ``predict`` (sb3_ef.offline).
 
 Each subcommand forwards the rest of the command line untouched, so ``sb3-ef train --help`` shows rl-zoo3's
-training options and ``sb3-ef analyze --help`` the analysis ones. A user error (bad argument, missing file, missing
-package or rendering backend) is printed as one line, ``sb3-ef: error: ...``, with exit status 2; set
-``SB3_EF_TRACEBACK=1`` to see the traceback instead.
+training options with sb3-ef's and ``sb3-ef analyze --help`` the analysis ones. The arguments are checked before
+the command's heavy imports (torch, rl-zoo3), so a mistyped option is reported at once. A user error (bad argument,
+missing file, missing package or rendering backend) is printed as one line, ``sb3-ef <command>: error: ...``, with
+exit status 2; set ``SB3_EF_TRACEBACK=1`` to see the traceback instead.
 """
 
 from __future__ import annotations
@@ -22,31 +23,46 @@ from sb3_ef.envs.backend import RenderingBackendError
 USER_ERRORS = (ValueError, OSError, ImportError, RenderingBackendError)
 
 
+def _function(target: str):
+    module, function = target.split(":")
+    return getattr(importlib.import_module(module), function)
+
+
 class Command(NamedTuple):
-    """A subcommand: the ``main(argv)`` it runs (``module:function``, imported only when used), arguments put in
-    front of the user's, and its help line."""
+    """A subcommand: the ``main(argv)`` it runs (``module:function``, imported only when used), its help line,
+    arguments put in front of the user's, and a light ``check(argv)`` run first (not for ``--help``)."""
 
     target: str
     help: str
     prefix: tuple[str, ...] = ()
+    check: str | None = None
 
     def __call__(self, argv: list[str]) -> int | None:
-        module, function = self.target.split(":")
-        return getattr(importlib.import_module(module), function)([*self.prefix, *argv])
+        argv = [*self.prefix, *argv]
+        if self.check is not None and not {"-h", "--help"} & set(argv):
+            _function(self.check)(argv)
+        return _function(self.target)(argv)
 
 
 COMMANDS: dict[str, Command] = {
-    "train": Command("sb3_ef.zoo.train:main", "train an agent from a zoo config (rl-zoo3 train arguments)"),
-    "enjoy": Command("sb3_ef.zoo.enjoy:main", "run a trained agent (rl-zoo3 enjoy arguments)"),
+    "train": Command(
+        "sb3_ef.zoo.train:main",
+        "train an agent from a zoo config (rl-zoo3 train arguments)",
+        check="sb3_ef.zoo.options:check_train_argv",
+    ),
+    "enjoy": Command(
+        "sb3_ef.zoo.enjoy:main",
+        "run a trained agent (rl-zoo3 enjoy arguments)",
+        check="sb3_ef.zoo.options:check_enjoy_argv",
+    ),
     "optimize": Command(
         "sb3_ef.zoo.train:main",
         "tune hyperparameters with Optuna (rl-zoo3 train arguments, -optimize implied)",
         prefix=("-optimize",),
+        check="sb3_ef.zoo.options:check_train_argv",
     ),
     "analyze": Command("sb3_ef.analysis.cli:main", "predictions, saliency, ENS and rliable plots (sb3_ef.analysis)"),
-    "benchmark": Command(
-        "sb3_ef.grid.cli:main", "train a grid of runs locally or on a Ray cluster (sb3_ef.grid)"
-    ),
+    "benchmark": Command("sb3_ef.grid.cli:main", "train a grid of runs locally or on a Ray cluster (sb3_ef.grid)"),
     "collect": Command(
         "sb3_ef.offline.cli:collect_main",
         "record babbling or policy episodes (frames, actions, agent masks) (sb3_ef.offline)",

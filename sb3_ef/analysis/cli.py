@@ -140,6 +140,9 @@ def analyze_results(
     )
     from sb3_ef.analysis.plots import plot_ens, plot_intervals, plot_learning_curves
 
+    if not os.path.isdir(directory):
+        what = "is a file, not a folder" if os.path.exists(directory) else "does not exist"
+        raise FileNotFoundError(f"The results folder {directory!r} {what}: pass the folder holding the evaluation CSVs")
     records = load_records(directory, finished_only)
     scores = records_to_scores(records, return_scale=return_scale)
     at_steps = returns_at(records, tuple(at)) if at else None

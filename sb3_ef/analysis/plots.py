@@ -132,8 +132,18 @@ def prediction_figure(report: ForesightReport, title: str):
     figure, axis = pyplot().subplots(figsize=(max(4.0, 1.1 * (steps + 1)), 3.8))
     axis.imshow(image)
     columns = [f"t+{index + 1}" for index in range(len(report.predicted))]
-    _frame_row_axes(axis, ["context", "predicted", "true"], columns, report.predicted.shape[1])
-    axis.set_title(title)
+    frame_size = report.predicted.shape[1]
+    _frame_row_axes(axis, ["context", "predicted", "true"], columns, frame_size)
+    axis.set_xlabel("predicted and true frames")
+    # The context row holds the stacked frames up to t: its columns get their own labels, above the grid.
+    contexts = report.rollout.first_observation.shape[0] // 3
+    context = axis.secondary_xaxis("top")
+    context.set_xticks(
+        [(frame_size + 2) * (index + 0.5) for index in range(contexts)],
+        [f"t-{contexts - 1 - index}" if index < contexts - 1 else "t" for index in range(contexts)],
+    )
+    context.set_xlabel("context frames")
+    axis.set_title(title, pad=30)
     return figure
 
 

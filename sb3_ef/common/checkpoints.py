@@ -29,6 +29,7 @@ import os
 import pickle
 import random
 import re
+import warnings
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,6 +41,8 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.type_aliases import GymEnv
+
+from sb3_ef.common.validation import is_intact
 
 ModelType = TypeVar("ModelType", bound=BaseAlgorithm)
 
@@ -96,10 +99,19 @@ def list_checkpoints(run_dir: str | os.PathLike, name_prefix: str = "rl_model") 
     return sorted(found, key=lambda checkpoint: checkpoint.step)
 
 
-def latest_checkpoint(run_dir: str | os.PathLike, name_prefix: str = "rl_model") -> Checkpoint | None:
-    """The newest complete checkpoint in ``run_dir``, or ``None`` when there is none."""
-    checkpoints = list_checkpoints(run_dir, name_prefix)
-    return checkpoints[-1] if checkpoints else None
+def latest_checkpoint(
+    run_dir: str | os.PathLike, name_prefix: str = "rl_model", intact: bool = False
+) -> Checkpoint | None:
+    """The newest complete checkpoint in ``run_dir``, or ``None`` when there is none. With ``intact``, damaged
+    model zips (:func:`is_intact`) are passed over with a warning naming them."""
+    for checkpoint in reversed(list_checkpoints(run_dir, name_prefix)):
+        if not intact or is_intact(checkpoint.model_path):
+            return checkpoint
+        warnings.warn(
+            f"Checkpoint {checkpoint.model_path} is damaged (not a readable model zip): using an older one",
+            stacklevel=2,
+        )
+    return None
 
 
 def checkpoint_for(model_path: str | os.PathLike, name_prefix: str = "rl_model") -> Checkpoint:

@@ -21,6 +21,7 @@ from sb3_ef.common.compile import CompileOption, compile_kwargs, maybe_compile
 from sb3_ef.common.env_checks import check_box_actions, check_stacked_frames, policy_observation_space
 from sb3_ef.common.exploration import OwnExplorationMixin
 from sb3_ef.common.schedules import StepSchedule, get_step_schedule
+from sb3_ef.common.validation import check_algorithm_arguments
 from sb3_ef.drqv2.policies import DrQv2Actor, DrQv2Critic, DrQv2EFPolicy, DrQv2Policy
 from sb3_ef.ef.auxiliary import AuxiliaryLoss
 from sb3_ef.ef.foresight import ForesightLoss
@@ -106,6 +107,7 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ):
+        check_algorithm_arguments(type(self), locals())
         if env is not None:
             env = maybe_make_env(env, verbose)
             check_stacked_frames(policy_observation_space(env.observation_space), "DrQ-v2")

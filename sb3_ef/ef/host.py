@@ -39,6 +39,13 @@ from torch import nn
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_sequence_buffer, episode_steps
+from sb3_ef.common.validation import (
+    check_algorithm_arguments,
+    check_learn,
+    check_model_path,
+    check_observation,
+    check_saved_algorithm,
+)
 from sb3_ef.ef.auxiliary import AuxiliaryLoss
 from sb3_ef.ef.babbling import babble, check_babbling
 from sb3_ef.ef.foresight import EgoForesight, ForesightLoss
@@ -248,6 +255,7 @@ class AuxiliaryHostMixin:
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
         """SB3's ``predict``; with ``babbling_in_eval``, babbling actions while ``num_timesteps < babbling_steps``
         (the EF authors' Meta-World evaluation protocol), from a generator separate from training's."""
+        check_observation(observation, self.observation_space)
         if self.babbling_in_eval and self.num_timesteps < self.babbling_steps:
             # Transposed first, as SB3's predict does (an env of channels-last frames gives channels-last observations).
             vectorized = is_vectorized_observation(
@@ -268,6 +276,7 @@ class AuxiliaryHostMixin:
         progress_bar: bool = False,
     ) -> SelfHost:
         """SB3's ``learn``; ``tb_log_name`` defaults to the class name (so plain and EF variants log apart)."""
+        check_learn(self, total_timesteps, reset_num_timesteps)
         return super().learn(  # type: ignore[misc]
             total_timesteps=total_timesteps,
             callback=callback,
@@ -288,11 +297,15 @@ class AuxiliaryHostMixin:
         force_reset: bool = True,
         **kwargs: Any,
     ) -> SelfHost:
-        """SB3's ``load``, refusing a file that another algorithm saved (a ``DrQv2EF`` file read as ``DrQv2``
-        would carry EF's weights the plain class does not have)."""
+        """SB3's ``load``; a missing or damaged file is named at once, and a file that another algorithm saved is
+        refused (a ``DrQv2EF`` file read as ``DrQv2`` would carry EF's weights the plain class does not have): by the
+        algorithm the file records, or, for a file that records none, by its policy class."""
+        zip_path = check_model_path(path)
         saved = saved_algorithm(path)
         if saved is not None and saved != cls.__name__:
             raise ValueError(f"Cannot load {path} as {cls.__name__}: it was saved by {saved}, use {saved}.load")
+        if saved is None:
+            check_saved_algorithm(cls, zip_path)
         return super().load(  # type: ignore[misc]
             path, env, device, custom_objects, print_system_info, force_reset, **kwargs
         )
@@ -322,6 +335,9 @@ class EFMixin(AuxiliaryHostMixin):
         self, beta: float, ef_horizon: int, babbling_steps: int, babbling_mode: str, babbling_in_eval: bool
     ) -> None:
         """Check and keep EF's algorithm-level arguments."""
+        check_algorithm_arguments(
+            type(self), {"beta": beta, "ef_horizon": ef_horizon, "babbling_steps": babbling_steps}
+        )
         plain = next(c for c in type(self).__mro__ if issubclass(c, OffPolicyAlgorithm) and not issubclass(c, EFMixin))
         check_ef_arguments(beta, ef_horizon, babbling_steps, babbling_mode, plain.__name__)
         self.beta = beta

@@ -3,16 +3,24 @@
 from __future__ import annotations
 
 import dataclasses
+import inspect
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
+from sb3_ef.common.validation import did_you_mean
 from sb3_ef.envs.backend import ensure_gl_backend
 from sb3_ef.envs.tasks import parse_env_name
 
 #: Smallest and largest frame size accepted (the encoders need at least ~32 pixels).
 MIN_SIZE, MAX_SIZE = 32, 512
+
+#: Options of each suite's env class beyond :func:`make_env`'s own arguments.
+SUITE_OPTIONS = {
+    "dmc": ("episode_length", "render_mode"),
+    "metaworld": ("episode_length", "resample_task", "repeat_discount", "render_mode"),
+}
 
 
 def make_env(
@@ -54,6 +62,14 @@ def make_env(
         raise ValueError(f"agent_masks must be True or False, got {agent_masks!r}")
     if task.suite != "metaworld" and "repeat_discount" in kwargs:
         raise ValueError(f"repeat_discount (the EF authors' protocol) is a Meta-World option, got it for {name!r}")
+    unknown = sorted(set(kwargs) - set(SUITE_OPTIONS[task.suite]))
+    if unknown:
+        accepted = [*inspect.signature(make_env).parameters, *SUITE_OPTIONS[task.suite]]
+        accepted.remove("kwargs")
+        raise ValueError(
+            f"Unknown env option {unknown[0]!r} for {name}{did_you_mean(unknown[0], accepted)}; expected one of "
+            f"{', '.join(accepted[1:])}"
+        )
     ensure_gl_backend()
     if task.suite == "dmc":
         from sb3_ef.envs.dmc import DMCPixelEnv as env_class

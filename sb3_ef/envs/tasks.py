@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+from sb3_ef.common.validation import did_you_mean
+
 #: dm-control suite tasks as (domain, task), in ``dm_control.suite.ALL_TASKS`` order (checked by the tests).
 _DMC_SUITE_TASKS: tuple[tuple[str, str], ...] = (
     ("acrobot", "swingup"), ("acrobot", "swingup_sparse"), ("ball_in_cup", "catch"),
@@ -77,8 +79,8 @@ def parse_env_name(name: str) -> TaskName:
     base = name.removesuffix("-v0")
     if base not in ENV_NAMES:
         raise ValueError(
-            f"Unknown env name {name!r}: expected '<suite>/<task>' (optional '-v0' suffix) with suite 'dmc' or "
-            f"'metaworld'. Valid names: {', '.join(ENV_NAMES)}"
+            f"Unknown env name {name!r}{did_you_mean(base, ENV_NAMES)}: expected '<suite>/<task>' (optional '-v0' "
+            "suffix) with suite 'dmc' or 'metaworld' (all names: sb3_ef.envs.ENV_NAMES)"
         )
     suite, task = base.split("/", 1)
     return TaskName(suite, task)

@@ -7,11 +7,29 @@ skipping finished runs and resuming interrupted ones, into one folder `sb3-ef an
     runs = grid_runs(["drqv2", "drqv2_ef"], ["dmc/cartpole-balance-v0"], seeds=3, eval_freq=2000, n_timesteps=20000)
     run_benchmark(runs, "results", workers=2)
 
-See docs/benchmark.md.
+See docs/benchmark.md. The public names are imported on first use, so that ``sb3-ef benchmark`` checks its
+arguments before SB3 and torch are imported.
 """
 
-from sb3_ef.grid.grid import Algorithm, RunSpec, grid_runs, load_grid
-from sb3_ef.grid.run import RunResult, execute_run
-from sb3_ef.grid.runner import run_benchmark
+from __future__ import annotations
 
-__all__ = ["Algorithm", "RunResult", "RunSpec", "execute_run", "grid_runs", "load_grid", "run_benchmark"]
+import importlib
+from typing import Any
+
+_PUBLIC = {
+    "Algorithm": "sb3_ef.grid.grid",
+    "RunSpec": "sb3_ef.grid.grid",
+    "grid_runs": "sb3_ef.grid.grid",
+    "load_grid": "sb3_ef.grid.grid",
+    "RunResult": "sb3_ef.grid.run",
+    "execute_run": "sb3_ef.grid.run",
+    "run_benchmark": "sb3_ef.grid.runner",
+}
+
+__all__ = list(_PUBLIC)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _PUBLIC:
+        return getattr(importlib.import_module(_PUBLIC[name]), name)
+    raise AttributeError(f"module 'sb3_ef.grid' has no attribute {name!r}")

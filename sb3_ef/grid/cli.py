@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Sequence
 
-from sb3_ef.grid.runner import BACKENDS
+from sb3_ef.grid.grid import BACKENDS
 
 
 def keep_count(text: str) -> int | None:
@@ -46,10 +46,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``sb3-ef benchmark``; returns 1 when a run failed, else 0."""
+    args = build_parser().parse_args(argv)
     from sb3_ef.grid.grid import load_grid, select_runs
     from sb3_ef.grid.runner import plan_table, run_benchmark
 
-    args = build_parser().parse_args(argv)
     runs = load_grid(args.grid)
     if args.runs:
         runs = select_runs(runs, args.runs)

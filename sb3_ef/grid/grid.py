@@ -51,6 +51,9 @@ EVALUATED_KEYS = ("policy_kwargs", "replay_buffer_class", "replay_buffer_kwargs"
 #: Suites built with :func:`sb3_ef.make_env` (which repeats actions); other ids go through ``gym.make``.
 MAKE_ENV_SUITES = ("dmc/", "metaworld/")
 
+#: Where a grid's runs can execute: a local process pool or a Ray cluster.
+BACKENDS = ("local", "ray")
+
 
 @dataclass(frozen=True)
 class Algorithm:

@@ -156,6 +156,7 @@ def execute_run(
     from stable_baselines3.common.callbacks import EvalCallback
 
     from sb3_ef.common.checkpoints import ResumableCheckpointCallback, latest_checkpoint, load_checkpoint
+    from sb3_ef.zoo.progress import ProgressLogCallback
     from sb3_ef.zoo.registration import algorithm_classes
 
     paths = RunPaths.of(out, spec)
@@ -192,6 +193,7 @@ def execute_run(
             verbose=0,
         ),
         ResumableCheckpointCallback(spec.checkpoint_freq, str(paths.checkpoints), keep=keep_checkpoints),
+        ProgressLogCallback(spec.n_timesteps, prefix=f"[{spec.run_id}] "),
     ]
     remaining = spec.n_timesteps - model.num_timesteps
     if remaining > 0:

@@ -7,10 +7,8 @@ import statistics
 from collections.abc import Callable, Sequence
 
 from sb3_ef.grid.backends import LocalBackend, RayBackend
-from sb3_ef.grid.grid import RunSpec, check_unique
+from sb3_ef.grid.grid import BACKENDS, RunSpec, check_unique
 from sb3_ef.grid.run import RunPaths, RunResult, read_result
-
-BACKENDS = ("local", "ray")
 
 
 def _score(result: RunResult) -> str:
@@ -76,7 +74,8 @@ def run_status(out: str | os.PathLike, spec: RunSpec) -> str:
 
 def plan_table(runs: Sequence[RunSpec], out: str | os.PathLike) -> str:
     """Per algorithm and task: runs by status, agent steps per run, and the expected hours of all its runs from
-    the algorithm's ``steps_per_second`` (``-`` when not given); a total line at the end."""
+    the algorithm's ``steps_per_second`` (``-`` when not given); a total line at the end (a lower bound, ``>=``, when
+    some hours are unknown), then a note on how to get the missing hours."""
     groups: dict[tuple[str, str], list[RunSpec]] = {}
     for spec in runs:
         groups.setdefault((spec.label, spec.task), []).append(spec)
@@ -93,8 +92,18 @@ def plan_table(runs: Sequence[RunSpec], out: str | os.PathLike) -> str:
             total_hours += group_hours
             hours = f"{group_hours:.1f}"
         rows.append([label, task, str(len(group)), counts, str(group[0].n_timesteps), hours])
-    rows.append(["total", f"{len(groups)} algorithm-task pairs", str(len(runs)), "", "", f"{total_hours:.1f}"])
-    return _table(["algorithm", "task", "runs", "status", "steps/run", "expected hours"], rows)
+    unknown = sorted({spec.label for spec in runs if not spec.steps_per_second})
+    total = "-" if len(unknown) == len({spec.label for spec in runs}) else f"{total_hours:.1f}"
+    if unknown and total != "-":
+        total = f">= {total}"
+    rows.append(["total", f"{len(groups)} algorithm-task pairs", str(len(runs)), "", "", total])
+    table = _table(["algorithm", "task", "runs", "status", "steps/run", "expected hours"], rows)
+    if unknown:
+        table += (
+            f"\nexpected hours unknown for {', '.join(unknown)}: give each algorithm steps_per_second (agent steps "
+            "per second of one run on this machine) in the grid file, e.g. measured with a short run"
+        )
+    return table
 
 
 def run_benchmark(

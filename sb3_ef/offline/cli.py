@@ -80,9 +80,9 @@ def collect_parser() -> argparse.ArgumentParser:
 
 
 def collect_main(argv: list[str] | None = None) -> int:
+    args = collect_parser().parse_args(argv)
     from sb3_ef.offline.collect import collect
 
-    args = collect_parser().parse_args(argv)
     paths = collect(
         args.env,
         args.out,
@@ -173,11 +173,11 @@ def reader_options(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def pretrain_main(argv: list[str] | None = None) -> int:
+    args = pretrain_parser().parse_args(argv)
     from sb3_ef.offline.episodes import EpisodeError
     from sb3_ef.offline.pretrain import pretrain
     from sb3_ef.offline.readers import open_dataset
 
-    args = pretrain_parser().parse_args(argv)
     if args.threads:
         import torch
 
@@ -235,12 +235,12 @@ def predict_parser() -> argparse.ArgumentParser:
 
 
 def predict_main(argv: list[str] | None = None) -> int:
+    args = predict_parser().parse_args(argv)
     from sb3_ef.offline.episodes import EpisodeError
     from sb3_ef.offline.model import load_pretrained
     from sb3_ef.offline.predict import predict_episode
     from sb3_ef.offline.readers import open_dataset
 
-    args = predict_parser().parse_args(argv)
     options = reader_options(args)
     model, _ = load_pretrained(args.model)
     try:

@@ -17,6 +17,7 @@ from stable_baselines3.common.type_aliases import GymEnv
 from sb3_ef.common.batch_norm import running_stats_kept
 from sb3_ef.common.buffers import SequenceReplayBufferSamples
 from sb3_ef.common.env_checks import check_box_actions, check_stacked_frames, policy_observation_space
+from sb3_ef.common.validation import check_algorithm_arguments
 from sb3_ef.ef.auxiliary import AuxiliaryLoss
 from sb3_ef.ef.host import AuxiliaryHostMixin
 from sb3_ef.sb3_hosts.legacy import saved_by_0_1_0_renamed
@@ -56,6 +57,7 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
         _init_setup_model: bool = True,
         **kwargs: Any,
     ):
+        check_algorithm_arguments(type(self), locals())
         if env is not None:
             env = maybe_make_env(env, kwargs.get("verbose", 0))
             check_stacked_frames(policy_observation_space(env.observation_space), type(self).__name__)

@@ -19,6 +19,7 @@ from sb3_ef.common.compile import CompileOption, compile_kwargs, maybe_compile
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_box_actions, episode_steps, policy_observation_space
 from sb3_ef.common.exploration import OwnExplorationMixin
 from sb3_ef.common.policy_arguments import policy_built_with
+from sb3_ef.common.validation import check_algorithm_arguments
 from sb3_ef.ef.auxiliary import AuxiliaryLoss
 from sb3_ef.ef.foresight import ForesightLoss
 from sb3_ef.ef.host import AuxiliaryHostMixin, EFMixin, frozen
@@ -127,6 +128,7 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ):
+        check_algorithm_arguments(type(self), locals())
         _check_arguments(horizon, policy_kwargs)
         if env is not None:
             env = maybe_make_env(env, verbose)

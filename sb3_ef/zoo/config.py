@@ -8,14 +8,19 @@ file up front names the entry and the key at once.
 from __future__ import annotations
 
 import inspect
+import re
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import yaml
 
-#: Algorithm keys this package registers in rl-zoo3.
-ZOO_ALGORITHMS = ("drqv2_ef", "drqv2", "tdmpc2_ef", "tdmpc2")
+from sb3_ef.common.validation import did_you_mean
+
+#: Algorithm keys whose configs hold the paper's tasks and settings.
+PAPER_ALGORITHMS = ("drqv2_ef", "drqv2", "tdmpc2_ef", "tdmpc2")
+#: Algorithm keys this package registers in rl-zoo3: the paper's, and EF on SB3's SAC, TD3 and sb3-contrib's TQC.
+ZOO_ALGORITHMS = (*PAPER_ALGORITHMS, "sac_ef", "td3_ef", "tqc_ef")
 
 #: Keys rl-zoo3's ExperimentManager consumes before the remaining ones reach the algorithm constructor.
 ZOO_KEYS = frozenset(
@@ -25,12 +30,18 @@ ZOO_KEYS = frozenset(
 #: Constructor arguments rl-zoo3 sets itself (from its command line); an entry repeating them breaks construction.
 SET_BY_ZOO = frozenset({"self", "env", "tensorboard_log", "seed", "verbose", "device", "_init_setup_model"})
 
+#: Keys rl-zoo3 turns into schedules: a number, or a string ``lin_<initial value>``.
+SCHEDULE_KEYS = frozenset({"learning_rate"})
+
+#: rl-zoo3's action-noise keys: SB3's action noise, for the SB3 hosts (TD3-EF explores with it).
+NOISE_KEYS = frozenset({"noise_type", "noise_std"})
+
 #: Keys that exist in rl-zoo3 but do not fit these algorithms, with the reason.
-REJECTED_KEYS = {
-    "frame_stack": "frames are stacked inside the env: use env_kwargs: {frame_stack: k}",
-    "noise_type": "the algorithms explore with their own noise schedules, not SB3 action noise",
-    "noise_std": "the algorithms explore with their own noise schedules, not SB3 action noise",
-}
+REJECTED_KEYS = {"frame_stack": "frames are stacked inside the env: use env_kwargs: {frame_stack: k}"}
+#: Keys that do not fit the paper's algorithms, with the reason.
+REJECTED_PAPER_KEYS = dict.fromkeys(
+    NOISE_KEYS, "the algorithms explore with their own noise schedules, not SB3 action noise"
+)
 
 _CONFIG_DIR = Path(__file__).resolve().parents[2] / "zoo_configs"
 
@@ -64,19 +75,44 @@ def select_entry(config: dict[str, dict[str, Any]], env_id: str) -> dict[str, An
 
 
 def allowed_keys(algo_class: type) -> frozenset[str]:
-    """Keys an entry may hold for ``algo_class``: its constructor arguments plus rl-zoo3's own keys."""
-    parameters = inspect.signature(algo_class.__init__).parameters
+    """Keys an entry may hold for ``algo_class``: its constructor arguments (with those of the host class an EF
+    mixin forwards ``**kwargs`` to) plus rl-zoo3's own keys."""
+    parameters: set[str] = set()
+    for cls in algo_class.__mro__:
+        init = vars(cls).get("__init__")
+        if init is None or not inspect.isfunction(init):
+            continue
+        signature = inspect.signature(init).parameters
+        parameters |= {name for name, p in signature.items() if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)}
+        if not any(p.kind is p.VAR_KEYWORD for p in signature.values()):
+            break
     return frozenset(parameters) - SET_BY_ZOO | ZOO_KEYS
 
 
 def check_keys(algo: str, algo_class: type, keys: Any, where: str) -> None:
     """Raise ``ValueError`` naming the first key that ``algo_class`` (through rl-zoo3) would not accept."""
-    allowed = allowed_keys(algo_class)
+    allowed = allowed_keys(algo_class) | (frozenset() if algo in PAPER_ALGORITHMS else NOISE_KEYS)
+    rejected = {**REJECTED_KEYS, **(REJECTED_PAPER_KEYS if algo in PAPER_ALGORITHMS else {})}
     for key in keys:
-        if key in REJECTED_KEYS:
-            raise ValueError(f"{where}: key {key!r} is not supported for {algo}: {REJECTED_KEYS[key]}")
+        if key in rejected:
+            raise ValueError(f"{where}: key {key!r} is not supported for {algo}: {rejected[key]}")
         if key not in allowed:
-            raise ValueError(f"{where}: unknown key {key!r} for {algo}; expected one of {sorted(allowed)}")
+            raise ValueError(
+                f"{where}: unknown key {key!r} for {algo}{did_you_mean(key, allowed)}; "
+                f"expected one of {sorted(allowed)}"
+            )
+
+
+def check_values(values: dict[str, Any], where: str) -> None:
+    """Raise ``ValueError`` for a string where rl-zoo3 expects a number or its schedule syntax ``lin_<initial>``
+    (it splits any string ``learning_rate`` at ``_``, and fails without one)."""
+    for key in SCHEDULE_KEYS & set(values):
+        value = values[key]
+        if isinstance(value, str) and re.fullmatch(r"lin_[-+0-9.eE]+", value) is None:
+            raise ValueError(
+                f"{where}: {key} must be a number or rl-zoo3's linear schedule 'lin_<initial value>', got the string "
+                f"{value!r}"
+            )
 
 
 def validate_config(algo: str, algo_class: type, config: dict[str, dict[str, Any]], source: str = "config") -> None:
@@ -88,6 +124,7 @@ def validate_config(algo: str, algo_class: type, config: dict[str, dict[str, Any
         if name != "default" and name not in registry:
             raise ValueError(f"{where}: env id {name!r} is not registered with gymnasium (did `import sb3_ef` run?)")
         check_keys(algo, algo_class, entry, where)
+        check_values(entry, where)
         for required in ("policy", "n_timesteps"):
             if required not in entry:
                 raise ValueError(f"{where}: missing required key {required!r}")

@@ -8,6 +8,8 @@ would otherwise rebuild the saved buffer size (e.g. 1M stacked pixel observation
 
 from __future__ import annotations
 
+import glob
+import os
 import sys
 from collections.abc import Sequence
 from typing import Any
@@ -16,6 +18,7 @@ from rl_zoo3 import utils
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 import sb3_ef  # noqa: F401  (registers the environments)
+from sb3_ef.zoo.options import check_enjoy_argv
 from sb3_ef.zoo.registration import algorithm_classes, register_algorithms
 from sb3_ef.zoo.train import run_with_argv, with_gym_package
 
@@ -36,16 +39,48 @@ class InferenceLoader:
         return self.algo_class.load(path, **kwargs)
 
 
+def check_run_folder(folder: str, algo: str, env: str, exp_id: int) -> None:
+    """Raise ``ValueError`` naming the runs there are when ``--exp-id`` (0: the latest run) names none (rl-zoo3
+    asserts); ``-1`` (no run folder) is left to rl-zoo3, and so is its ``rl-trained-agents`` folder, which it fills
+    from the Hugging Face hub."""
+    if exp_id < 0 or "rl-trained-agents" in folder:
+        return
+    env_name = utils.EnvironmentName(env)
+    runs = sorted(
+        (
+            os.path.basename(path)
+            for path in glob.glob(os.path.join(folder, algo, f"{env_name}_*"))
+            if os.path.isdir(path)
+        ),
+        key=lambda name: int(name.rsplit("_", 1)[1]) if name.rsplit("_", 1)[1].isdigit() else -1,
+    )
+    if exp_id > 0 and f"{env_name}_{exp_id}" in runs:
+        return
+    if exp_id == 0 and runs:
+        return
+    wanted = "any run" if exp_id == 0 else f"run {env_name}_{exp_id}"
+    found = (
+        f"runs there: {', '.join(runs)}" if runs else "no run of this env there (train first, or pass -f LOG_FOLDER)"
+    )
+    raise ValueError(f"No {wanted} under {os.path.join(folder, algo)}: {found}")
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     """Run a trained sb3-ef agent with rl-zoo3's enjoy; ``argv`` defaults to the command line."""
     from rl_zoo3.enjoy import enjoy
 
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if "-h" not in argv and "--help" not in argv:
+        args = check_enjoy_argv(argv)
+        check_run_folder(
+            args.folder or "rl-trained-agents", args.algo or "ppo", args.env or "CartPole-v1", args.exp_id or 0
+        )
     register_algorithms()
     classes = algorithm_classes()
     for key, algo_class in classes.items():
         utils.ALGOS[key] = InferenceLoader(algo_class)  # type: ignore[assignment]
     try:
-        run_with_argv(enjoy, with_gym_package(list(sys.argv[1:] if argv is None else argv)))
+        run_with_argv(enjoy, with_gym_package(argv), "sb3-ef enjoy")
     finally:
         utils.ALGOS.update(classes)
 

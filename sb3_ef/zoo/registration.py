@@ -19,20 +19,32 @@ from sb3_ef.zoo.hyperparams_opt import CONVERTERS, SAMPLERS
 def algorithm_classes() -> dict[str, type]:
     """rl-zoo3 key -> algorithm class (imported on demand: the algorithms pull in torch)."""
     from sb3_ef.drqv2 import DrQv2, DrQv2EF
+    from sb3_ef.sb3_hosts import SACEF, TD3EF, TQCEF
     from sb3_ef.tdmpc2 import TDMPC2, TDMPC2EF
 
-    return {"drqv2_ef": DrQv2EF, "drqv2": DrQv2, "tdmpc2_ef": TDMPC2EF, "tdmpc2": TDMPC2}
+    return {
+        "drqv2_ef": DrQv2EF,
+        "drqv2": DrQv2,
+        "tdmpc2_ef": TDMPC2EF,
+        "tdmpc2": TDMPC2,
+        "sac_ef": SACEF,
+        "td3_ef": TD3EF,
+        "tqc_ef": TQCEF,
+    }
 
 
 def config_namespace() -> dict[str, Any]:
-    """Names a zoo config string may use, e.g. ``replay_buffer_class: SequenceReplayBuffer``."""
+    """Names a zoo config string may use, e.g. ``replay_buffer_class: SequenceReplayBuffer`` or, for the SB3 hosts
+    on frames smaller than NatureCNN's 36x36, ``features_extractor_class=DrQv2Encoder`` in ``policy_kwargs``."""
     from sb3_ef.common.buffers import SequenceReplayBuffer
+    from sb3_ef.drqv2.policies import DrQv2Encoder
 
-    return {"SequenceReplayBuffer": SequenceReplayBuffer}
+    return {"SequenceReplayBuffer": SequenceReplayBuffer, "DrQv2Encoder": DrQv2Encoder}
 
 
 def register_algorithms(base_policy_kwargs: dict[str, Any] | None = None) -> None:
-    """Add ``drqv2_ef``, ``drqv2``, ``tdmpc2_ef`` and ``tdmpc2`` to rl-zoo3 (algorithms, samplers, converters).
+    """Add sb3-ef's algorithms (:func:`algorithm_classes`) to rl-zoo3, with the samplers and converters of
+    :mod:`sb3_ef.zoo.hyperparams_opt`.
 
     :param base_policy_kwargs: ``policy_kwargs`` of the config entry in use. rl-zoo3 replaces the entry's
         ``policy_kwargs`` with the sampled ones; the samplers merge into these instead, so tuning ``agent_dim`` keeps

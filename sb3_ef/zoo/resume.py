@@ -12,7 +12,11 @@ algorithm:
   folder the run continues there: ``evaluations.npz`` and the monitor files are appended to, the evaluation steps
   carry on, the final model replaces the old one;
 - a run that fails before training starts removes the folders it created (run folder, and log folders that did
-  not exist before).
+  not exist before);
+- progress is printed every 10 s of wall time (:class:`~sb3_ef.zoo.progress.ProgressLogCallback`); ``-P``'s bar
+  only when the output is a terminal, where it draws;
+- Ctrl-C stops training (rl-zoo3 then saves the final model) and, with ``--save-freq``, writes a resumable
+  checkpoint of the step reached (with the replay buffer under ``--checkpoint-buffer``).
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,10 +33,11 @@ import numpy as np
 from rl_zoo3.exp_manager import ExperimentManager
 from rl_zoo3.utils import ALGOS
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
+from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback, ProgressBarCallback
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_ef.common.checkpoints import Checkpoint, ResumableCheckpointCallback, checkpoint_for, load_checkpoint
+from sb3_ef.zoo.progress import ProgressLogCallback
 
 #: File in ``<run>/<env>/`` holding the sb3-ef train arguments of the run (read by ``--resume``).
 ARGV_FILE = "train_argv.json"
@@ -118,6 +124,10 @@ class ResumingExperimentManager(ExperimentManager):
 
     def create_callbacks(self) -> None:
         super().create_callbacks()
+        if not sys.stdout.isatty():  # a bar drawn into a file shows nothing
+            self.callbacks = [callback for callback in self.callbacks if not isinstance(callback, ProgressBarCallback)]
+        if self.verbose >= 1 and not any(isinstance(callback, ProgressBarCallback) for callback in self.callbacks):
+            self.callbacks.append(ProgressLogCallback(self.n_timesteps))
         for index, callback in enumerate(self.callbacks):
             if isinstance(callback, CheckpointCallback):
                 self.callbacks[index] = ResumableCheckpointCallback(
@@ -156,7 +166,19 @@ class ResumingExperimentManager(ExperimentManager):
         Path(self.params_path, ARGV_FILE).write_text(json.dumps(self.argv))
 
     def learn(self, model: BaseAlgorithm) -> None:
-        """rl-zoo3's ``learn``; a continued model trains up to ``n_timesteps`` steps in all, its counters kept."""
+        """rl-zoo3's ``learn`` (which stops at Ctrl-C); a continued model trains up to ``n_timesteps`` steps in all,
+        its counters kept. A run stopped early writes a resumable checkpoint when ``--save-freq`` is set."""
+        total = self.n_timesteps
+        self._learn(model)
+        if model.num_timesteps < total:
+            for callback in self.callbacks:
+                if isinstance(callback, ResumableCheckpointCallback):
+                    saved = callback.save()
+                    print(
+                        f"Stopped at step {model.num_timesteps} of {total}: checkpoint {saved.model_path}", flush=True
+                    )
+
+    def _learn(self, model: BaseAlgorithm) -> None:
         if self.checkpoint is None:
             super().learn(model)
             return

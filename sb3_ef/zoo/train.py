@@ -2,7 +2,8 @@
 
 Takes exactly rl-zoo3's arguments. Differences, all on top of rl-zoo3's own behaviour:
 
-- ``--algo drqv2_ef | drqv2 | tdmpc2_ef | tdmpc2`` read ``zoo_configs/<algo>.yml`` unless ``--conf-file`` is given;
+- ``--algo drqv2_ef | drqv2 | tdmpc2_ef | tdmpc2 | sac_ef | td3_ef | tqc_ef`` read ``zoo_configs/<algo>.yml`` unless
+  ``--conf-file`` is given;
 - ``sb3_ef`` is imported (its gymnasium ids registered) and added to ``--gym-packages`` (recorded in ``args.yml``,
   so subprocess envs and ``enjoy`` find the ids too);
 - the whole YAML file and the ``--hyperparams`` overrides are checked before anything is built, so a bad key
@@ -22,16 +23,20 @@ import itertools
 import json
 import os
 import sys
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
-from rl_zoo3 import exp_manager, utils
+from rl_zoo3 import exp_manager, hyperparams_opt, utils
 
 import sb3_ef  # noqa: F401  (registers the environments)
-from sb3_ef.common.checkpoints import latest_checkpoint
+from sb3_ef.common.checkpoints import Checkpoint, checkpoint_for, latest_checkpoint
+from sb3_ef.common.validation import did_you_mean, is_intact
 from sb3_ef.zoo import config
+from sb3_ef.zoo.hyperparams_opt import SAMPLERS
+from sb3_ef.zoo.options import SB3_EF_TRAIN_OPTIONS, check_train_argv, rl_zoo3_parser
 from sb3_ef.zoo.registration import register_algorithms
 from sb3_ef.zoo.resume import ARGV_FILE, CheckpointOptions, ResumingExperimentManager
 
@@ -55,6 +60,7 @@ def _pre_parser() -> argparse.ArgumentParser:
     parser.add_argument("--env", default="CartPole-v1")
     parser.add_argument("-conf", "--conf-file", default=None)
     parser.add_argument("-params", "--hyperparams", nargs="+", default=[])
+    parser.add_argument("-optimize", "--optimize-hyperparameters", dest="optimize", action="store_true")
     return parser
 
 
@@ -63,7 +69,12 @@ def _override_values(overrides: list[str]) -> dict[str, Any]:
     values = {}
     for override in overrides:
         key, _, value = override.partition(":")
-        values[key] = eval(value, vars(utils))
+        try:
+            values[key] = eval(value, vars(utils))
+        except Exception as error:  # the user's expression: any exception is a mistake in the command line
+            raise ValueError(
+                f"--hyperparams {key}: cannot evaluate {value!r} ({type(error).__name__}: {error})"
+            ) from None
     return values
 
 
@@ -74,11 +85,19 @@ def prepare(argv: Sequence[str]) -> list[str]:
     register_algorithms()  # our keys and config names exist from here on (the overrides may use them)
     if known.algo not in config.ZOO_ALGORITHMS:
         if known.algo not in utils.ALGOS:
-            raise ValueError(f"Unknown algorithm {known.algo!r}: expected one of {sorted(utils.ALGOS)}")
+            raise ValueError(
+                f"Unknown algorithm {known.algo!r}{did_you_mean(known.algo, utils.ALGOS)}: expected one of "
+                f"{', '.join(sorted(utils.ALGOS))}"
+            )
         return with_gym_package(argv)
     if known.env not in gym.envs.registry:
-        raise ValueError(f"Unknown env id {known.env!r}: sb3-ef registers ids like 'dmc/cheetah-run-v0'")
+        raise ValueError(
+            f"Unknown env id {known.env!r}{did_you_mean(known.env, gym.envs.registry)}: sb3-ef registers ids like "
+            "'dmc/cheetah-run-v0'"
+        )
 
+    if known.optimize and known.algo not in hyperparams_opt.HYPERPARAMS_SAMPLER:
+        raise ValueError(f"No Optuna sampler for {known.algo!r}: -optimize supports {', '.join(sorted(SAMPLERS))}")
     conf_file = known.conf_file
     if conf_file is None:
         conf_file = str(config.default_config_path(known.algo))
@@ -86,6 +105,7 @@ def prepare(argv: Sequence[str]) -> list[str]:
     algo_class = utils.ALGOS[known.algo]
     overrides = _override_values(known.hyperparams)
     config.check_keys(known.algo, algo_class, overrides, where="--hyperparams")
+    config.check_values(overrides, where="--hyperparams")
     entry = overrides
     if conf_file.endswith((".yml", ".yaml")):
         hyperparams = config.load_config(conf_file)
@@ -108,6 +128,22 @@ def _sb3_ef_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def zoo_help_parser(prog: str = "sb3-ef train") -> argparse.ArgumentParser:
+    """``sb3-ef train``'s full parser, for ``--help``: rl-zoo3's own with sb3-ef's options added."""
+    from rl_zoo3 import train as zoo_train
+
+    parser = rl_zoo3_parser(zoo_train, "train")
+    parser.prog = prog
+    parser.description = "Train (or with -optimize, tune) an sb3-ef agent with rl-zoo3."
+    group = parser.add_argument_group("sb3-ef options")
+    for option in SB3_EF_TRAIN_OPTIONS:
+        if option.kind == "flag":
+            group.add_argument(*option.names, action="store_true", help=option.help)
+        else:
+            group.add_argument(*option.names, type=int if option.kind == "int" else str, help=option.help)
+    return parser
+
+
 def _without_options(argv: list[str], options: dict[str, bool]) -> list[str]:
     """``argv`` without the given options (name -> whether it takes a value), in both spellings of a value."""
     kept, skip = [], False
@@ -122,9 +158,29 @@ def _without_options(argv: list[str], options: dict[str, bool]) -> list[str]:
     return kept
 
 
+def resume_point(run_dir: Path, env_folder: str) -> Checkpoint:
+    """Where a run folder continues from: its newest intact checkpoint or its final model ``<env>.zip``, whichever
+    is further (a finished run trained further with a larger ``-n`` starts from its final model); on a tie the
+    checkpoint, which holds the random states (and the buffer)."""
+    candidates = []
+    checkpoint = latest_checkpoint(run_dir, intact=True)
+    if checkpoint is not None:
+        candidates.append(checkpoint)
+    final = run_dir / f"{env_folder}.zip"
+    if final.is_file() and is_intact(final):
+        candidates.append(checkpoint_for(final))
+    elif final.is_file():
+        warnings.warn(f"The final model {final} is damaged (not a readable model zip): not resumed from", stacklevel=2)
+    if not candidates:
+        raise ValueError(
+            f"--resume: {str(run_dir)!r} holds no intact checkpoint (train with --save-freq) and no final model"
+        )
+    return max(candidates, key=lambda candidate: candidate.step)
+
+
 def resume_argv(run_dir: str, extra: list[str]) -> list[str]:
     """The train arguments that continue ``run_dir``: the run's own (from ``<env>/train_argv.json``) with
-    ``-i`` pointing at its newest checkpoint (or its final model), then ``extra`` (later values win)."""
+    ``-i`` pointing at :func:`resume_point`, then ``extra`` (later values win)."""
     folder = Path(run_dir)
     saved = sorted(folder.glob(f"*/{ARGV_FILE}"))
     if not folder.is_dir() or len(saved) != 1:
@@ -132,10 +188,7 @@ def resume_argv(run_dir: str, extra: list[str]) -> list[str]:
             f"--resume expects an sb3-ef run folder holding <env>/{ARGV_FILE}, got {run_dir!r} "
             f"({'not a folder' if not folder.is_dir() else f'{len(saved)} such files'})"
         )
-    checkpoint = latest_checkpoint(folder)
-    model_path = checkpoint.model_path if checkpoint is not None else folder / f"{saved[0].parent.name}.zip"
-    if not model_path.is_file():
-        raise ValueError(f"--resume: {run_dir!r} holds no checkpoint (train with --save-freq) and no final model")
+    model_path = resume_point(folder, saved[0].parent.name).model_path
     argv = _without_options(json.loads(saved[0].read_text()), {"-i": True, "--trained-agent": True})
     return [*argv, "-i", str(model_path), *extra]
 
@@ -147,10 +200,10 @@ def _check_trained_agent(argv: list[str]) -> None:
             raise ValueError(f"{arg} expects the path of a saved model .zip, got {value!r}")
 
 
-def run_with_argv(function: Callable[[], None], argv: Sequence[str]) -> None:
-    """Call an rl-zoo3 entry point (which parses ``sys.argv``) on ``argv``."""
+def run_with_argv(function: Callable[[], None], argv: Sequence[str], prog: str) -> None:
+    """Call an rl-zoo3 entry point (which parses ``sys.argv``) on ``argv``; its usage and errors name ``prog``."""
     saved = sys.argv
-    sys.argv = [saved[0], *argv]
+    sys.argv = [prog, *argv]
     try:
         function()
     finally:
@@ -162,9 +215,12 @@ def main(argv: Sequence[str] | None = None) -> None:
     from rl_zoo3 import train as zoo_train
 
     argv = list(sys.argv[1:] if argv is None else argv)
+    if "-h" in argv or "--help" in argv:
+        register_algorithms()  # the --algo choices list sb3-ef's algorithms
+        zoo_help_parser("sb3-ef optimize" if "-optimize" in argv else "sb3-ef train").print_help()
+        return
+    check_train_argv(argv)
     options, _ = _sb3_ef_parser().parse_known_args(argv)
-    if options.keep_checkpoints < 1:
-        raise ValueError(f"--keep-checkpoints must be >= 1, got {options.keep_checkpoints}")
     if options.resume is not None:
         argv = resume_argv(options.resume, _without_options(argv, {"--resume": True}))
     _check_trained_agent(argv)
@@ -177,7 +233,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     saved = zoo_train.ExperimentManager
     zoo_train.ExperimentManager = manager  # type: ignore[misc]  # rl-zoo3's train builds it by this name
     try:
-        run_with_argv(zoo_train.train, zoo_argv)
+        run_with_argv(zoo_train.train, zoo_argv, "sb3-ef optimize" if "-optimize" in argv else "sb3-ef train")
     finally:
         zoo_train.ExperimentManager = saved
 

@@ -30,8 +30,12 @@ def test_prediction_and_saliency_figures_are_labelled():
     report = foresight_report(FakeModel(), record_rollout(DotEnv(), lambda _obs, step: probe[step], 4, seed=0))
     figure = prediction_figure(report, "fake on dots")
     [axis] = figure.axes
+    [context] = axis.child_axes  # labels the context row, above the grid
     assert [label.get_text() for label in axis.get_yticklabels()] == ["context", "predicted", "true"]
     assert [label.get_text() for label in axis.get_xticklabels()] == ["t+1", "t+2", "t+3", "t+4"]
+    contexts = report.rollout.first_observation.shape[0] // 3
+    expected = [*(f"t-{lag}" for lag in range(contexts - 1, 0, -1)), "t"]
+    assert [label.get_text() for label in context.get_xticklabels()] == expected
     assert axis.get_title() == "fake on dots"
     titles = [axis.get_title() for axis in saliency_figure(report, "fake").axes]
     assert titles == ["predicted frame", "h_a saliency (red)", "h_s saliency (blue)", "true agent mask"]

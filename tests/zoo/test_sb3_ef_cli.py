@@ -50,12 +50,12 @@ def test_analyze_exit_status_reaches_the_shell(monkeypatch):
 
 def test_train_errors_reach_the_user_as_one_line(tmp_path, capsys, monkeypatch):
     monkeypatch.delenv("SB3_EF_TRACEBACK", raising=False)
-    assert cli.main(["train", "--algo", "sac_ef", "--env", "dmc/cheetah-run-v0", "-f", str(tmp_path)]) == 2
+    assert cli.main(["train", "--algo", "sac_fe", "--env", "dmc/cheetah-run-v0", "-f", str(tmp_path)]) == 2
     [line] = capsys.readouterr().err.splitlines()
-    assert line.startswith("sb3-ef train: error: Unknown algorithm 'sac_ef'")
+    assert line.startswith("sb3-ef train: error: Unknown algorithm 'sac_fe'")
     monkeypatch.setenv("SB3_EF_TRACEBACK", "1")
-    with pytest.raises(ValueError, match="Unknown algorithm 'sac_ef'"):
-        cli.main(["train", "--algo", "sac_ef", "--env", "dmc/cheetah-run-v0", "-f", str(tmp_path)])
+    with pytest.raises(ValueError, match="Unknown algorithm 'sac_fe'"):
+        cli.main(["train", "--algo", "sac_fe", "--env", "dmc/cheetah-run-v0", "-f", str(tmp_path)])
 
 
 def test_a_failed_start_leaves_no_run_folder(tmp_path, capsys):

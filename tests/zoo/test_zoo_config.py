@@ -6,7 +6,7 @@ import pytest
 
 from sb3_ef.envs.tasks import DMC_PAPER_TASKS, METAWORLD_PAPER_TASKS
 from sb3_ef.zoo.config import (
-    ZOO_ALGORITHMS,
+    PAPER_ALGORITHMS,
     default_config_path,
     load_config,
     select_entry,
@@ -22,7 +22,7 @@ def classes() -> dict[str, type]:
     return algorithm_classes()
 
 
-@pytest.mark.parametrize("algo", ZOO_ALGORITHMS)
+@pytest.mark.parametrize("algo", PAPER_ALGORITHMS)
 def test_every_entry_is_valid_and_every_paper_task_present(algo, classes):
     config = load_config(default_config_path(algo))
     assert set(config) == PAPER_IDS | {"default"}

@@ -45,10 +45,13 @@ def _args(log_folder, n_timesteps: int) -> list[str]:
 # About 30 s on 2 cores: slow.
 @pytest.fixture(scope="module")
 def resumed(tmp_path_factory):
-    """A run stopped after 60 steps (checkpoints at 40), then continued with --resume up to 100 steps."""
+    """A run killed after 60 steps (checkpoints at 40), then continued with --resume up to 100 steps."""
     log_folder = tmp_path_factory.mktemp("logs")
     train.main(_args(log_folder, 60))
     run = log_folder / "drqv2_ef" / f"{LOG_NAME}_1"
+    # A killed run leaves no final model (a finished one would be continued from it, at step 60).
+    (run / f"{LOG_NAME}.zip").unlink()
+    (run / "replay_buffer.pkl").unlink()
     first = {
         "checkpoint": latest_checkpoint(run),
         "evaluations": np.load(run / "evaluations.npz")["timesteps"].tolist(),

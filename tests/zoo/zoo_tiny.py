@@ -23,6 +23,11 @@ _TDMPC2_POLICY = {
     "num_bins": 11,
     "planner_kwargs": {"iterations": 1, "num_samples": 16, "num_elites": 4, "num_pi_trajs": 2},
 }
+#: SB3's NatureCNN needs 36x36 frames or more: DrQ-v2's encoder (it scales the pixels itself) for the 32x32 ones.
+_SB3_POLICY = (
+    "dict(net_arch=[16], normalize_images=False, features_extractor_class=DrQv2Encoder, "
+    "features_extractor_kwargs=dict(features_dim=32))"
+)
 _EF_POLICY = {"agent_dim": 8, "ef_kwargs": {"decoder_channels": 8, "rollout_hidden_dims": (16,)}}
 _EF_ALGO = {"ef_horizon": 3, "babbling_steps": 20}
 
@@ -44,6 +49,18 @@ HYPERPARAMS: dict[str, dict[str, Any]] = {
         "policy_kwargs": {**_TDMPC2_POLICY, **_EF_POLICY},
     },
     "tdmpc2": {"buffer_size": 4000, "batch_size": 8, "learning_starts": 40, "policy_kwargs": _TDMPC2_POLICY},
+    **{
+        algo: {
+            "buffer_size": 4000,
+            "batch_size": 8,
+            "learning_starts": 40,
+            "agent_dim": 8,
+            "ef_kwargs": _EF_POLICY["ef_kwargs"],
+            **_EF_ALGO,
+            "policy_kwargs": _SB3_POLICY,
+        }
+        for algo in ("sac_ef", "td3_ef", "tqc_ef")
+    },
 }
 
 

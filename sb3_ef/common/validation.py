@@ -1,0 +1,303 @@
+"""Checks of user input shared by every algorithm and command: constructor arguments, ``learn``'s step count,
+``predict``'s observations, and close-match suggestions for mistyped names.
+
+Each check raises ``ValueError`` (or warns, when the input is usable but probably not what was meant) at the first
+moment the mistake can be seen, naming what was expected and what was received. The module imports only the
+standard library and NumPy at load time, so the command line can use it before torch is imported.
+"""
+
+from __future__ import annotations
+
+import difflib
+import inspect
+import json
+import math
+import numbers
+import os
+import warnings
+import zipfile
+from collections.abc import Callable, Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def closest_names(name: str, choices: Iterable[str], count: int = 3, cutoff: float = 0.6) -> list[str]:
+    """Up to ``count`` of ``choices`` that look like ``name`` (a typo's likely meaning), best first; ``cutoff``:
+    the least similarity (difflib's ratio) of a match."""
+    return difflib.get_close_matches(name, list(choices), n=count, cutoff=cutoff)
+
+
+def did_you_mean(name: str, choices: Iterable[str], cutoff: float = 0.6) -> str:
+    """`` (did you mean 'a' or 'b'?)`` for the close matches of ``name``, or ``""`` when none is close."""
+    matches = closest_names(name, choices, cutoff=cutoff)
+    return f" (did you mean {' or '.join(repr(match) for match in matches)}?)" if matches else ""
+
+
+def check_choice(what: str, value: Any, choices: Iterable[str]) -> None:
+    """Raise ``ValueError`` when ``value`` is not one of ``choices``, suggesting the closest ones."""
+    choices = list(choices)
+    if value not in choices:
+        hint = did_you_mean(value, choices) if isinstance(value, str) else ""
+        raise ValueError(f"Unknown {what} {value!r}{hint}; expected one of {', '.join(map(repr, choices))}")
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(float(value))
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+
+
+def _received(value: Any) -> str:
+    """The value as the message shows it: numbers as they are, anything else with its type (``str '1'``)."""
+    return repr(value) if _is_number(value) else f"{type(value).__name__} {value!r}"
+
+
+def _positive_int(name: str, value: Any) -> None:
+    if not _is_int(value) or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {_received(value)}")
+
+
+def _non_negative_int(name: str, value: Any) -> None:
+    if not _is_int(value):
+        raise ValueError(f"{name} must be an integer >= 0, got {_received(value)}")
+    if value < 0:
+        raise ValueError(f"{name} must be >= 0, got {value}")
+
+
+def _non_negative_number(name: str, value: Any) -> None:
+    if not _is_number(value) or value < 0:
+        raise ValueError(f"{name} must be a number >= 0, got {_received(value)}")
+
+
+def _number(name: str, value: Any) -> None:
+    if not _is_number(value):
+        raise ValueError(f"{name} must be a number, got {_received(value)}")
+
+
+def _positive_number(name: str, value: Any) -> None:
+    if not _is_number(value) or value <= 0:
+        raise ValueError(f"{name} must be a number > 0, got {_received(value)}")
+
+
+def _unit_interval(name: str, value: Any) -> None:
+    if not _is_number(value) or not 0 <= value <= 1:
+        raise ValueError(f"{name} must be a number in [0, 1], got {_received(value)}")
+
+
+def _learning_rate(name: str, value: Any) -> None:
+    if callable(value):
+        return
+    if not _is_number(value) or value < 0:
+        raise ValueError(
+            f"{name} must be a number >= 0 or a schedule (a function of the remaining progress), got {_received(value)}"
+        )
+
+
+def _gradient_steps(name: str, value: Any) -> None:
+    if not _is_int(value) or (value < 1 and value != -1):
+        raise ValueError(f"{name} must be a positive integer or -1 (as many as env steps), got {_received(value)}")
+
+
+def _train_freq(name: str, value: Any) -> None:
+    if (
+        isinstance(value, (tuple, list))
+        and len(value) == 2
+        and getattr(value[1], "value", value[1]) in ("step", "episode")
+    ):
+        value = value[0]
+    if not _is_int(value) or value < 1:
+        raise ValueError(f"{name} must be a positive integer or a pair (n, 'step' | 'episode'), got {_received(value)}")
+
+
+#: Argument name -> its check, for every algorithm that has the argument. ``None`` is accepted where the
+#: constructor's default is ``None`` (e.g. TD-MPC2's ``gamma``) and for EF's ``beta``/``ef_horizon`` (EF off).
+ARGUMENT_CHECKS: dict[str, Callable[[str, Any], None]] = {
+    "learning_rate": _learning_rate,
+    "ef_learning_rate": _learning_rate,
+    "buffer_size": _positive_int,
+    "batch_size": _positive_int,
+    "learning_starts": _non_negative_int,
+    "tau": _unit_interval,
+    "gamma": _unit_interval,
+    "train_freq": _train_freq,
+    "gradient_steps": _gradient_steps,
+    "n_steps": _positive_int,
+    "stats_window_size": _positive_int,
+    "beta": _number,  # its sign is checked with EF's arguments, whose message names the host without EF
+    "ef_horizon": _positive_int,
+    "horizon": _positive_int,
+    "agent_dim": _positive_int,
+    "babbling_steps": _non_negative_int,
+    "shift_pad": _non_negative_int,
+    "target_noise_clip": _non_negative_number,
+    "target_policy_noise": _non_negative_number,
+    "consistency_coef": _non_negative_number,
+    "reward_coef": _non_negative_number,
+    "value_coef": _non_negative_number,
+    "entropy_coef": _non_negative_number,
+    "max_grad_norm": _positive_number,
+    "rho": _unit_interval,
+}
+
+_EF_OFF = frozenset({"beta", "ef_horizon"})
+
+
+def _defaults(algo_class: type) -> dict[str, Any]:
+    """Constructor defaults of ``algo_class``, its own first, then those of the classes it forwards ``**kwargs`` to."""
+    defaults: dict[str, Any] = {}
+    for cls in reversed(algo_class.__mro__):
+        init = vars(cls).get("__init__")
+        if init is None or not inspect.isfunction(init):
+            continue
+        for parameter in inspect.signature(init).parameters.values():
+            if parameter.default is not inspect.Parameter.empty:
+                defaults[parameter.name] = parameter.default
+    return defaults
+
+
+def check_algorithm_arguments(algo_class: type, arguments: Mapping[str, Any]) -> None:
+    """Check the constructor arguments of an sb3-ef algorithm; call first thing in ``__init__`` with
+    ``locals()`` (``kwargs`` forwarded to an SB3 host class are checked too).
+
+    Raises ``ValueError`` naming the argument, what it must be and what it got, for: numbers given as strings or of
+    the wrong sign, a policy name the class does not know. Warns when ``device`` asks for CUDA that is not there
+    (SB3 falls back to the CPU without a word).
+    """
+    values = {key: value for key, value in arguments.items() if key not in ("self", "kwargs", "__class__")}
+    values.update(arguments.get("kwargs") or {})
+    defaults = _defaults(algo_class)
+    name = algo_class.__name__
+    for key, value in values.items():
+        check = ARGUMENT_CHECKS.get(key)
+        if check is None or (value is None and (key in _EF_OFF or defaults.get(key, 0) is None)):
+            continue
+        check(f"{name}: {key}", value)
+    policy = values.get("policy")
+    aliases = getattr(algo_class, "policy_aliases", {})
+    if isinstance(policy, str) and policy not in aliases:
+        raise ValueError(
+            f"{name}: unknown policy {policy!r}{did_you_mean(policy, aliases)}; expected one of "
+            f"{', '.join(map(repr, aliases))} or a policy class"
+        )
+    check_device(values.get("device", defaults.get("device", "auto")))
+
+
+def check_device(device: Any) -> None:
+    """Raise ``ValueError`` for a device torch cannot parse; warn when CUDA is asked for and not available."""
+    import torch as th
+
+    if device == "auto":
+        return
+    try:
+        parsed = th.device(device)
+    except (RuntimeError, TypeError) as error:
+        raise ValueError(f"device must be 'auto', 'cpu', 'cuda' or 'cuda:<index>', got {device!r} ({error})") from None
+    if parsed.type == "cuda" and not th.cuda.is_available():
+        warnings.warn(
+            f"device={device!r} was asked for but CUDA is not available: training runs on the CPU", stacklevel=3
+        )
+
+
+def check_learn(model: Any, total_timesteps: Any, reset_num_timesteps: bool) -> None:
+    """Check ``learn``'s step count, and warn when ``learning_starts`` leaves no step to train on; raise when a
+    batch cannot be filled from the replay buffer's capacity.
+
+    :param model: the algorithm (``learning_starts``, ``batch_size``, ``buffer_size``, ``num_timesteps``).
+    """
+    valid = _is_int(total_timesteps) or (_is_number(total_timesteps) and float(total_timesteps).is_integer())
+    if not valid or total_timesteps < 0:
+        raise ValueError(f"total_timesteps must be a whole number of steps >= 0, got {_received(total_timesteps)}")
+    final_step = int(total_timesteps) + (0 if reset_num_timesteps else model.num_timesteps)
+    learning_starts = getattr(model, "learning_starts", None)
+    if learning_starts is None or total_timesteps == 0:
+        return
+    if learning_starts >= final_step:
+        warnings.warn(
+            f"learning_starts={learning_starts} is not below the {final_step} steps this learn call reaches: "
+            "no gradient update will run",
+            stacklevel=3,
+        )
+        return
+    batch_size, buffer_size = getattr(model, "batch_size", None), getattr(model, "buffer_size", None)
+    if batch_size is not None and buffer_size is not None and batch_size > buffer_size:
+        raise ValueError(
+            f"batch_size={batch_size} exceeds buffer_size={buffer_size}: every batch would repeat transitions; "
+            "lower batch_size or raise buffer_size"
+        )
+
+
+def check_observation(observation: Any, observation_space: Any) -> None:
+    """Raise ``ValueError`` when ``predict`` gets an array whose dtype differs from a uint8 image space's: float
+    frames in [0, 1] would be divided by 255 again and give actions of an all-black image.
+
+    The shape is SB3's to check: it transposes channels-last images to the space's channels-first layout.
+    """
+    space_dtype = getattr(observation_space, "dtype", None)
+    if isinstance(observation, np.ndarray) and space_dtype == np.uint8 and observation.dtype != np.uint8:
+        raise ValueError(
+            f"predict expects uint8 pixel observations (0-255) like the env's {observation_space}, got an array "
+            f"of dtype {observation.dtype}: pass the env's frames unconverted"
+        )
+
+
+def is_intact(model_path: str | os.PathLike) -> bool:
+    """Whether a model zip can be read: a zip archive whose members pass their CRC checks and that holds SB3's
+    ``data`` (a file cut short by a full disk or a copy fails)."""
+    try:
+        with zipfile.ZipFile(model_path) as archive:
+            return "data" in archive.namelist() and archive.testzip() is None
+    except (zipfile.BadZipFile, OSError, EOFError):
+        return False
+
+
+def check_model_path(path: Any) -> Path | None:
+    """Raise when ``path`` (str or path-like; file objects pass) names no readable model zip: ``FileNotFoundError``
+    naming the path as given (SB3 would report ``<path>.zip`` when ``path`` already ends in ``.zip``), or
+    ``ValueError`` for a damaged file (:func:`is_intact`). Returns the zip's path (``None`` for a file object)."""
+    if not isinstance(path, (str, os.PathLike)):
+        return None
+    given = Path(path)
+    candidates = [given] if given.suffix == ".zip" else [given, given.with_name(f"{given.name}.zip")]
+    found = next((candidate for candidate in candidates if candidate.is_file()), None)
+    if found is None:
+        tried = " or ".join(str(candidate) for candidate in candidates)
+        raise FileNotFoundError(f"No saved model at {tried}")
+    if not is_intact(found):
+        raise ValueError(
+            f"{found} is not a saved model: expected a zip archive written by save() (the file may be truncated)"
+        )
+    return found
+
+
+#: Module of a saved policy class -> the sb3-ef algorithms that save it.
+POLICY_OWNERS = {
+    "sb3_ef.drqv2.policies": "DrQv2EF or DrQv2",
+    "sb3_ef.tdmpc2.policies": "TDMPC2EF or TDMPC2",
+    "stable_baselines3.sac.policies": "SACEF",
+    "stable_baselines3.td3.policies": "TD3EF",
+    "sb3_contrib.tqc.policies": "TQCEF",
+}
+
+
+def check_saved_algorithm(algo_class: type, path: Path | None) -> None:
+    """Raise ``ValueError`` naming the algorithm to use when the model zip at ``path`` was saved by another one:
+    its policy is another sb3-ef algorithm's (SB3 would fail on an unexpected keyword), or it trained Ego-Foresight
+    and ``algo_class`` is a plain variant, without EF's ``beta`` (SB3 would load a "plain" model with EF inside)."""
+    if path is None:
+        return
+    plain_variant = "beta" not in inspect.signature(algo_class).parameters
+    with zipfile.ZipFile(path) as archive:
+        data = json.loads(archive.read("data"))
+    saved = (data.get("policy_class") or {}).get("__module__")
+    expected = {policy.__module__ for policy in getattr(algo_class, "policy_aliases", {}).values()}
+    name = algo_class.__name__
+    if saved in POLICY_OWNERS and expected and saved not in expected:  # a user's own policy class is let through
+        raise ValueError(f"{path} was saved by {POLICY_OWNERS[saved]}, not {name}: load it with {POLICY_OWNERS[saved]}")
+    if plain_variant and data.get("beta") is not None:
+        raise ValueError(
+            f"{path} was saved with Ego-Foresight (beta={data['beta']}): load it with {name}EF, not {name}"
+        )

@@ -1,0 +1,221 @@
+"""The command-line options of ``sb3-ef train``, ``optimize`` and ``enjoy``, checked before anything heavy is imported.
+
+rl-zoo3 builds its parsers inside ``train()`` and ``enjoy()``, after importing torch, SB3 and every algorithm (several
+seconds); a mistyped option would only be reported then. The tables below list rl-zoo3's options (names, whether
+they take values, their type, their choices); a test compares them with rl-zoo3's own parsers, so they follow
+rl-zoo3 upgrades. :func:`check_zoo_argv` parses a command line against them and checks the values that rl-zoo3
+accepts silently or turns into a traceback:
+
+- unknown options (with the closest names), values of the wrong type, ``key:value`` pairs without ``:`` or whose
+  value is not a Python expression (rl-zoo3 evaluates them while parsing);
+- counts that must be positive: ``-n`` (rl-zoo3 reads ``-n -5`` as "use the config's n_timesteps"),
+  ``--eval-episodes``, ``--n-eval-envs``, ``--log-interval`` (or ``-1``), ``--keep-checkpoints``.
+
+This module imports only the standard library.
+"""
+
+from __future__ import annotations
+
+import argparse
+import types
+from collections.abc import Sequence
+from typing import Any, NamedTuple
+
+from sb3_ef.common.validation import did_you_mean
+
+
+class Option(NamedTuple):
+    """One option: its spellings, ``kind`` (``flag``, ``int``, ``str``, ``list`` for ``nargs="+"``, ``pairs`` for
+    rl-zoo3's ``key:value`` lists), its choices, and help text (for sb3-ef's own options)."""
+
+    names: tuple[str, ...]
+    kind: str = "str"
+    choices: tuple[str, ...] | None = None
+    help: str | None = None
+
+
+_COMMON = (
+    Option(("--gym-packages",), "list"),
+    Option(("--env-kwargs",), "pairs"),
+    Option(("--num-threads",), "int"),
+    Option(("--verbose",), "int"),
+    Option(("--device",)),
+    Option(("--seed",), "int"),
+    Option(("-P", "--progress"), "flag"),
+)
+
+#: rl-zoo3's ``train`` options (``--algo`` choices are checked later, against the registered algorithms).
+TRAIN_OPTIONS: tuple[Option, ...] = (
+    *_COMMON,
+    Option(("--algo",)),
+    Option(("--env",)),
+    Option(("-tb", "--tensorboard-log")),
+    Option(("-i", "--trained-agent")),
+    Option(("--truncate-last-trajectory",)),
+    Option(("-n", "--n-timesteps"), "int"),
+    Option(("--log-interval",), "int"),
+    Option(("--eval-freq",), "int"),
+    Option(("--optimization-log-path",)),
+    Option(("--eval-episodes",), "int"),
+    Option(("--n-eval-envs",), "int"),
+    Option(("--save-freq",), "int"),
+    Option(("--save-replay-buffer",), "flag"),
+    Option(("-f", "--log-folder")),
+    Option(("--vec-env",), choices=("dummy", "subproc")),
+    Option(("--n-trials",), "int"),
+    Option(("--max-total-trials",), "int"),
+    Option(("-optimize", "--optimize-hyperparameters"), "flag"),
+    Option(("--no-optim-plots",), "flag"),
+    Option(("--n-jobs",), "int"),
+    Option(("--sampler",), choices=("random", "tpe", "auto")),
+    Option(("--pruner",), choices=("halving", "median", "none")),
+    Option(("--n-startup-trials",), "int"),
+    Option(("--n-evaluations",), "int"),
+    Option(("--storage",)),
+    Option(("--study-name",)),
+    Option(("--trial-id",), "int"),
+    Option(("--eval-env-kwargs",), "pairs"),
+    Option(("-params", "--hyperparams"), "pairs"),
+    Option(("-conf", "--conf-file")),
+    Option(("-uuid", "--uuid"), "flag"),
+    Option(("--track",), "flag"),
+    Option(("--wandb-project-name",)),
+    Option(("--wandb-entity",)),
+    Option(("--wandb-group",)),
+    Option(("-tags", "--wandb-tags"), "list"),
+)
+
+#: The ``train`` options sb3-ef adds (removed before rl-zoo3 parses the rest).
+SB3_EF_TRAIN_OPTIONS: tuple[Option, ...] = (
+    Option(
+        ("--resume",),
+        help="RUN_DIR: continue an sb3-ef run folder (logs/<algo>/<env>_<n>) from its newest intact checkpoint or its "
+        "final model, whichever is further, with the run's own arguments (later arguments win)",
+    ),
+    Option(("--checkpoint-buffer",), "flag", help="--save-freq checkpoints include the replay buffer"),
+    Option(("--keep-checkpoints",), "int", help="how many of the newest --save-freq checkpoints are kept (default 2)"),
+)
+
+#: rl-zoo3's ``enjoy`` options.
+ENJOY_OPTIONS: tuple[Option, ...] = (
+    *_COMMON,
+    Option(("--env",)),
+    Option(("-f", "--folder")),
+    Option(("--algo",)),
+    Option(("-n", "--n-timesteps"), "int"),
+    Option(("--n-envs",), "int"),
+    Option(("--exp-id",), "int"),
+    Option(("--no-render",), "flag"),
+    Option(("--deterministic",), "flag"),
+    Option(("--load-best",), "flag"),
+    Option(("--load-checkpoint",), "int"),
+    Option(("--load-last-checkpoint",), "flag"),
+    Option(("--stochastic",), "flag"),
+    Option(("--norm-reward",), "flag"),
+    Option(("--reward-log",)),
+    Option(("--custom-objects",), "flag"),
+)
+
+#: Options whose value, when given, must be >= 1 (``-1`` allowed where listed: rl-zoo3's "default").
+POSITIVE = {
+    "n_timesteps": False,
+    "eval_episodes": False,
+    "n_eval_envs": False,
+    "n_envs": False,
+    "log_interval": True,
+    "keep_checkpoints": False,
+    "n_trials": False,
+    "n_jobs": False,
+}
+
+
+class UsageError(ValueError):
+    """A mistake in the command line (reported as one line, exit status 2)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # type: ignore[override]
+        raise UsageError(message)
+
+
+def _pair(option: str):
+    """The ``type`` of one ``key:value`` item: checks the form and that the value parses as Python."""
+
+    def parse(item: str) -> str:
+        key, separator, value = item.partition(":")
+        if not separator or not key:
+            raise argparse.ArgumentTypeError(f"expected key:value items (e.g. batch_size:32), got {item!r}")
+        try:
+            compile(value, f"{option} {key}", "eval")
+        except SyntaxError as error:
+            raise argparse.ArgumentTypeError(f"{key}: {value!r} is not a Python expression ({error.msg})") from None
+        return item
+
+    return parse
+
+
+def build_parser(options: Sequence[Option], prog: str) -> argparse.ArgumentParser:
+    """A parser of ``options`` that raises :class:`UsageError` (values unevaluated, defaults ``None``)."""
+    parser = _Parser(prog=prog, add_help=False)  # abbreviations allowed, as rl-zoo3's parsers allow them
+    for option in options:
+        if option.kind == "flag":
+            parser.add_argument(*option.names, action="store_true", default=None)
+        else:
+            parser.add_argument(
+                *option.names,
+                type={"int": int, "pairs": _pair(option.names[-1])}.get(option.kind, str),
+                nargs="+" if option.kind in ("list", "pairs") else None,
+                choices=option.choices,
+            )
+    return parser
+
+
+def check_zoo_argv(argv: Sequence[str], options: Sequence[Option], prog: str) -> argparse.Namespace:
+    """Parse ``argv`` against ``options`` and check the counts (module docstring); raise :class:`UsageError`."""
+    parser = build_parser(options, prog)
+    args, unknown = parser.parse_known_args(list(argv))
+    if unknown:
+        known = [name for option in options for name in option.names if name.startswith("--")]
+        first = unknown[0]
+        raise UsageError(
+            f"unrecognized arguments: {' '.join(unknown)}{did_you_mean(first.split('=')[0], known, cutoff=0.75)}"
+        )
+    for dest, minus_one in POSITIVE.items():
+        value = getattr(args, dest, None)
+        if value is not None and value < 1 and not (minus_one and value == -1):
+            flag = "--" + dest.replace("_", "-")
+            raise UsageError(f"{flag} must be >= 1{' (or -1)' if minus_one else ''}, got {value}")
+    return args
+
+
+def check_train_argv(argv: Sequence[str]) -> argparse.Namespace:
+    """Check the arguments of ``sb3-ef train`` / ``optimize`` (rl-zoo3's plus sb3-ef's)."""
+    return check_zoo_argv(argv, (*TRAIN_OPTIONS, *SB3_EF_TRAIN_OPTIONS), "sb3-ef train")
+
+
+def check_enjoy_argv(argv: Sequence[str]) -> argparse.Namespace:
+    """Check the arguments of ``sb3-ef enjoy``."""
+    return check_zoo_argv(argv, ENJOY_OPTIONS, "sb3-ef enjoy")
+
+
+class _ParserBuilt(Exception):
+    """Carries the parser an rl-zoo3 entry point built, instead of letting it parse."""
+
+
+def rl_zoo3_parser(module: types.ModuleType, function: str) -> argparse.ArgumentParser:
+    """The parser rl-zoo3's ``module.function()`` (``train`` or ``enjoy``) builds inside itself, taken at the moment
+    it would parse: what ``--help`` shows and what the tables above are tested against."""
+
+    class Capture(argparse.ArgumentParser):
+        def parse_args(self, *args: Any, **kwargs: Any) -> Any:  # type: ignore[override]
+            raise _ParserBuilt(self)
+
+    saved = module.argparse
+    module.argparse = types.SimpleNamespace(ArgumentParser=Capture)  # type: ignore[attr-defined]
+    try:
+        getattr(module, function)()
+    except _ParserBuilt as built:
+        return built.args[0]
+    finally:
+        module.argparse = saved  # type: ignore[attr-defined]
+    raise RuntimeError(f"{module.__name__}.{function}() returned without parsing arguments")
