@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
 
 from sb3_ef.envs.backend import ensure_gl_backend
 from sb3_ef.envs.tasks import parse_env_name
+
+if TYPE_CHECKING:  # imported when an env is made (each needs its simulator)
+    from sb3_ef.envs.dmc import DMCPixelEnv
+    from sb3_ef.envs.meta_world import MetaWorldPixelEnv
 
 #: Smallest and largest frame size accepted (the encoders need at least ~32 pixels).
 MIN_SIZE, MAX_SIZE = 32, 512
@@ -55,6 +59,7 @@ def make_env(
     if task.suite != "metaworld" and "repeat_discount" in kwargs:
         raise ValueError(f"repeat_discount (the EF authors' protocol) is a Meta-World option, got it for {name!r}")
     ensure_gl_backend()
+    env_class: type[DMCPixelEnv | MetaWorldPixelEnv]
     if task.suite == "dmc":
         from sb3_ef.envs.dmc import DMCPixelEnv as env_class
     else:

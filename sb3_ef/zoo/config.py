@@ -63,7 +63,7 @@ def select_entry(config: dict[str, dict[str, Any]], env_id: str) -> dict[str, An
     raise ValueError(f"No entry for env {env_id!r} and no 'default' entry; entries: {sorted(config)}")
 
 
-def allowed_keys(algo_class: type) -> frozenset[str]:
+def allowed_keys(algo_class: type[Any]) -> frozenset[str]:
     """Keys an entry may hold for ``algo_class``: its constructor arguments plus rl-zoo3's own keys."""
     parameters = inspect.signature(algo_class.__init__).parameters
     return frozenset(parameters) - SET_BY_ZOO | ZOO_KEYS
