@@ -2,14 +2,23 @@
 
 from __future__ import annotations
 
+from typing import TypedDict, cast
+
 import gymnasium as gym
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import Image
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_ef.analysis.prediction import ForesightModel
 from sb3_ef.analysis.report import foresight_report, record_rollout
 
 _NOT_TEXT = ("stdout", "log", "json", "csv")
+
+
+class _ThresholdKwargs(TypedDict):
+    threshold_rule: str
+    num_std: float
+    fraction: float
 
 
 class ForesightLoggerCallback(BaseCallback):
@@ -55,15 +64,15 @@ class ForesightLoggerCallback(BaseCallback):
             raise ValueError(f"log_freq and steps must be >= 1, got log_freq={log_freq}, steps={steps}")
         self.eval_env, self.log_freq, self.steps, self.seed = eval_env, log_freq, steps, seed
         self.deterministic, self.patch_size = deterministic, patch_size
-        self.threshold_kwargs = {"threshold_rule": threshold_rule, "num_std": num_std, "fraction": fraction}
+        self.threshold_kwargs = _ThresholdKwargs(threshold_rule=threshold_rule, num_std=num_std, fraction=fraction)
 
     def _init_callback(self) -> None:
         if getattr(self.model, "ef", None) is None:
             raise ValueError(
                 f"ForesightLoggerCallback needs a model with Ego-Foresight; {type(self.model).__name__}.ef is None"
             )
-        expected = tuple(self.model.frame_shape[1:])
-        received = tuple(self.eval_env.observation_space.shape[1:])
+        expected = tuple(cast(ForesightModel, self.model).frame_shape[1:])
+        received = tuple(self.eval_env.observation_space.shape or ())[1:]
         if expected != received:
             raise ValueError(f"eval_env frames are {received}, the model predicts {expected} frames")
 
@@ -74,13 +83,14 @@ class ForesightLoggerCallback(BaseCallback):
 
     def log_foresight(self) -> dict[str, float]:
         """Play, predict, compute saliency, log images and scores now; return the logged scalars."""
+        model = cast(ForesightModel, self.model)  # the EF contract, checked in _init_callback
         rollout = record_rollout(
             self.eval_env,
             lambda observation, _: self.model.predict(observation, deterministic=self.deterministic)[0],
-            steps=self.steps or self.model.ef.horizon,
+            steps=self.steps or model.ef.horizon,
             seed=self.seed,
         )
-        report = foresight_report(self.model, rollout, patch_size=self.patch_size, **self.threshold_kwargs)
+        report = foresight_report(model, rollout, patch_size=self.patch_size, **self.threshold_kwargs)
         self.logger.record("foresight/prediction", Image(report.prediction_image(), "HWC"), exclude=_NOT_TEXT)
         self.logger.record("foresight/saliency", Image(report.saliency_image(), "HWC"), exclude=_NOT_TEXT)
         scalars = {f"foresight/{name}": value for name, value in report.scalars().items()}

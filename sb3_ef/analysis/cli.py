@@ -148,7 +148,7 @@ def analyze_results(
     at_steps = returns_at(records, tuple(at)) if at else None
     os.makedirs(out, exist_ok=True)
     scores.to_csv(os.path.join(out, "scores.csv"), index=False)
-    written = {"curves": plot_learning_curves(scores, out)}
+    written: dict[str, Any] = {"curves": plot_learning_curves(scores, out)}
     print(f"Scores of {scores['algo'].nunique()} algorithm(s) on {scores['task'].nunique()} task(s) -> {out}")
     shared = tasks_with_every_algorithm(scores)
     if scores["algo"].nunique() < 2:
@@ -213,8 +213,9 @@ def make_analysis_env(
     kwargs = dict(env_kwargs or {})
     size = frame_shape[-1]
     for key, expected in (("size", size), ("frame_stack", frame_stack)):
-        if kwargs.pop(key, expected) != expected:
-            raise ValueError(f"env_kwargs {key}={env_kwargs[key]!r} does not match the model's {key} {expected}")
+        value = kwargs.pop(key, expected)
+        if value != expected:
+            raise ValueError(f"env_kwargs {key}={value!r} does not match the model's {key} {expected}")
     if name.startswith(("dmc/", "metaworld/")):
         from sb3_ef.envs import make_env
 

@@ -13,6 +13,7 @@ import torch as th
 from torch import nn
 
 from sb3_ef.common.env_checks import FRAME_CHANNELS
+from sb3_ef.ef import EgoForesight
 
 
 class ForesightModel(Protocol):
@@ -27,8 +28,8 @@ class ForesightModel(Protocol):
 def resolve_foresight(
     model: ForesightModel | None = None,
     encoder: Callable[[th.Tensor], th.Tensor] | None = None,
-    ef: nn.Module | None = None,
-) -> tuple[Callable[[th.Tensor], th.Tensor], nn.Module]:
+    ef: EgoForesight | None = None,
+) -> tuple[Callable[[th.Tensor], th.Tensor], EgoForesight]:
     """Return ``(encode, ef)`` from either a model following the contract or an explicit encoder + EF module."""
     if model is not None:
         if encoder is not None or ef is not None:
@@ -120,7 +121,7 @@ def predict_open_loop(
     actions: np.ndarray | th.Tensor,
     model: ForesightModel | None = None,
     encoder: Callable[[th.Tensor], th.Tensor] | None = None,
-    ef: nn.Module | None = None,
+    ef: EgoForesight | None = None,
 ) -> np.ndarray:
     """Predict the next T frames open loop: encode the C context frames once, roll h_a forward through the T
     actions and decode each step with the context's h_s (``EgoForesight.predict``). T may exceed the training
@@ -191,13 +192,13 @@ def save_video(path: str | os.PathLike, predicted: np.ndarray, true: np.ndarray 
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     suffix = os.path.splitext(os.fspath(path))[1].lower()
     if suffix == ".gif":
-        imageio.mimsave(path, list(frames), duration=1000 / fps, loop=0)
+        imageio.mimsave(os.fspath(path), list(frames), duration=1000 / fps, loop=0)
     elif suffix == ".mp4":
         try:
             import imageio_ffmpeg  # noqa: F401
         except ImportError as error:
             raise ImportError("Writing MP4 needs imageio-ffmpeg: pip install imageio-ffmpeg (or use a .gif)") from error
-        imageio.mimsave(path, list(frames), fps=fps, macro_block_size=1)
+        imageio.mimsave(os.fspath(path), list(frames), fps=fps, macro_block_size=1)
     else:
         raise ValueError(f"Expected a .gif or .mp4 path, got {os.fspath(path)!r}")
     return os.fspath(path)

@@ -109,7 +109,7 @@ class EvalRecorderCallback(BaseCallback):
             self.seed = self.model.seed
 
     def _on_step(self) -> bool:
-        assert self.parent is not None
+        assert self.parent is not None and self.algo is not None and self.task is not None  # set by _init_callback
         # EvalCallback keeps this buffer of final info["is_success"] values until its next evaluation.
         successes = self.parent._is_success_buffer
         row = record_row(

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch as th
-from torch import nn
 
 from sb3_ef.analysis.prediction import (
     ForesightModel,
@@ -24,6 +23,7 @@ from sb3_ef.analysis.prediction import (
     resolve_foresight,
     to_uint8_frames,
 )
+from sb3_ef.ef import EgoForesight
 
 
 @dataclass(frozen=True)
@@ -49,7 +49,7 @@ def _normalise(patches: np.ndarray, patch_size: int) -> np.ndarray:
 
 
 def decoder_saliency(
-    ef: nn.Module,
+    ef: EgoForesight,
     h_scene: th.Tensor,
     h_agent: th.Tensor,
     patch_size: int = 4,
@@ -104,7 +104,7 @@ def compute_saliency(
     actions: np.ndarray | th.Tensor | None = None,
     model: ForesightModel | None = None,
     encoder: Callable[[th.Tensor], th.Tensor] | None = None,
-    ef: nn.Module | None = None,
+    ef: EgoForesight | None = None,
     patch_size: int = 4,
 ) -> Saliency:
     """Saliency of the frame EF predicts after ``actions`` (T, action_dim) from one stacked observation, or of

@@ -60,10 +60,20 @@ class Checkpoint:
     rng_path: Path | None
 
 
-def checkpoint_paths(save_path: str | os.PathLike, name_prefix: str, step: int) -> Checkpoint:
+@dataclass(frozen=True)
+class CheckpointPaths:
+    """Where the files of the checkpoint at ``step`` go, whether or not they exist."""
+
+    step: int
+    model_path: Path
+    replay_buffer_path: Path
+    rng_path: Path
+
+
+def checkpoint_paths(save_path: str | os.PathLike, name_prefix: str, step: int) -> CheckpointPaths:
     """Where the checkpoint at ``step`` lives (whether or not its files exist)."""
     folder = Path(save_path)
-    return Checkpoint(
+    return CheckpointPaths(
         step,
         folder / f"{name_prefix}_{step}_steps.zip",
         folder / f"{name_prefix}_replay_buffer_{step}_steps.pkl",
@@ -195,7 +205,7 @@ def restore_random_states(model: BaseAlgorithm, states: dict[str, Any]) -> None:
             for index, (generator, state) in enumerate(zip(generators, saved_generators, strict=True)):
                 generator.bit_generator.state = state
                 env.set_attr("np_random", generator, indices=[index])
-    model._last_obs = None  # type: ignore[assignment]
+    model._last_obs = None
     th.set_rng_state(states["torch"])
     if states["cuda"] is not None and th.cuda.is_available():
         th.cuda.set_rng_state_all(states["cuda"])
@@ -298,5 +308,5 @@ def load_checkpoint(
         with open(checkpoint.rng_path, "rb") as file:
             restore_random_states(model, pickle.load(file))
     else:
-        model._last_obs = None  # type: ignore[assignment]  # the saved observation belongs to the old envs
+        model._last_obs = None  # the saved observation belongs to the old envs
     return model

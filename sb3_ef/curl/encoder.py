@@ -24,7 +24,8 @@ def _weight_init(module: nn.Module) -> None:
         nn.init.zeros_(module.bias)
     elif isinstance(module, nn.Conv2d):
         nn.init.zeros_(module.weight)
-        nn.init.zeros_(module.bias)
+        if module.bias is not None:
+            nn.init.zeros_(module.bias)
         centre = module.kernel_size[0] // 2
         with th.no_grad():
             nn.init.orthogonal_(module.weight[:, :, centre, centre], nn.init.calculate_gain("relu"))

@@ -42,7 +42,10 @@ class CURLLoss(AuxiliaryLoss):
             raise ValueError(
                 f"CURLLoss needs the host's features extractor (an SB3 BaseFeaturesExtractor), got {encoder!r}"
             )
-        _, height, width = encoder._observation_space.shape
+        shape = encoder._observation_space.shape
+        if shape is None or len(shape) != 3:
+            raise ValueError(f"CURLLoss needs an encoder of (channels, height, width) frames, got shape {shape}")
+        _, height, width = shape
         if isinstance(crop_size, bool) or not isinstance(crop_size, int) or not 1 <= crop_size <= min(height, width):
             raise ValueError(
                 f"CURL's crop_size must be an int in [1, {min(height, width)}] (at most the {height}x{width} "

@@ -16,7 +16,7 @@ from stable_baselines3.common.utils import polyak_update
 from torch.nn import functional as F
 
 from sb3_ef.common.augmentation import random_shift
-from sb3_ef.common.buffers import SequenceReplayBufferSamples
+from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
 from sb3_ef.common.compile import CompileOption, compile_kwargs, maybe_compile
 from sb3_ef.common.env_checks import check_box_actions, check_stacked_frames, policy_observation_space
 from sb3_ef.common.exploration import OwnExplorationMixin
@@ -79,6 +79,7 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     actor: DrQv2Actor
     critic: DrQv2Critic
     critic_target: DrQv2Critic
+    replay_buffer: SequenceReplayBuffer | None  # _use_sequence_buffer makes SB3 build one
 
     def __init__(
         self,

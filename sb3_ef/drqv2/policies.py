@@ -10,7 +10,7 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_mlp, get_actor_critic_arch
-from stable_baselines3.common.type_aliases import Schedule
+from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_stacked_frames
@@ -80,6 +80,8 @@ class DrQv2Encoder(BaseFeaturesExtractor):
 class DrQv2Actor(nn.Module):
     """Deterministic actor: trunk Linear -> LayerNorm -> Tanh, then an MLP with a tanh output (the mean action)."""
 
+    optimizer: th.optim.Optimizer  # set by the policy
+
     def __init__(self, features_dim: int, action_dim: int, trunk_dim: int, net_arch: list[int]):
         super().__init__()
         self.trunk = nn.Sequential(nn.Linear(features_dim, trunk_dim), nn.LayerNorm(trunk_dim), nn.Tanh())
@@ -92,6 +94,8 @@ class DrQv2Actor(nn.Module):
 class DrQv2Critic(nn.Module):
     """Twin Q-function: a trunk on the features (Linear -> LayerNorm -> Tanh), then one MLP per Q head on
     ``[trunk(h), action]``."""
+
+    optimizer: th.optim.Optimizer  # set by the policy (the critic target has none)
 
     def __init__(self, features_dim: int, action_dim: int, trunk_dim: int, net_arch: list[int], n_critics: int = 2):
         super().__init__()
@@ -106,7 +110,7 @@ class DrQv2Critic(nn.Module):
 
 
 def _is_positive_int(value: Any) -> bool:
-    return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value > 0
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and bool(value > 0)
 
 
 def actor_critic_arch(net_arch: list[int] | dict[str, list[int]]) -> tuple[list[int], list[int]]:
@@ -130,7 +134,8 @@ def _orthogonal_init(module: nn.Module) -> None:
         nn.init.zeros_(module.bias)
     elif isinstance(module, nn.Conv2d):
         nn.init.orthogonal_(module.weight, nn.init.calculate_gain("relu"))
-        nn.init.zeros_(module.bias)
+        if module.bias is not None:
+            nn.init.zeros_(module.bias)
 
 
 class DrQv2Policy(CarriesAuxiliary, BasePolicy):
@@ -154,6 +159,9 @@ class DrQv2Policy(CarriesAuxiliary, BasePolicy):
     :param channels_last: keep the conv weights of the encoder (and of an auxiliary module's decoder) in
         channels-last memory format (the same maths, faster convolutions with oneDNN on CPU and tensor cores on GPU).
     """
+
+    observation_space: spaces.Box
+    action_space: spaces.Box
 
     def __init__(
         self,
@@ -202,7 +210,7 @@ class DrQv2Policy(CarriesAuxiliary, BasePolicy):
         self.critic_target.train(False)
         self.critic_target.requires_grad_(False)
         if self.channels_last:
-            self.encoder.to(memory_format=th.channels_last)
+            self.encoder.to(memory_format=th.channels_last)  # type: ignore[call-overload]  # torch's stub lacks it
 
         representation_params = [*self.encoder.parameters(), *self.critic.parameters()]
         self.critic.optimizer = self.optimizer_class(representation_params, lr=lr_schedule(1), **self.optimizer_kwargs)  # type: ignore[call-arg]
@@ -236,9 +244,10 @@ class DrQv2Policy(CarriesAuxiliary, BasePolicy):
     def forward(self, observation: th.Tensor, deterministic: bool = True) -> th.Tensor:
         return self._predict(observation, deterministic=deterministic)
 
-    def _predict(self, observation: th.Tensor, deterministic: bool = True) -> th.Tensor:
+    def _predict(self, observation: PyTorchObs, deterministic: bool = True) -> th.Tensor:
         """The mean action (tanh-squashed). Exploration noise is added by the algorithm during rollouts, so
         ``deterministic`` is ignored, as in TD3."""
+        assert isinstance(observation, th.Tensor)  # a Box observation space
         return self.actor(self.encode(observation))
 
     def set_training_mode(self, mode: bool) -> None:

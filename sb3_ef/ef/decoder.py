@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import cast
 
 import torch as th
 from torch import nn
@@ -80,8 +81,9 @@ class FrameDecoder(nn.Module):
             )
         # The first layer sees a 1x1 input without padding: that transposed convolution is a plain matmul, computed
         # as one (several times faster on CPU than the ConvTranspose2d kernel, same weights and result).
-        first_conv, *first_tail = self.blocks[0]
-        x = (features @ first_conv.weight.flatten(1)).unflatten(1, first_conv.weight.shape[1:])
+        first_conv, *first_tail = cast(nn.Sequential, self.blocks[0])
+        weight = cast(nn.ConvTranspose2d, first_conv).weight
+        x = (features @ weight.flatten(1)).unflatten(1, weight.shape[1:])
         for layer in first_tail:
             x = layer(x)
         for index, block in enumerate(self.blocks[1:], start=1):

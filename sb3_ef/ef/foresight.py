@@ -138,7 +138,7 @@ class EgoForesight(nn.Module):
         self.step_sampling = step_sampling
         self.decode_batch_size = decode_batch_size
         self.rollout_block = RolloutBlock(agent_dim, action_dim, rollout_hidden_dims)
-        self.decoder = FrameDecoder(feature_dim, self.frame_shape, decoder_channels, skip_channels)
+        self.decoder = FrameDecoder(feature_dim, frame_shape, decoder_channels, skip_channels)
 
     @property
     def scene_dim(self) -> int:

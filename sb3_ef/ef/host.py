@@ -257,11 +257,12 @@ class AuxiliaryHostMixin:
         (the EF authors' Meta-World evaluation protocol), from a generator separate from training's."""
         check_observation(observation, self.observation_space)
         if self.babbling_in_eval and self.num_timesteps < self.babbling_steps:
+            assert isinstance(observation, np.ndarray)  # the hosts observe image Boxes
             # Transposed first, as SB3's predict does (an env of channels-last frames gives channels-last observations).
             vectorized = is_vectorized_observation(
                 maybe_transpose(observation, self.observation_space), self.observation_space
             )
-            n_envs = len(observation) if vectorized else 1  # type: ignore[arg-type]
+            n_envs = len(observation) if vectorized else 1
             actions = self.policy.unscale_action(self._babble(n_envs, self._eval_babbling_rng))
             return (actions if vectorized else actions[0]), state
         return super().predict(observation, state, episode_start, deterministic)  # type: ignore[misc]
@@ -287,7 +288,7 @@ class AuxiliaryHostMixin:
         )
 
     @classmethod
-    def load(  # type: ignore[override]
+    def load(
         cls: type[SelfHost],
         path: str | pathlib.Path | io.BufferedIOBase,
         env: GymEnv | None = None,

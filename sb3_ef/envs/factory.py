@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
@@ -12,6 +12,10 @@ import numpy as np
 from sb3_ef.common.validation import did_you_mean
 from sb3_ef.envs.backend import ensure_gl_backend
 from sb3_ef.envs.tasks import parse_env_name
+
+if TYPE_CHECKING:  # imported when an env is made (each needs its simulator)
+    from sb3_ef.envs.dmc import DMCPixelEnv
+    from sb3_ef.envs.meta_world import MetaWorldPixelEnv
 
 #: Smallest and largest frame size accepted (the encoders need at least ~32 pixels).
 MIN_SIZE, MAX_SIZE = 32, 512
@@ -71,6 +75,7 @@ def make_env(
             f"{', '.join(accepted[1:])}"
         )
     ensure_gl_backend()
+    env_class: type[DMCPixelEnv | MetaWorldPixelEnv]
     if task.suite == "dmc":
         from sb3_ef.envs.dmc import DMCPixelEnv as env_class
     else:

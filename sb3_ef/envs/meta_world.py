@@ -15,6 +15,7 @@ from typing import Any
 
 import mujoco
 import numpy as np
+from gymnasium import spaces
 from metaworld.env_dict import ALL_V3_ENVIRONMENTS
 
 from sb3_ef.envs.pixel_env import PixelEnv
@@ -82,11 +83,13 @@ class MetaWorldPixelEnv(PixelEnv):
         if seed is not None:
             self._env.seed(seed)
         try:
+            action_space = self._env.action_space
+            assert isinstance(action_space, spaces.Box)  # Meta-World's is Box(4,)
             model = self._env.model
             camera_index = camera_id(model, "corner" if camera is None else camera)
             self._setup(
                 model,
-                action_dim=self._env.action_space.shape[0],
+                action_dim=action_space.shape[0],
                 sim_timestep=self._env.dt,
                 size=size,
                 frame_stack=frame_stack,

@@ -20,7 +20,7 @@ from multiprocessing import get_context
 from typing import Any
 
 from sb3_ef.grid.grid import RunSpec
-from sb3_ef.grid.run import RunPaths, RunResult, execute_run, store_result
+from sb3_ef.grid.run import RunOptions, RunPaths, RunResult, execute_run, store_result
 
 Event = tuple[str, RunSpec, Any]
 
@@ -66,7 +66,7 @@ class LocalBackend:
         if workers < 1 or threads < 1 or retries < 0:
             raise ValueError(f"workers and threads must be >= 1 and retries >= 0, got {workers}, {threads}, {retries}")
         self.out, self.workers, self.retries = out, workers, retries
-        self.run_kwargs = {"threads": threads, "device": device, "keep_checkpoints": keep_checkpoints}
+        self.run_kwargs: RunOptions = {"threads": threads, "device": device, "keep_checkpoints": keep_checkpoints}
 
     def _pool(self) -> ProcessPoolExecutor:
         return ProcessPoolExecutor(
@@ -139,7 +139,7 @@ class RayBackend:
         # Absolute, so that workers whose working directory differs find the same folder (a shared filesystem).
         self.out = os.path.abspath(out)
         self.address, self.threads, self.gpus, self.retries = address, threads, gpus, retries
-        self.run_kwargs = {"threads": threads, "device": device, "keep_checkpoints": keep_checkpoints}
+        self.run_kwargs: RunOptions = {"threads": threads, "device": device, "keep_checkpoints": keep_checkpoints}
 
     def capacity(self, resources: dict[str, float]) -> int:
         """How many runs the cluster holds at once with each run's CPU and GPU request (at least one)."""
@@ -164,7 +164,8 @@ class RayBackend:
             while queue or running:
                 while queue and len(running) < capacity:
                     spec = queue.popleft()
-                    running[task.remote(spec, self.out, **self.run_kwargs)] = spec
+                    # Ray's stub of remote() takes positional arguments only; Ray passes keywords on.
+                    running[task.remote(spec, self.out, **self.run_kwargs)] = spec  # type: ignore[misc]
                     yield "start", spec, None
                 [ref], _ = ray.wait(list(running), num_returns=1)
                 spec = running.pop(ref)

@@ -20,7 +20,7 @@ import shutil
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import gymnasium as gym
 
@@ -136,6 +136,14 @@ def build_eval_env(spec: RunSpec, seed: int) -> DummyVecEnv:
     return eval_env
 
 
+class RunOptions(TypedDict):
+    """:func:`execute_run`'s options that a backend passes to every run."""
+
+    threads: int
+    device: str
+    keep_checkpoints: int | None
+
+
 def execute_run(
     spec: RunSpec,
     out: str | os.PathLike,
@@ -172,7 +180,7 @@ def execute_run(
     if checkpoint is None:
         paths.records.unlink(missing_ok=True)
         model = algo_class(env=env, seed=spec.seed, device=device, **constructor_kwargs(dict(spec.hyperparams)))
-        resumed_from = None
+        resumed_from: int | None = None
     else:
         model = load_checkpoint(algo_class, checkpoint, env, device=device)
         resumed_from = model.num_timesteps

@@ -5,10 +5,18 @@ from __future__ import annotations
 import os
 import statistics
 from collections.abc import Callable, Sequence
+from typing import TypedDict
 
 from sb3_ef.grid.backends import LocalBackend, RayBackend
 from sb3_ef.grid.grid import BACKENDS, RunSpec, check_unique
 from sb3_ef.grid.run import RunPaths, RunResult, read_result
+
+
+class _BackendOptions(TypedDict):
+    threads: int
+    device: str
+    retries: int
+    keep_checkpoints: int | None
 
 
 def _score(result: RunResult) -> str:
@@ -85,10 +93,10 @@ def plan_table(runs: Sequence[RunSpec], out: str | os.PathLike) -> str:
         counts = ", ".join(
             f"{statuses.count(name)} {name}" for name in ("finished", "partial", "new") if name in statuses
         )
-        rates = [spec.steps_per_second for spec in group]
+        rates = [spec.steps_per_second or 0.0 for spec in group]
         hours = "-"
         if all(rates):
-            group_hours = sum(spec.n_timesteps / spec.steps_per_second for spec in group) / 3600  # type: ignore[operator]
+            group_hours = sum(spec.n_timesteps / rate for spec, rate in zip(group, rates, strict=True)) / 3600
             total_hours += group_hours
             hours = f"{group_hours:.1f}"
         rows.append([label, task, str(len(group)), counts, str(group[0].n_timesteps), hours])
@@ -143,7 +151,13 @@ def run_benchmark(
             results[spec.run_id] = stored
             log(progress_line("skip", spec, stored, position[spec.run_id], len(runs)))
     if pending:
-        options = {"threads": threads, "device": device, "retries": retries, "keep_checkpoints": keep_checkpoints}
+        options: _BackendOptions = {
+            "threads": threads,
+            "device": device,
+            "retries": retries,
+            "keep_checkpoints": keep_checkpoints,
+        }
+        executor: LocalBackend | RayBackend
         if backend == "local":
             executor = LocalBackend(out, workers=workers, **options)
         else:

@@ -4,7 +4,7 @@ with the simulator's agent masks."""
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -21,7 +21,7 @@ def record_episode(env: Any, act: Any, seed: int | None = None, source: str = ""
     """Play one episode; ``act(observation) -> action``. Frames are the newest frame of each stacked observation;
     ``masks=False`` skips the agent masks (one segmentation render less per step)."""
     observation, _ = env.reset(seed=seed)
-    agent_mask = env.unwrapped.agent_mask if masks else lambda: None
+    agent_mask: Callable[[], Any] = env.unwrapped.agent_mask if masks else lambda: None
     frames, agent_masks, actions = [observation[-FRAME_CHANNELS:]], [agent_mask()], []
     done = False
     while not done:

@@ -5,6 +5,7 @@ U-Net skip. Each returns ``(h, skip)`` for uint8 stacked frames; ``skip`` is ``N
 
 from __future__ import annotations
 
+import numpy as np
 import torch as th
 from gymnasium import spaces
 from torch import nn
@@ -85,7 +86,7 @@ def build_encoder(
             raise ValueError(f"The dcgan-unet encoder takes 64x64 frames, got {height}x{width}")
         return DCGANUNetEncoder(in_channels, **kwargs)
     if kind == "drqv2":
-        space = spaces.Box(0, 255, (in_channels, height, width), dtype="uint8")
+        space = spaces.Box(0, 255, (in_channels, height, width), dtype=np.uint8)
         net = DrQv2Encoder(space, features_dim=kwargs.pop("features_dim", 2048), **kwargs)
         return HostEncoder(net, net.features_dim, encode_scaled=False)
     if kind == "tdmpc2":

@@ -40,7 +40,7 @@ class Episode:
 
     @property
     def frame_shape(self) -> tuple[int, int, int]:
-        return tuple(self.frames.shape[1:])  # type: ignore[return-value]
+        return tuple(self.frames.shape[1:])
 
     @property
     def action_dim(self) -> int:
@@ -93,7 +93,7 @@ def write_episode(path: str | os.PathLike, episode: Episode) -> str:
         arrays["masks"] = episode.masks
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     if path.endswith(NPZ_SUFFIXES):
-        np.savez_compressed(path, **arrays)
+        np.savez_compressed(path, **arrays)  # type: ignore[arg-type]  # numpy's stub: a key might be allow_pickle
     elif path.endswith(HDF5_SUFFIXES):
         import h5py
 

@@ -266,13 +266,13 @@ class LeRobotDataset(EpisodeDataset):
 
         images = []
         for step, value in enumerate(values):
-            data = value.get("bytes") if isinstance(value, dict) else value
+            data: Any = value.get("bytes") if isinstance(value, dict) else value
             try:
                 image = Image.open(io.BytesIO(data)).convert("RGB")
             except Exception as error:
                 raise EpisodeError(f"{source}: frame {step} of {self.camera!r} is not a PNG / JPEG image") from error
             if self.image_size:
-                image = image.resize((self.image_size, self.image_size), Image.BILINEAR)
+                image = image.resize((self.image_size, self.image_size), Image.Resampling.BILINEAR)
             images.append(np.asarray(image).transpose(2, 0, 1))
         return np.stack(images)
 

@@ -42,7 +42,7 @@ class OfflineEF(nn.Module):
         self.ef = EgoForesight(
             self.encoder.features_dim,
             config.action_dim,
-            frame_shape=tuple(config.frame_shape),
+            frame_shape=self.frame_shape,
             agent_dim=config.agent_dim,
             horizon=config.horizon,
             skip_channels=self.encoder.skip_channels,

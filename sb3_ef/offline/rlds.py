@@ -108,7 +108,8 @@ class RLDSDataset(EpisodeDataset):
         else:
             self.paths, name = [os.fspath(p) for p in paths], None
         if not self.paths:
-            raise FileNotFoundError(f"No TFRecord shards (<name>-{split}.tfrecord-*) in {os.fspath(paths)!r}")
+            where = os.fspath(paths) if isinstance(paths, (str, os.PathLike)) else list(paths)
+            raise FileNotFoundError(f"No TFRecord shards (<name>-{split}.tfrecord-*) in {where!r}")
         if layout is not None and layout not in OXE_LAYOUTS:
             raise ValueError(f"Unknown RLDS layout {layout!r}; known: {sorted(OXE_LAYOUTS)}")
         layout = layout or (name if name in OXE_LAYOUTS else None)
@@ -186,7 +187,7 @@ class RLDSDataset(EpisodeDataset):
         except Exception as error:
             raise EpisodeError(f"{source}: the image is not a JPEG / PNG ({len(data)} bytes)") from error
         if self.image_size:
-            image = image.resize((self.image_size, self.image_size), Image.BILINEAR)
+            image = image.resize((self.image_size, self.image_size), Image.Resampling.BILINEAR)
         return np.asarray(image).transpose(2, 0, 1)
 
 

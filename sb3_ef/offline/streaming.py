@@ -11,7 +11,7 @@ those of ``WindowSampler``. :class:`WindowStream` runs samplers in ``DataLoader`
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Generator, Iterator, Sequence
 
 import numpy as np
 import torch as th
@@ -179,7 +179,7 @@ def window_batches(
     cache_mb: float = 1024,
     workers: int = 0,
     seed: int = 0,
-) -> Iterator[Windows]:
+) -> Generator[Windows, None, None]:
     """Endless window batches from ``dataset``: in this process, or decoded in ``workers`` worker processes."""
     if workers == 0:
         sampler = StreamingWindowSampler(dataset, indices, context, horizon, cache_mb, seed=seed, lengths=lengths)

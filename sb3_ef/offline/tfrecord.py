@@ -81,7 +81,7 @@ def record_offsets(path: str | os.PathLike) -> list[int]:
 
     :raises ValueError: the file ends inside a record (truncated), naming the record and the bytes expected.
     """
-    offsets = []
+    offsets: list[int] = []
     size = os.path.getsize(path)
     with open(path, "rb") as file:
         position = 0
@@ -156,6 +156,7 @@ def _fields(buffer: bytes) -> Iterator[tuple[int, int, bytes | int]]:
     while position < len(buffer):
         tag, position = _varint(buffer, position)
         number, wire = tag >> 3, tag & 7
+        value: bytes | int
         if wire == _VARINT:
             value, position = _varint(buffer, position)
         elif wire == _LENGTH:
@@ -175,21 +176,28 @@ def _fields(buffer: bytes) -> Iterator[tuple[int, int, bytes | int]]:
         yield number, wire, value
 
 
+def _length_delimited(value: bytes | int) -> bytes:
+    """The bytes of a field that must be length-delimited (a message, string or bytes field)."""
+    if not isinstance(value, bytes):
+        raise TypeError(f"expected a length-delimited field, got the number {value}")
+    return value
+
+
 def _decode_feature(buffer: bytes) -> list[bytes] | np.ndarray:
     """A ``Feature``: field 1 BytesList, 2 FloatList, 3 Int64List; each list's values are its field 1."""
-    for kind, _, payload in _fields(buffer):
-        assert isinstance(payload, bytes)
+    for kind, _, field in _fields(buffer):
+        payload = _length_delimited(field)
         if kind == 1:
-            return [value for _, _, value in _fields(payload)]  # type: ignore[misc]
+            return [_length_delimited(value) for _, _, value in _fields(payload)]
         if kind == 2:
             floats = bytearray()
-            for _, wire, value in _fields(payload):
-                floats += value if wire == _LENGTH else struct.pack("<I", value)  # packed or one fixed32
+            for _, _, value in _fields(payload):
+                floats += value if isinstance(value, bytes) else struct.pack("<I", value)  # packed or one fixed32
             return np.frombuffer(bytes(floats), dtype="<f4").astype(np.float32)
         if kind == 3:
             ints: list[int] = []
-            for _, wire, value in _fields(payload):
-                if wire == _LENGTH:
+            for _, _, value in _fields(payload):
+                if isinstance(value, bytes):  # packed
                     position = 0
                     while position < len(value):
                         number, position = _varint(value, position)
@@ -216,16 +224,16 @@ def _parse_example(data: bytes) -> Features:
     for number, _, features_message in _fields(data):
         if number != 1:
             continue
-        for entry_number, _, entry in _fields(features_message):  # type: ignore[arg-type]
+        for entry_number, _, entry in _fields(_length_delimited(features_message)):
             if entry_number != 1:
                 continue
             key, value = "", b""
-            for field, _, payload in _fields(entry):  # type: ignore[arg-type]
+            for field, _, payload in _fields(_length_delimited(entry)):
                 if field == 1:
-                    key = payload.decode()  # type: ignore[union-attr]
+                    key = _length_delimited(payload).decode()
                 elif field == 2:
-                    value = payload
-            features[key] = _decode_feature(value)  # type: ignore[arg-type]
+                    value = _length_delimited(payload)
+            features[key] = _decode_feature(value)
     return features
 
 

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import os
-from typing import Any
+from typing import Any, cast
 
 import torch as th
 from torch import nn
 
+from sb3_ef.offline.encoders import HostEncoder
 from sb3_ef.offline.model import OfflineEF, load_pretrained
 
 #: Which pretrained encoder each host uses, and where the host keeps it.
@@ -68,11 +69,12 @@ def load_ef(model: Any, pretrained: str | os.PathLike | OfflineEF) -> Any:
     if tuple(config.frame_shape) != tuple(model.frame_shape):
         problems.append(f"frame shape: pretrained {tuple(config.frame_shape)}, RL model {tuple(model.frame_shape)}")
     if not problems:
-        problems = [f"encoder {p}" for p in _mismatches(source.encoder.net, encoder)]
+        pretrained_net = cast(HostEncoder, source.encoder).net  # built for the host's encoder kind
+        problems = [f"encoder {p}" for p in _mismatches(pretrained_net, encoder)]
         problems += [f"ef {p}" for p in _mismatches(source.ef, model.ef)]
     if problems:
         raise ValueError(f"Cannot warm-start {type(model).__name__} from {name}:\n  " + "\n  ".join(problems))
     with th.no_grad():
-        encoder.load_state_dict(source.encoder.net.state_dict())
+        encoder.load_state_dict(pretrained_net.state_dict())
         model.ef.load_state_dict(source.ef.state_dict())
     return model

@@ -25,7 +25,9 @@ class ShiftedSequenceReplayBuffer(SequenceReplayBuffer):
         super().__init__(*args, **kwargs)
         self.shift_pad = shift_pad
 
-    def sample(self, batch_size: int, env: VecNormalize | None = None) -> SequenceReplayBufferSamples:
+    def sample(  # type: ignore[override]  # SB3's ReplayBufferSamples, a NamedTuple, cannot be extended
+        self, batch_size: int, env: VecNormalize | None = None
+    ) -> SequenceReplayBufferSamples:
         batch = super().sample(batch_size, env)
         horizon = batch.future_frames.shape[1]
         observations, future_frames = random_shift(

@@ -37,7 +37,8 @@ def _weight_init(module: nn.Module) -> None:
         nn.init.zeros_(module.bias)
     elif isinstance(module, nn.ConvTranspose2d):
         nn.init.orthogonal_(module.weight, nn.init.calculate_gain("relu"))
-        nn.init.zeros_(module.bias)
+        if module.bias is not None:
+            nn.init.zeros_(module.bias)
 
 
 class SEARDecoder(nn.Module):

@@ -49,7 +49,7 @@ def resolve_coefficients(coefficients: str | Sequence[float]) -> tuple[float, fl
                 "or a pair (reconstruction_coef, mask_coef)"
             )
         return SEAR_COEFFICIENTS[coefficients]
-    pair = tuple(coefficients) if isinstance(coefficients, Sequence) else ()
+    pair: tuple[Any, ...] = tuple(coefficients) if isinstance(coefficients, Sequence) else ()
     if len(pair) != 2 or not all(isinstance(c, (int, float)) and not isinstance(c, bool) and c >= 0 for c in pair):
         raise ValueError(
             f"SEAR coefficients must be a preset name {sorted(SEAR_COEFFICIENTS)} or a pair of non-negative "
@@ -86,7 +86,7 @@ class SEARLoss(AuxiliaryLoss):
             )
         self.reconstruction_coef, self.mask_coef = resolve_coefficients(coefficients)
         self.features_dim = features_dim
-        self.observation_shape: tuple[int, int, int] = shape  # type: ignore[assignment]
+        self.observation_shape: tuple[int, int, int] = shape
         self.frame_stack = shape[0] // FRAME_CHANNELS
         half = features_dim // 2
         self.frame_decoder = SEARDecoder(half, shape[0], shape[1], shape[2])

@@ -89,6 +89,8 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
         channels-last memory format (the same maths, faster convolutions with oneDNN on CPU and tensor cores on GPU).
     """
 
+    q_scale: th.Tensor  # a registered buffer
+
     def __init__(
         self,
         observation_space: spaces.Box,
@@ -125,7 +127,7 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
         )
         channels, height, width = check_pixel_space(observation_space)
         self.frame_shape = (FRAME_CHANNELS, height, width)
-        self._constructor_kwargs = {
+        self._constructor_kwargs: dict[str, Any] = {
             "num_channels": num_channels,
             "mlp_dim": mlp_dim,
             "num_q": num_q,
@@ -162,7 +164,7 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
 
         learning_rate = lr_schedule(1)
         model = self.world_model
-        groups = [
+        groups: list[dict[str, Any]] = [
             {"name": "encoder", "params": model.encoder.parameters(), "lr_scale": encoder_lr_scale},
             {
                 "name": "heads",
@@ -171,8 +173,9 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
         ]
         for group in groups:
             group["lr"] = learning_rate * group.get("lr_scale", 1.0)
-        self.optimizer = self.optimizer_class(groups, lr=learning_rate, **self.optimizer_kwargs)
-        self.pi_optimizer = self.optimizer_class(
+        # torch's stub of Optimizer.__init__ has no ``lr``; every optimiser class takes it.
+        self.optimizer = self.optimizer_class(groups, lr=learning_rate, **self.optimizer_kwargs)  # type: ignore[call-arg]
+        self.pi_optimizer = self.optimizer_class(  # type: ignore[call-arg]
             model.pi_head.parameters(), lr=learning_rate, **{"eps": 1e-5, **self.optimizer_kwargs}
         )
 

@@ -14,7 +14,7 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 
 from sb3_ef.common.augmentation import random_shift
-from sb3_ef.common.buffers import SequenceReplayBufferSamples
+from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
 from sb3_ef.common.compile import CompileOption, compile_kwargs, maybe_compile
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_box_actions, episode_steps, policy_observation_space
 from sb3_ef.common.exploration import OwnExplorationMixin
@@ -97,6 +97,7 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"CnnPolicy": TDMPC2Policy}
     policy: TDMPC2Policy
+    replay_buffer: SequenceReplayBuffer | None  # _use_sequence_buffer makes SB3 build one
 
     def __init__(
         self,
@@ -139,7 +140,7 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
             env,
             learning_rate,
             buffer_size,
-            learning_starts,
+            learning_starts,  # type: ignore[arg-type]  # None is resolved in _setup_model
             batch_size,
             tau,
             gamma,  # type: ignore[arg-type]  # None is resolved in _setup_model

@@ -188,7 +188,9 @@ class ResumingExperimentManager(ExperimentManager):
                 f"The run is already at step {model.num_timesteps}, which reaches its n_timesteps {total}: "
                 "pass a larger -n to train further"
             )
-        n_envs = model.get_env().num_envs
+        env = model.get_env()
+        assert env is not None  # the manager built the model with its training envs
+        n_envs = env.num_envs
         for callback in self.callbacks:
             if isinstance(callback, EvalCallback):
                 callback.n_calls = model.num_timesteps // n_envs  # evaluate at the uninterrupted run's steps

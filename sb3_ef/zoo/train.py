@@ -231,11 +231,12 @@ def main(argv: Sequence[str] | None = None) -> None:
         argv=argv,
     )
     saved = zoo_train.ExperimentManager
-    zoo_train.ExperimentManager = manager  # type: ignore[misc]  # rl-zoo3's train builds it by this name
+    # rl-zoo3's train builds its manager by this module-level name: swapped in for the run (mypy reads it as a class).
+    zoo_train.ExperimentManager = manager  # type: ignore[misc, assignment]
     try:
         run_with_argv(zoo_train.train, zoo_argv, "sb3-ef optimize" if "-optimize" in argv else "sb3-ef train")
     finally:
-        zoo_train.ExperimentManager = saved
+        zoo_train.ExperimentManager = saved  # type: ignore[misc]
 
 
 if __name__ == "__main__":

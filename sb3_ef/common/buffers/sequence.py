@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 import os
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch as th
@@ -140,7 +140,8 @@ class SequenceReplayBuffer(ReplayBuffer):
         self.horizon = horizon
         self.frame_channels = frame_channels
         self.frame_stack = frame_stack
-        self.frame_shape = (frame_channels, *observation_space.shape[1:])
+        _, height, width = cast(spaces.Box, observation_space).shape  # a Box: checked above
+        self.frame_shape = (frame_channels, height, width)
         self.memmap_dir = None if memmap_dir is None else os.fspath(memmap_dir)
         self.storage_request = request
         self.store_masks = bool(store_masks)
@@ -270,7 +271,9 @@ class SequenceReplayBuffer(ReplayBuffer):
         self.full = self.full or self.pos == 0
 
     # ----------------------------------------------------------------- sampling
-    def sample(self, batch_size: int, env: VecNormalize | None = None) -> SequenceReplayBufferSamples:
+    def sample(  # type: ignore[override]  # SB3's ReplayBufferSamples, a NamedTuple, cannot be extended
+        self, batch_size: int, env: VecNormalize | None = None
+    ) -> SequenceReplayBufferSamples:
         """Draw ``batch_size`` transitions uniformly over all stored ones (with replacement).
 
         The frame tensors of a batch are reused: a batch stays valid until the second call to ``sample()`` after
