@@ -134,7 +134,7 @@ class UsageError(ValueError):
 
 
 class _Parser(argparse.ArgumentParser):
-    def error(self, message: str):  # type: ignore[override]
+    def error(self, message: str):
         raise UsageError(message)
 
 
@@ -207,7 +207,7 @@ def rl_zoo3_parser(module: types.ModuleType, function: str) -> argparse.Argument
     it would parse: what ``--help`` shows and what the tables above are tested against."""
 
     class Capture(argparse.ArgumentParser):
-        def parse_args(self, *args: Any, **kwargs: Any) -> Any:  # type: ignore[override]
+        def parse_args(self, *args: Any, **kwargs: Any) -> Any:
             raise _ParserBuilt(self)
 
     saved = module.argparse
