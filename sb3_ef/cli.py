@@ -44,9 +44,7 @@ COMMANDS: dict[str, Command] = {
         prefix=("-optimize",),
     ),
     "analyze": Command("sb3_ef.analysis.cli:main", "predictions, saliency, ENS and rliable plots (sb3_ef.analysis)"),
-    "benchmark": Command(
-        "sb3_ef.grid.cli:main", "train a grid of runs locally or on a Ray cluster (sb3_ef.grid)"
-    ),
+    "benchmark": Command("sb3_ef.grid.cli:main", "train a grid of runs locally or on a Ray cluster (sb3_ef.grid)"),
     "collect": Command(
         "sb3_ef.offline.cli:collect_main",
         "record babbling or policy episodes (frames, actions, agent masks) (sb3_ef.offline)",

@@ -67,7 +67,7 @@ SCENARIOS: dict[str, Scenario] = {
     "hammer-held": Scenario("hammer", ("hammer", ("hammerbody",)), "SawyerHammerV3Policy", _hammer_lifted),
     "hammer-table": Scenario("hammer", ("hammer", ("hammerbody",))),
     "door-handle": Scenario("door-open", ("door", ("door_link",)), "SawyerDoorOpenV3Policy", _door_opening),
-    "hammer-distractor": Scenario("hammer", ("hammer", ("hammerbody",)), distractor_step=0.02),
+    "hammer-distractor": Scenario("hammer", ("hammer", ("hammerbody",)), distractor_step=0.01),
 }
 
 #: Agent steps the scripted prefix may take before the episode's seed is given up for the next one.
