@@ -327,6 +327,15 @@ def body_schema(args: argparse.Namespace) -> None:
     print(summary_table(runs))
 
 
+def combined_table(folders: list[str]) -> str:
+    """The summary table over the runs of several body-schema output folders (e.g. one per seed)."""
+    runs = []
+    for folder in folders:
+        with open(os.path.join(folder, "results.json")) as file:
+            runs += json.load(file)["runs"]
+    return summary_table(sorted(runs, key=lambda run: (list(EXPERIMENTS).index(run["experiment"]), run["seed"])))
+
+
 def add_body_schema_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--experiments", nargs="+", choices=list(EXPERIMENTS), default=list(EXPERIMENTS))
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
@@ -382,11 +391,15 @@ def main() -> None:
     commands = parser.add_subparsers(dest="command", required=True)
     add_babbling_arguments(commands.add_parser("babbling", help="agent masks on babbling data"))
     add_body_schema_arguments(commands.add_parser("body-schema", help="held tool, door, distractor"))
+    table = commands.add_parser("table", help="one body-schema table from the results.json of several --out folders")
+    table.add_argument("folders", nargs="+")
     args = parser.parse_args()
     if args.command == "babbling":
         babbling(args)
-    else:
+    elif args.command == "body-schema":
         body_schema(args)
+    else:
+        print(combined_table(args.folders), end="")
 
 
 if __name__ == "__main__":

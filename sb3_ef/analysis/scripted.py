@@ -1,7 +1,8 @@
 """Scripted Meta-World episodes for the body-schema measurements: a held tool, a door under the gripper, a
 distractor that moves on its own.
 
-Every episode has two phases. An optional *prefix* drives the robot with Meta-World's scripted policy for the task
+Every episode starts with a few agent steps of zero action (:data:`SETTLE_STEPS`) and then has two phases. An
+optional *prefix* drives the robot with Meta-World's scripted policy for the task
 (``metaworld.policies``) until a condition holds (the hammer is lifted in the gripper, the door has started to
 open); it is not recorded. Then the robot *babbles* for ``steps`` agent steps and that phase is recorded: each of
 the three position components is -1 or +1 at random (the paper's sign babbling) and the gripper component is held
@@ -70,6 +71,9 @@ SCENARIOS: dict[str, Scenario] = {
     "hammer-distractor": Scenario("hammer", ("hammer", ("hammerbody",)), distractor_step=0.01),
 }
 
+#: Agent steps with a zero action after every reset: Meta-World places objects slightly inside the table and they
+#: pop up during the first steps.
+SETTLE_STEPS = 5
 #: Agent steps the scripted prefix may take before the episode's seed is given up for the next one.
 PREFIX_LIMIT = 60
 #: Half-width (metres) of the box around its start position in which a distractor walks.
@@ -144,6 +148,8 @@ class ScriptedCollector:
         """Reset and run the scripted policy until its condition holds: the newest frame, or None if the
         condition did not hold within :data:`PREFIX_LIMIT` steps."""
         observation, _ = self.env.reset(seed=reset_seed)
+        for _ in range(SETTLE_STEPS):
+            observation, *_ = self.env.step(np.zeros(self.env.action_space.shape, np.float32))
         if self.policy is None:
             return observation
         start = self._state()

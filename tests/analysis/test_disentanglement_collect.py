@@ -71,9 +71,9 @@ def test_the_distractor_walks_whatever_the_actions(episodes):
     episode = episodes["hammer-distractor"][0]
     steps = np.abs(np.diff(episode.object[:, :2], axis=0))
     step = SCENARIOS["hammer-distractor"].distractor_step
-    # Every agent step moves it by one random step on each table axis (clipped to its box, settled by physics).
-    assert (steps.max(axis=1) > step / 2).mean() > 0.8
-    assert not episode.attached[1:].any()
+    # Every agent step moves it by one random step on each table axis (unless clipped to its box).
+    assert (np.abs(steps - step) < step / 10).mean() > 0.8
+    assert np.linalg.norm(np.diff(episode.hand, axis=0), axis=1).min() > 0.002  # while the hand babbles
 
 
 def test_unknown_scenario_is_refused():
