@@ -54,7 +54,8 @@ from sb3_ef.drqv2.policies import DrQv2Encoder
 from sb3_ef.ef import EgoForesight
 from sb3_ef.envs import make_env
 from sb3_ef.offline.episodes import make_episode
-from sb3_ef.offline.pretrain import pretrain
+from sb3_ef.offline.model import load_pretrained
+from sb3_ef.offline.pretrain import MODEL, pretrain
 
 
 @dataclass
@@ -198,49 +199,59 @@ EXPERIMENTS: dict[str, dict[str, str | None]] = {
 
 
 def collect_scenario(
-    scenario: str, seed: int, train: int, held_out: int, steps: int, size: int
+    scenario: str, seed: int, train: int, held_out: int, steps: int, size: int, with_train: bool = True
 ) -> tuple[list[ScriptedEpisode], list[ScriptedEpisode]]:
-    """``train`` episodes without masks and ``held_out`` episodes with masks (indices after the training ones)."""
+    """``train`` episodes without masks (none when not ``with_train``) and ``held_out`` episodes with masks, whose
+    indices follow the training ones."""
     with ScriptedCollector(scenario, size=size) as collector:
-        train_episodes = [collector.episode(seed, index, steps, with_masks=False) for index in range(train)]
+        indices = range(train) if with_train else range(0)
+        train_episodes = [collector.episode(seed, index, steps, with_masks=False) for index in indices]
         held_out_episodes = [collector.episode(seed, index, steps) for index in range(train, train + held_out)]
     return train_episodes, held_out_episodes
 
 
 def run_experiment(experiment: str, seed: int, args: argparse.Namespace) -> dict:
-    """Collect, train one offline EF, score every condition of ``experiment``, write its figures."""
+    """Collect, train one offline EF, score every condition of ``experiment``, write its figures. A model already
+    trained in the run folder (``model.pt``) is scored again without collecting training episodes."""
     conditions = EXPERIMENTS[experiment]
     train_per_condition = max(1, args.train_episodes // len(conditions))
+    run_dir = os.path.join(args.out, "runs", f"{experiment}_s{seed}")
+    trained = os.path.isfile(os.path.join(run_dir, MODEL))
     start = time.perf_counter()
     data = {
-        scenario: collect_scenario(scenario, seed, train_per_condition, args.eval_episodes, args.steps, args.size)
+        scenario: collect_scenario(
+            scenario, seed, train_per_condition, args.eval_episodes, args.steps, args.size, with_train=not trained
+        )
         for scenario in conditions
     }
     collect_seconds = time.perf_counter() - start
-    episodes = [make_episode(e.frames, e.actions, source=f"{e.scenario}/{e.reset_seed}") for train, _ in data.values()
-                for e in train]  # fmt: skip
-    run_dir = os.path.join(args.out, "runs", f"{experiment}_s{seed}")
     start = time.perf_counter()
-    model, _ = pretrain(
-        episodes,
-        run_dir,
-        encoder=args.encoder,
-        context=args.context,
-        horizon=args.horizon,
-        agent_dim=args.agent_dim,
-        steps=args.updates,
-        batch_size=args.batch_size,
-        learning_rate=args.lr,
-        holdout=0,
-        checkpoint_every=max(1, args.updates // 4),
-        encoder_kwargs={"features_dim": args.features_dim},
-        ef_kwargs={"decoder_channels": args.decoder_channels, "rollout_hidden_dims": (256, 256)},
-        seed=seed,
-        progress_bar=False,
-        tensorboard=False,
-    )
+    if trained:
+        model, _ = load_pretrained(os.path.join(run_dir, MODEL))
+    else:
+        episodes = [make_episode(e.frames, e.actions, source=f"{e.scenario}/{e.reset_seed}")
+                    for train, _ in data.values() for e in train]  # fmt: skip
+        model, _ = pretrain(
+            episodes,
+            run_dir,
+            encoder=args.encoder,
+            context=args.context,
+            horizon=args.horizon,
+            agent_dim=args.agent_dim,
+            steps=args.updates,
+            batch_size=args.batch_size,
+            learning_rate=args.lr,
+            holdout=0,
+            checkpoint_every=max(1, args.updates // 4),
+            encoder_kwargs={"features_dim": args.features_dim},
+            ef_kwargs={"decoder_channels": args.decoder_channels, "rollout_hidden_dims": (256, 256)},
+            seed=seed,
+            progress_bar=False,
+            tensorboard=False,
+        )
     train_seconds = time.perf_counter() - start
     results = {}
+    start = time.perf_counter()
     for scenario, rule in conditions.items():
         windows = cut_region_windows(data[scenario][1], args.context, args.horizon, args.stride, rule)
         scores = evaluate_regions(model, windows, saliency_windows=args.saliency_windows, seed=seed)
@@ -249,8 +260,10 @@ def run_experiment(experiment: str, seed: int, args: argparse.Namespace) -> dict
         figure = np.kron(window_figure(model, windows, 0), np.ones((2, 2, 1), np.uint8))
         save_image(os.path.join(args.out, "figures", f"{scenario}_s{seed}.png"), figure)
         print(experiment, seed, scenario, _headline(scores), flush=True)
-    return {"experiment": experiment, "seed": seed, "collect_seconds": collect_seconds,
-            "train_seconds": train_seconds, "conditions": results}  # fmt: skip
+    timing = {"collect_seconds": collect_seconds, "evaluate_seconds": time.perf_counter() - start}
+    if not trained:
+        timing["train_seconds"] = train_seconds
+    return {"experiment": experiment, "seed": seed, **timing, "conditions": results}
 
 
 def _headline(scores: dict) -> str:
@@ -274,6 +287,8 @@ TABLE_COLUMNS = (
     ("object area", "object", "saliency_fraction"),
     ("object enrichment", "object", "saliency_enrichment"),
     ("robot enrichment", "agent", "saliency_enrichment"),
+    ("near-robot enrichment", "near_agent", "saliency_enrichment"),
+    ("rest enrichment", "rest", "saliency_enrichment"),
     ("object moved t→t+H (m)", "windows", "object_motion"),
     ("windows moving > 1 cm", "windows", "moving_fraction"),
 )
@@ -300,9 +315,13 @@ def summary_table(runs: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: Keys of a condition's scores that are not the object's region.
+NOT_OBJECTS = ("agent", "frame", "near_agent", "rest", "windows", "attached_fraction")
+
+
 def _region_value(scores: dict, region: str, key: str) -> float:
     if region == "object":
-        region = next(name for name in scores if name not in ("agent", "frame", "rest", "windows", "attached_fraction"))
+        region = next(name for name in scores if name not in NOT_OBJECTS)
     return scores.get(region, {}).get(key, float("nan"))
 
 
@@ -314,12 +333,17 @@ def body_schema(args: argparse.Namespace) -> None:
     if os.path.exists(results_path):  # a rerun adds the missing (experiment, seed) pairs
         with open(results_path) as file:
             runs = json.load(file)["runs"]
-    done = {(run["experiment"], run["seed"]) for run in runs}
+    done = {(run["experiment"], run["seed"]): index for index, run in enumerate(runs)}
     for seed in args.seeds:
         for experiment in args.experiments:
-            if (experiment, seed) in done:
+            if (experiment, seed) in done and not args.rescore:
                 continue
-            runs.append(run_experiment(experiment, seed, args))
+            run = run_experiment(experiment, seed, args)
+            if (experiment, seed) in done:  # rescored: keep the first run's collection and training times
+                previous = runs[done[(experiment, seed)]]
+                runs[done[(experiment, seed)]] = {**previous, **run, "collect_seconds": previous["collect_seconds"]}
+            else:
+                runs.append(run)
             with open(results_path, "w") as file:
                 json.dump({"args": vars(args), "runs": runs}, file, indent=2)
             with open(os.path.join(args.out, "table.md"), "w") as file:
@@ -356,6 +380,9 @@ def add_body_schema_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lr", type=float, default=1e-3)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--out", default="benchmarks/body_schema")
+    parser.add_argument(
+        "--rescore", action="store_true", help="score the runs already in --out again from their saved models"
+    )
 
 
 def add_babbling_arguments(parser: argparse.ArgumentParser) -> None:

@@ -203,12 +203,24 @@ def region_saliency(model: Any, windows: RegionWindows, index: int, k: int) -> S
     return decoder_saliency(model.ef, h_scene, rolled, skip=skip)
 
 
+def dilate(mask: np.ndarray, radius: int) -> np.ndarray:
+    """Bool (..., h, w) mask grown by ``radius`` pixels in every direction (a square neighbourhood)."""
+    if radius < 0:
+        raise ValueError(f"radius must be >= 0, got {radius}")
+    padding = [(0, 0)] * (mask.ndim - 2) + [(radius, radius)] * 2
+    padded = np.pad(np.asarray(mask, bool), padding)
+    windows = np.lib.stride_tricks.sliding_window_view(padded, (2 * radius + 1, 2 * radius + 1), axis=(-2, -1))
+    return windows.any(axis=(-2, -1))
+
+
 def evaluate_regions(
-    model: Any, windows: RegionWindows, saliency_windows: int = 16, seed: int = 0
+    model: Any, windows: RegionWindows, saliency_windows: int = 16, seed: int = 0, band: int = 4
 ) -> dict[str, dict[str, Any]]:
     """Region errors against the copy baseline on every window (plus the region ``"frame"``, all pixels) and h_a
-    saliency shares on ``saliency_windows`` windows drawn with ``seed``, k cycling through 1..H (plus the region
-    ``"rest"``: pixels of no named region)."""
+    saliency shares on ``saliency_windows`` windows drawn with ``seed``, k cycling through 1..H, plus two control
+    regions for the saliency: ``"near_agent"``, the pixels within ``band`` pixels of the agent that belong to no
+    named region (what patch-level saliency of the agent spills onto), and ``"rest"``, the pixels of no named
+    region."""
     errors = RegionErrors()
     predicted = predict_region_windows(model, windows)
     truth = windows.frames / 255.0
@@ -227,7 +239,10 @@ def evaluate_regions(
             for name, mask in windows.masks.items():
                 region_masks[name].append(mask[index, k])
         stacked = {name: np.stack(masks) for name, masks in region_masks.items()}
-        stacked["rest"] = ~np.logical_or.reduce(list(stacked.values()))
+        named = np.logical_or.reduce(list(stacked.values()))
+        if "agent" in stacked:
+            stacked["near_agent"] = dilate(stacked["agent"], band) & ~named
+        stacked["rest"] = ~named
         for name, values in saliency_shares(np.stack(maps), stacked).items():
             scores.setdefault(name, {}).update({f"saliency_{key}": value for key, value in values.items()})
     scores["windows"] = {

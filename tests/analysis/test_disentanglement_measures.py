@@ -4,7 +4,14 @@ the window rules."""
 import numpy as np
 import pytest
 
-from sb3_ef.analysis.body_schema import RegionErrors, cut_region_windows, saliency_share, saliency_shares, tint
+from sb3_ef.analysis.body_schema import (
+    RegionErrors,
+    cut_region_windows,
+    dilate,
+    saliency_share,
+    saliency_shares,
+    tint,
+)
 from sb3_ef.analysis.scripted import ScriptedEpisode
 
 
@@ -134,3 +141,15 @@ def test_tint_blends_only_the_masked_pixels():
     tinted = tint(frame, mask, (0, 200, 0), alpha=0.5)
     np.testing.assert_array_equal(tinted[0, 0], [50, 150, 50])
     np.testing.assert_array_equal(tinted[1], frame[1])
+
+
+def test_dilate_grows_a_mask_by_a_square_neighbourhood():
+    mask = np.zeros((2, 5, 5), bool)
+    mask[0, 2, 2] = True
+    grown = dilate(mask, 1)
+    np.testing.assert_array_equal(grown[0, 1:4, 1:4], True)
+    assert grown[0].sum() == 9 and not grown[1].any()
+    np.testing.assert_array_equal(dilate(mask, 0), mask)
+    assert dilate(mask, 2)[0].all()  # radius 2 from the centre covers the 5x5 frame
+    with pytest.raises(ValueError, match="radius"):
+        dilate(mask, -1)
