@@ -27,7 +27,9 @@ episodes (``sb3_ef.analysis.scripted``) train an offline EF (``sb3_ef.offline.pr
 
 It writes ``results.json`` (every score per seed), ``table.md`` (mean and spread over seeds) and one figure per
 condition and seed under ``figures/`` (rows: context, prediction, prediction with h_a saliency in yellow, truth with
-the robot's mask in blue and the object's in green).
+the robot's mask in blue and the object's in green), and for the held tool ``figure8_s<seed>.png``: the open-loop
+prediction of a hand-made figure-eight trajectory from a context with the hammer in the hand (rows: context, then
+the predicted frames in three rows).
 
     MUJOCO_GL=egl OMP_NUM_THREADS=1 python benchmarks/disentanglement.py body-schema --seeds 0 1 2 --out DIR
 """
@@ -45,9 +47,9 @@ import torch as th
 
 from sb3_ef.analysis.body_schema import cut_region_windows, evaluate_regions, window_figure
 from sb3_ef.analysis.masks import mask_scores, threshold_saliency
-from sb3_ef.analysis.prediction import save_image
+from sb3_ef.analysis.prediction import frame_grid, save_image
 from sb3_ef.analysis.saliency import compute_saliency
-from sb3_ef.analysis.scripted import ScriptedCollector, ScriptedEpisode
+from sb3_ef.analysis.scripted import ScriptedCollector, ScriptedEpisode, figure_eight_probe
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBuffer
 from sb3_ef.drqv2.policies import DrQv2Encoder
@@ -55,6 +57,7 @@ from sb3_ef.ef import EgoForesight
 from sb3_ef.envs import make_env
 from sb3_ef.offline.episodes import make_episode
 from sb3_ef.offline.model import load_pretrained
+from sb3_ef.offline.predict import predict_frames
 from sb3_ef.offline.pretrain import MODEL, pretrain
 
 
@@ -260,6 +263,13 @@ def run_experiment(experiment: str, seed: int, args: argparse.Namespace) -> dict
         figure = np.kron(window_figure(model, windows, 0), np.ones((2, 2, 1), np.uint8))
         save_image(os.path.join(args.out, "figures", f"{scenario}_s{seed}.png"), figure)
         print(experiment, seed, scenario, _headline(scores), flush=True)
+    if "hammer-held" in data:  # the paper's unseen-trajectory probe, from a context with the hammer in the hand
+        episode = data["hammer-held"][1][0]
+        context = episode.frames[: args.context]
+        predicted = predict_frames(model, context, figure_eight_probe(args.figure_eight_steps))
+        path = os.path.join(args.out, "figures", f"figure8_s{seed}.png")
+        grid = frame_grid([context.transpose(0, 2, 3, 1), *np.array_split(predicted, 3)])
+        save_image(path, np.kron(grid, np.ones((2, 2, 1), np.uint8)))
     timing = {"collect_seconds": collect_seconds, "evaluate_seconds": time.perf_counter() - start}
     if not trained:
         timing["train_seconds"] = train_seconds
@@ -380,6 +390,7 @@ def add_body_schema_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lr", type=float, default=1e-3)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--out", default="benchmarks/body_schema")
+    parser.add_argument("--figure-eight-steps", type=int, default=30, help="held-tool probe, figures/figure8_s*.png")
     parser.add_argument(
         "--rescore", action="store_true", help="score the runs already in --out again from their saved models"
     )

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from sb3_ef.analysis.prediction import figure_eight_actions
 from sb3_ef.common.env_checks import FRAME_CHANNELS
 from sb3_ef.envs import make_env
 from sb3_ef.envs.geom_masks import AGENT, PartMasks
@@ -229,3 +230,12 @@ class ScriptedCollector:
             attached=attached,
             reset_seed=reset_seed,
         )
+
+
+def figure_eight_probe(steps: int, period: int | None = None) -> np.ndarray:
+    """The figure-eight probe (:func:`~sb3_ef.analysis.prediction.figure_eight_actions`) in the babbling's
+    convention: x and y velocities of a figure eight of ``period`` steps (default ``steps``), height 0, gripper
+    closed (+1). Smooth values never seen in the sign babbling: (steps, 4) float32."""
+    actions = figure_eight_actions(steps, 4, period=period or steps)
+    actions[:, 2], actions[:, 3] = 0.0, 1.0
+    return actions

@@ -12,7 +12,7 @@ from sb3_ef.analysis.body_schema import (
     saliency_shares,
     tint,
 )
-from sb3_ef.analysis.scripted import ScriptedEpisode
+from sb3_ef.analysis.scripted import ScriptedEpisode, figure_eight_probe
 
 
 def test_saliency_share_is_the_masked_part_of_the_total():
@@ -153,3 +153,11 @@ def test_dilate_grows_a_mask_by_a_square_neighbourhood():
     assert dilate(mask, 2)[0].all()  # radius 2 from the centre covers the 5x5 frame
     with pytest.raises(ValueError, match="radius"):
         dilate(mask, -1)
+
+
+def test_figure_eight_probe_moves_in_the_plane_with_the_gripper_closed():
+    actions = figure_eight_probe(20)
+    assert actions.shape == (20, 4) and actions.dtype == np.float32
+    np.testing.assert_array_equal(actions[:, 2:], [[0.0, 1.0]] * 20)
+    np.testing.assert_allclose(actions[:, :2].sum(axis=0), 0.0, atol=1e-5)  # one period: back to the start
+    assert len(np.unique(actions[:, 0])) > 2  # smooth values, not the babbling's signs
