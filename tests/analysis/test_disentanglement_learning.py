@@ -1,6 +1,7 @@
 """The body-schema measures tell an agent from a distractor once EF has learned: on the toy world (a square moved
 by the actions, a square on a random walk) a small offline EF predicts the agent's pixels better than copying and
-puts more h_a saliency on the agent than on the distractor. And the benchmark command runs end to end."""
+puts more h_a saliency on the agent than on the distractor. And the benchmark command runs end to end and scores
+a saved model again with the same errors."""
 
 import json
 import os
@@ -97,9 +98,17 @@ def test_benchmark_command_writes_results_table_and_figures(tmp_path):
     assert {"ratio", "saliency_enrichment"} <= set(runs[0]["conditions"]["hammer-held"]["hammer"])
     table = (out / "table.md").read_text()
     assert "| held-tool | hammer-held | 1 |" in table and "| held-tool | hammer-table | 1 |" in table
-    assert sorted(os.listdir(out / "figures")) == ["hammer-held_s0.png", "hammer-table_s0.png"]
+    assert sorted(os.listdir(out / "figures")) == ["figure8_s0.png", "hammer-held_s0.png", "hammer-table_s0.png"]
     combined = subprocess.run(
         [sys.executable, str(ROOT / "benchmarks" / "disentanglement.py"), "table", str(out)],
         check=True, env=environment, capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     assert combined.stdout == table
+    # Scoring the saved model again re-collects the held-out episodes: the same errors to the last digit.
+    subprocess.run([*command, "--rescore"], check=True, env=environment, capture_output=True, timeout=600)
+    rescored = json.loads((out / "results.json").read_text())["runs"]
+    assert len(rescored) == 1 and "train_seconds" in rescored[0]
+    for condition in ("hammer-held", "hammer-table"):
+        for region in ("hammer", "agent", "frame"):
+            first, again = runs[0]["conditions"][condition][region], rescored[0]["conditions"][condition][region]
+            assert again["model_mse"] == first["model_mse"] and again["copy_mse"] == first["copy_mse"]
