@@ -128,6 +128,11 @@ class MetaWorldPixelEnv(PixelEnv):
         self._repeat_weight *= self.repeat_discount
         return reward, terminated, {**info, "is_success": bool(info["success"])}
 
+    def state_observation(self) -> np.ndarray:
+        """Meta-World's own state vector (hand position, gripper, object poses, goal): the input of the
+        scripted policies in ``metaworld.policies``."""
+        return self._env._get_obs()
+
     def close(self) -> None:
         super().close()
         self._env.close()

@@ -162,6 +162,18 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
         """
         return self._frame_renderer().agent_mask(self._physics()[1])
 
+    def segmentation(self) -> np.ndarray:
+        """``(size, size)`` int array: the id of the geom seen at each pixel of the newest frame, -1 where none.
+
+        Turn it into masks of named bodies or geoms with :mod:`sb3_ef.envs.geom_masks`.
+        """
+        return self._renderer.geom_ids(self._physics()[1])
+
+    @property
+    def mujoco_state(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        """The simulator's model and data: to name geoms, read or move objects between steps."""
+        return self._physics()
+
     def render(self) -> np.ndarray | None:
         """The newest frame as ``(size, size, 3)`` uint8 (no extra rendering) when ``render_mode='rgb_array'``."""
         if self.render_mode is None or not self._frames:

@@ -95,8 +95,8 @@ class FrameRenderer:
         self._renderer.update_scene(data, camera=self.camera)
         return self._orient(self._renderer.render())
 
-    def agent_mask(self, data: mujoco.MjData) -> np.ndarray:
-        """The ``(size, size)`` bool mask of pixels showing agent geoms in the current state."""
+    def geom_ids(self, data: mujoco.MjData) -> np.ndarray:
+        """The ``(size, size)`` int array of the geom id seen at each pixel in the current state, -1 where none."""
         self._renderer.update_scene(data, camera=self.camera)
         self._renderer.enable_segmentation_rendering()
         try:
@@ -104,7 +104,11 @@ class FrameRenderer:
         finally:
             self._renderer.disable_segmentation_rendering()
         geom_ids = np.where(segmentation[..., 1] == mujoco.mjtObj.mjOBJ_GEOM, segmentation[..., 0], -1)
-        return self._orient(self._agent_lookup[geom_ids + 1])
+        return self._orient(geom_ids)
+
+    def agent_mask(self, data: mujoco.MjData) -> np.ndarray:
+        """The ``(size, size)`` bool mask of pixels showing agent geoms in the current state."""
+        return self._agent_lookup[self.geom_ids(data) + 1]
 
     def close(self) -> None:
         """Free the OpenGL context (idempotent)."""
