@@ -149,7 +149,8 @@ def cut_region_windows(
     """
     if require_attached not in ATTACHMENT_RULES:
         raise ValueError(f"require_attached must be one of {ATTACHMENT_RULES}, got {require_attached!r}")
-    observations, actions, frames, masks, motion = [], [], [], {}, []
+    observations, actions, frames, motion = [], [], [], []
+    masks: dict[str, list[np.ndarray]] = {}
     for episode in episodes:
         if not episode.masks:
             raise ValueError("Evaluation windows need episodes recorded with masks")
@@ -210,7 +211,7 @@ def dilate(mask: np.ndarray, radius: int) -> np.ndarray:
     padding = [(0, 0)] * (mask.ndim - 2) + [(radius, radius)] * 2
     padded = np.pad(np.asarray(mask, bool), padding)
     windows = np.lib.stride_tricks.sliding_window_view(padded, (2 * radius + 1, 2 * radius + 1), axis=(-2, -1))
-    return windows.any(axis=(-2, -1))
+    return np.asarray(windows.any(axis=(-2, -1)))
 
 
 def evaluate_regions(
@@ -232,7 +233,8 @@ def evaluate_regions(
     rng = np.random.default_rng(seed)
     chosen = rng.choice(len(windows), size=min(saliency_windows, len(windows)), replace=False)
     if len(chosen):
-        maps, region_masks = [], {name: [] for name in windows.masks}
+        maps = []
+        region_masks: dict[str, list[np.ndarray]] = {name: [] for name in windows.masks}
         for number, index in enumerate(chosen):
             k = 1 + number % horizon
             maps.append(region_saliency(model, windows, int(index), k).agent)

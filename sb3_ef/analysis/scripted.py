@@ -29,6 +29,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -127,7 +128,7 @@ class ScriptedCollector:
         part_name, bodies = self.scenario.part
         self.part = part_name
         self.masks = PartMasks(self.env, {part_name: {"bodies": bodies}})
-        self.policy = None
+        self.policy: Any = None  # Meta-World's scripted policy for the prefix (its classes are untyped)
         if self.scenario.prefix is not None:
             import metaworld.policies
 
@@ -154,12 +155,14 @@ class ScriptedCollector:
         if self.policy is None:
             return observation
         start = self._state()
+        done = self.scenario.prefix_done
+        assert done is not None, "a scenario with a scripted prefix says when it is done"
         for _ in range(PREFIX_LIMIT):
             with warnings.catch_warnings():  # metaworld warns that its own gains exceed the action bounds
                 warnings.simplefilter("ignore", UserWarning)
                 action = self.policy.get_action(self._state())
             observation, *_ = self.env.step(np.clip(action, -1.0, 1.0).astype(np.float32))
-            if self.scenario.prefix_done(self._state(), start):
+            if done(self._state(), start):
                 return observation
         return None
 
@@ -199,7 +202,10 @@ class ScriptedCollector:
         if self.scenario.distractor_step:
             address, _ = self._free_joint()
             home = self.env.unwrapped.mujoco_state[1].qpos[address : address + 2].copy()
-        frames, actions, masks, states = [], [], [], []
+        frames: list[np.ndarray] = []
+        actions: list[np.ndarray] = []
+        masks: list[dict[str, np.ndarray]] = []
+        states: list[np.ndarray] = []
 
         def record(observation: np.ndarray) -> None:
             frames.append(observation[-FRAME_CHANNELS:])
@@ -215,8 +221,8 @@ class ScriptedCollector:
             observation, *_ = self.env.step(action)
             actions.append(action)
             record(observation)
-        states = np.stack(states)
-        hand, obj = states[:, :3], states[:, 4:7]
+        trajectory = np.stack(states)
+        hand, obj = trajectory[:, :3], trajectory[:, 4:7]
         offset = obj - hand
         attached = np.linalg.norm(offset - offset[0], axis=1) <= self.attach_tolerance
         names = [AGENT, self.part]

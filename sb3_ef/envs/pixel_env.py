@@ -167,7 +167,7 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
 
         Turn it into masks of named bodies or geoms with :mod:`sb3_ef.envs.geom_masks`.
         """
-        return self._renderer.geom_ids(self._physics()[1])
+        return self._frame_renderer().geom_ids(self._physics()[1])
 
     @property
     def mujoco_state(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
