@@ -24,8 +24,20 @@ from sb3_ef.drqv2 import DrQv2, DrQv2EF
 from sb3_ef.envs.toy import ToyAgentEnv
 
 POLICY = {"net_arch": [16], "trunk_dim": 8, "optimizer_class": th.optim.SGD}
-EF_POLICY = {**POLICY, "features_dim": 24, "agent_dim": 8, "ef_kwargs": {"rollout_hidden_dims": [8], "decoder_channels": 4}}
-ARGUMENTS = {"learning_rate": 1e-3, "buffer_size": 30, "learning_starts": 8, "batch_size": 4, "train_freq": 1, "seed": 0}
+EF_POLICY = {
+    **POLICY,
+    "features_dim": 24,
+    "agent_dim": 8,
+    "ef_kwargs": {"rollout_hidden_dims": [8], "decoder_channels": 4},
+}
+ARGUMENTS = {
+    "learning_rate": 1e-3,
+    "buffer_size": 30,
+    "learning_starts": 8,
+    "batch_size": 4,
+    "train_freq": 1,
+    "seed": 0,
+}
 EF_ARGUMENTS = {"ef_horizon": 2, "babbling_steps": 4}
 
 
