@@ -42,6 +42,7 @@ from sb3_ef.common.env_checks import FRAME_CHANNELS, check_sequence_buffer, epis
 from sb3_ef.ef.auxiliary import AuxiliaryLoss
 from sb3_ef.ef.babbling import babble, check_babbling
 from sb3_ef.ef.foresight import EgoForesight, ForesightLoss
+from sb3_ef.ef.legacy import upgraded_file, upgraded_parameters
 
 SelfHost = TypeVar("SelfHost", bound="AuxiliaryHostMixin")
 
@@ -289,13 +290,26 @@ class AuxiliaryHostMixin:
         **kwargs: Any,
     ) -> SelfHost:
         """SB3's ``load``, refusing a file that another algorithm saved (a ``DrQv2EF`` file read as ``DrQv2``
-        would carry EF's weights the plain class does not have)."""
+        would carry EF's weights the plain class does not have); a file saved by sb3-ef 0.1.0 is read as this
+        version saves it (:mod:`sb3_ef.ef.legacy`)."""
+        path = upgraded_file(path, cls, issubclass(cls, EFMixin), custom_objects)
         saved = saved_algorithm(path)
         if saved is not None and saved != cls.__name__:
             raise ValueError(f"Cannot load {path} as {cls.__name__}: it was saved by {saved}, use {saved}.load")
         return super().load(  # type: ignore[misc]
             path, env, device, custom_objects, print_system_info, force_reset, **kwargs
         )
+
+    def set_parameters(
+        self,
+        load_path_or_dict: str | pathlib.Path | io.BufferedIOBase | dict[str, Any],
+        exact_match: bool = True,
+        device: th.device | str = "auto",
+    ) -> None:
+        """SB3's ``set_parameters``; the weights and optimiser states of a model saved by sb3-ef 0.1.0 are first
+        moved to where this version keeps them (:mod:`sb3_ef.ef.legacy`)."""
+        params = upgraded_parameters(load_path_or_dict, self, device)
+        super().set_parameters(params, exact_match, device)  # type: ignore[misc]
 
 
 class EFMixin(AuxiliaryHostMixin):
