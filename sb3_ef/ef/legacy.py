@@ -90,17 +90,19 @@ def _upgraded_data(
     data = {RENAMED_ATTRIBUTES.get(key, key): value for key, value in data.items()}
     values = _deserialised(data, ("policy_class", "policy_kwargs"), custom_objects)
     policy_class = values.get("policy_class")
-    upgraded_class = next(
-        (
-            alias
-            for alias in getattr(algorithm, "policy_aliases", {}).values()
-            if isinstance(policy_class, type) and alias is not policy_class and issubclass(alias, policy_class)
-        ),
-        policy_class,
-    )
-    dropped = ALGORITHM_POLICY_KWARGS if with_ef else ALGORITHM_POLICY_KWARGS + EF_POLICY_KWARGS
-    policy_kwargs = {key: value for key, value in (values.get("policy_kwargs") or {}).items() if key not in dropped}
-    data.update(json.loads(data_to_json({"policy_class": upgraded_class, "policy_kwargs": policy_kwargs})))
+    if isinstance(policy_class, type):  # the EF variant's policy, a subclass of the plain one 0.1.0 saved
+        values["policy_class"] = next(
+            (
+                alias
+                for alias in getattr(algorithm, "policy_aliases", {}).values()
+                if alias is not policy_class and issubclass(alias, policy_class)
+            ),
+            policy_class,
+        )
+    if isinstance(values.get("policy_kwargs"), dict):
+        dropped = ALGORITHM_POLICY_KWARGS if with_ef else ALGORITHM_POLICY_KWARGS + EF_POLICY_KWARGS
+        values["policy_kwargs"] = {key: value for key, value in values["policy_kwargs"].items() if key not in dropped}
+    data.update(json.loads(data_to_json(values)))
     data["algorithm"] = algorithm.__name__
     return data
 
