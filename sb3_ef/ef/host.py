@@ -5,7 +5,8 @@
 (an :class:`~sb3_ef.ef.auxiliary.AuxiliaryLoss` that a subclass returns from ``_build_auxiliary``, kept on the policy
 as ``policy.auxiliary`` and trained by the optimiser the host names in ``_optimise_auxiliary``); motor babbling in
 its action selection; the accessors ``ef`` / ``encode`` / ``frame_shape`` read by ``sb3_ef.analysis``; the
-finite-loss check; logging; and a ``load`` that refuses a file another algorithm saved.
+finite-loss check; logging; and a ``load`` that refuses a file another algorithm saved and reads those saved by
+sb3-ef 0.1.0 (:mod:`sb3_ef.ef.legacy`).
 
 :class:`EFMixin`, mixed in before a plain host (``class DrQv2EF(EFMixin, DrQv2)``), adds Ego-Foresight's arguments
 and its loss (:class:`~sb3_ef.ef.foresight.ForesightLoss`).
@@ -290,14 +291,18 @@ class AuxiliaryHostMixin:
         **kwargs: Any,
     ) -> SelfHost:
         """SB3's ``load``, refusing a file that another algorithm saved (a ``DrQv2EF`` file read as ``DrQv2``
-        would carry EF's weights the plain class does not have); a file saved by sb3-ef 0.1.0 is read as this
-        version saves it (:mod:`sb3_ef.ef.legacy`)."""
-        path = upgraded_file(path, cls, issubclass(cls, EFMixin), custom_objects)
+        would carry EF's weights the plain class does not have)."""
         saved = saved_algorithm(path)
         if saved is not None and saved != cls.__name__:
             raise ValueError(f"Cannot load {path} as {cls.__name__}: it was saved by {saved}, use {saved}.load")
         return super().load(  # type: ignore[misc]
-            path, env, device, custom_objects, print_system_info, force_reset, **kwargs
+            upgraded_file(path, cls, issubclass(cls, EFMixin), custom_objects),  # as saved by this version
+            env,
+            device,
+            custom_objects,
+            print_system_info,
+            force_reset,
+            **kwargs,
         )
 
     def set_parameters(
