@@ -131,7 +131,7 @@ def upgraded_parameters(
     host = {name: value for name, value in policy.items() if not name.startswith("ef.")}
     ef = {name: value for name, value in policy.items() if name.startswith("ef.")}
     if "auxiliary_module" in state_dicts:  # the auxiliary module beside the policy (the SB3 hosts)
-        upgraded.update(policy=host, auxiliary_module={**params.get("auxiliary_module", {}), **ef})
+        upgraded.update(policy=host, auxiliary_module=ef)
     else:  # the auxiliary module on the policy, holding the EF module as its ``ef``
         upgraded["policy"] = {**host, **{f"auxiliary.{name}": value for name, value in ef.items()}}
     if "ef_optimizer" in params:
