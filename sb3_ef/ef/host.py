@@ -5,7 +5,8 @@
 (an :class:`~sb3_ef.ef.auxiliary.AuxiliaryLoss` that a subclass returns from ``_build_auxiliary``, kept on the policy
 as ``policy.auxiliary`` and trained by the optimiser the host names in ``_optimise_auxiliary``); motor babbling in
 its action selection; the accessors ``ef`` / ``encode`` / ``frame_shape`` read by ``sb3_ef.analysis``; the
-finite-loss check; logging; and a ``load`` that refuses a file another algorithm saved.
+finite-loss check; logging; and a ``load`` that refuses a file another algorithm saved and reads those saved by
+sb3-ef 0.1.0 (:mod:`sb3_ef.ef.legacy`).
 
 :class:`EFMixin`, mixed in before a plain host (``class DrQv2EF(EFMixin, DrQv2)``), adds Ego-Foresight's arguments
 and its loss (:class:`~sb3_ef.ef.foresight.ForesightLoss`).
@@ -49,6 +50,7 @@ from sb3_ef.common.validation import (
 from sb3_ef.ef.auxiliary import AuxiliaryLoss
 from sb3_ef.ef.babbling import babble, check_babbling
 from sb3_ef.ef.foresight import EgoForesight, ForesightLoss
+from sb3_ef.ef.legacy import upgraded_file, upgraded_parameters
 
 SelfHost = TypeVar("SelfHost", bound="AuxiliaryHostMixin")
 
@@ -308,8 +310,25 @@ class AuxiliaryHostMixin:
         if saved is None:
             check_saved_algorithm(cls, zip_path)
         return super().load(  # type: ignore[misc]
-            path, env, device, custom_objects, print_system_info, force_reset, **kwargs
+            upgraded_file(path, cls, issubclass(cls, EFMixin), custom_objects),  # as saved by this version
+            env,
+            device,
+            custom_objects,
+            print_system_info,
+            force_reset,
+            **kwargs,
         )
+
+    def set_parameters(
+        self,
+        load_path_or_dict: str | pathlib.Path | io.BufferedIOBase | dict[str, Any],
+        exact_match: bool = True,
+        device: th.device | str = "auto",
+    ) -> None:
+        """SB3's ``set_parameters``; the weights and optimiser states of a model saved by sb3-ef 0.1.0 are first
+        moved to where this version keeps them (:mod:`sb3_ef.ef.legacy`)."""
+        params = upgraded_parameters(load_path_or_dict, self, device)
+        super().set_parameters(params, exact_match, device)  # type: ignore[misc]
 
 
 class EFMixin(AuxiliaryHostMixin):

@@ -20,7 +20,6 @@ from sb3_ef.common.env_checks import check_box_actions, check_stacked_frames, po
 from sb3_ef.common.validation import check_algorithm_arguments
 from sb3_ef.ef.auxiliary import AuxiliaryLoss
 from sb3_ef.ef.host import AuxiliaryHostMixin
-from sb3_ef.sb3_hosts.legacy import saved_by_0_1_0_renamed
 from sb3_ef.sb3_hosts.shifted_buffer import ShiftedSequenceReplayBuffer
 
 
@@ -130,12 +129,6 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
         self.auxiliary_optimizer.step()
         self.auxiliary.after_update(self.critic.features_extractor)
         return logs
-
-    def set_parameters(
-        self, load_path_or_dict: str | dict[str, Any], exact_match: bool = True, device: th.device | str = "auto"
-    ) -> None:
-        """SB3's; a model saved by sb3-ef 0.1.0 (EF's weights inside its policy's) loads too."""
-        super().set_parameters(saved_by_0_1_0_renamed(load_path_or_dict, device), exact_match, device)  # type: ignore[misc]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()  # type: ignore[misc]

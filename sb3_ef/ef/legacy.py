@@ -1,0 +1,175 @@
+"""Model files saved by sb3-ef 0.1.0, read by the hosts of this version: nothing a user saved is lost.
+
+sb3-ef 0.1.0 kept Ego-Foresight inside the host. Its EF module was the policy's ``ef`` (state-dict keys ``ef.*``)
+and was trained by the optimiser of the weights it shapes: in the critic optimiser's one parameter group (DrQv2-EF),
+in a group named ``ef`` of the world-model optimiser (TDMPC2-EF), or by an ``ef_optimizer`` (SAC-EF, TD3-EF,
+TQC-EF). An EF variant saved the plain host's policy class, DrQ-v2 and TD-MPC2 put EF's horizon (and TD-MPC2 its
+planning horizon and discount) into the saved ``policy_kwargs``, and three attributes had other names.
+
+:func:`upgraded_file` rewrites the pickled attributes of such a file in memory before SB3 reads it, and
+:func:`upgraded_parameters` moves its weights and optimiser states to where the model keeps them: the auxiliary
+module (``policy.auxiliary``, or ``auxiliary_module`` for the SB3 hosts), whose Ego-Foresight module is its ``ef``,
+in a parameter group of its own. A file saved by 0.1.0 is told by its data, which lacks the ``algorithm`` entry that
+later versions save.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import pathlib
+import zipfile
+from typing import Any
+
+import torch as th
+from stable_baselines3.common.save_util import data_to_json, json_to_data, load_from_zip_file, open_path
+
+#: Attributes 0.1.0 saved under another name.
+RENAMED_ATTRIBUTES = {
+    "_ef_generator": "_auxiliary_generator",
+    "beta": "_beta",
+    "ef_learning_rate": "auxiliary_learning_rate",
+}
+#: EF's attributes, which 0.1.0's plain DrQv2 and TDMPC2 saved as ``None``.
+EF_ATTRIBUTES = ("beta", "ef_horizon")
+#: What 0.1.0's DrQ-v2 and TD-MPC2 added to the saved ``policy_kwargs`` from the algorithm's arguments.
+ALGORITHM_POLICY_KWARGS = ("ef_horizon", "horizon", "gamma")
+#: EF's policy arguments, which 0.1.0's plain policies accepted and ignored.
+EF_POLICY_KWARGS = ("agent_dim", "ef_kwargs")
+#: The name of EF's parameter group in 0.1.0's TD-MPC2 world-model optimiser.
+EF_GROUP = "ef"
+
+
+def upgraded_file(
+    path: str | pathlib.Path | io.BufferedIOBase,
+    algorithm: type,
+    with_ef: bool,
+    custom_objects: dict[str, Any] | None = None,
+) -> str | pathlib.Path | io.BufferedIOBase:
+    """``path`` itself, or, for a file saved by sb3-ef 0.1.0, an in-memory copy whose data is that of a file saved
+    by ``algorithm`` (``with_ef``: an Ego-Foresight variant): attributes renamed, the policy class the algorithm's,
+    the algorithm-set ``policy_kwargs`` dropped, the ``algorithm`` entry added. Raises a ``ValueError`` when the file
+    was saved with Ego-Foresight and ``algorithm`` has none, or the other way round."""
+    file = open_path(path, "r", verbose=0, suffix="zip")
+    position = file.tell()
+    try:
+        with zipfile.ZipFile(file) as archive:
+            entries = {name: archive.read(name) for name in archive.namelist()}
+        data = json.loads(entries["data"])
+    except (zipfile.BadZipFile, KeyError, ValueError):
+        return path  # SB3's load reports what is wrong with the file
+    finally:
+        if isinstance(path, io.BufferedIOBase):
+            file.seek(position)
+        else:
+            file.close()
+    if "algorithm" in data:
+        return path
+    saved_with_ef = data.get("ef_horizon") is not None
+    if saved_with_ef != with_ef:
+        raise ValueError(
+            f"Cannot load {path} as {algorithm.__name__}: sb3-ef 0.1.0 saved it "
+            f"{'with' if saved_with_ef else 'without'} Ego-Foresight, load it with the "
+            f"{'Ego-Foresight' if saved_with_ef else 'plain'} variant of the algorithm"
+        )
+    entries["data"] = json.dumps(_upgraded_data(data, algorithm, with_ef, custom_objects or {}), indent=4).encode()
+    upgraded = io.BytesIO()
+    with zipfile.ZipFile(upgraded, "w") as archive:
+        for name, content in entries.items():
+            archive.writestr(name, content)
+    upgraded.seek(0)
+    return upgraded
+
+
+def _upgraded_data(
+    data: dict[str, Any], algorithm: type, with_ef: bool, custom_objects: dict[str, Any]
+) -> dict[str, Any]:
+    """The JSON data of a 0.1.0 file as ``algorithm`` saves it (entries it does not touch stay as serialised)."""
+    if not with_ef:
+        data = {key: value for key, value in data.items() if key not in EF_ATTRIBUTES}
+    data = {RENAMED_ATTRIBUTES.get(key, key): value for key, value in data.items()}
+    values = _deserialised(data, ("policy_class", "policy_kwargs"), custom_objects)
+    policy_class = values.get("policy_class")
+    if isinstance(policy_class, type):  # the EF variant's policy, a subclass of the plain one 0.1.0 saved
+        values["policy_class"] = next(
+            (
+                alias
+                for alias in getattr(algorithm, "policy_aliases", {}).values()
+                if alias is not policy_class and issubclass(alias, policy_class)
+            ),
+            policy_class,
+        )
+    if isinstance(values.get("policy_kwargs"), dict):
+        dropped = ALGORITHM_POLICY_KWARGS if with_ef else ALGORITHM_POLICY_KWARGS + EF_POLICY_KWARGS
+        values["policy_kwargs"] = {key: value for key, value in values["policy_kwargs"].items() if key not in dropped}
+    data.update(json.loads(data_to_json(values)))
+    data["algorithm"] = algorithm.__name__
+    return data
+
+
+def _deserialised(data: dict[str, Any], keys: tuple[str, ...], custom_objects: dict[str, Any]) -> dict[str, Any]:
+    """The values of the JSON data's ``keys`` (SB3 deserialises them: classes and closures are pickled)."""
+    return json_to_data(json.dumps({key: data[key] for key in keys if key in data}), custom_objects)
+
+
+def upgraded_parameters(
+    load_path_or_dict: str | pathlib.Path | io.BufferedIOBase | dict[str, Any], model: Any, device: th.device | str
+) -> dict[str, Any]:
+    """The state dicts to give SB3's ``set_parameters`` (read from the zip when given a file). Those of a model
+    saved by sb3-ef 0.1.0 with Ego-Foresight move to where ``model`` keeps them: EF's weights (``ef.*`` of the
+    policy) to its auxiliary module, ``ef_optimizer`` to ``auxiliary_optimizer``, and each optimiser's parameter
+    groups to the model's layout (EF's parameters in a group of their own)."""
+    if isinstance(load_path_or_dict, dict):
+        params = load_path_or_dict
+    else:
+        _, params, _ = load_from_zip_file(load_path_or_dict, device=device, load_data=False)
+    policy = params.get("policy", {})
+    if not any(name.startswith("ef.") for name in policy) and "ef_optimizer" not in params:
+        return params
+    state_dicts, _ = model._get_torch_save_params()
+    upgraded = {key: value for key, value in params.items() if key not in ("policy", "ef_optimizer")}
+    host = {name: value for name, value in policy.items() if not name.startswith("ef.")}
+    ef = {name: value for name, value in policy.items() if name.startswith("ef.")}
+    if "auxiliary_module" in state_dicts:  # the auxiliary module beside the policy (the SB3 hosts)
+        upgraded.update(policy=host, auxiliary_module=ef)
+    else:  # the auxiliary module on the policy, holding the EF module as its ``ef``
+        upgraded["policy"] = {**host, **{f"auxiliary.{name}": value for name, value in ef.items()}}
+    if "ef_optimizer" in params:
+        upgraded["auxiliary_optimizer"] = params["ef_optimizer"]
+    for name in state_dicts:
+        optimizer = _attribute(model, name)
+        if isinstance(optimizer, th.optim.Optimizer) and name in upgraded:
+            upgraded[name] = _regrouped(upgraded[name], optimizer, name)
+    return upgraded
+
+
+def _attribute(model: Any, dotted_name: str) -> Any:
+    value = model
+    for part in dotted_name.split("."):
+        value = getattr(value, part, None)
+    return value
+
+
+def _regrouped(state: dict[str, Any], optimizer: th.optim.Optimizer, name: str) -> dict[str, Any]:
+    """A 0.1.0 optimiser state with the parameter groups of ``optimizer`` (the same parameters in the same order):
+    one group that the model splits (EF's parameters after the host's) is cut at the same places, each part keeping
+    the group's settings; groups of the same sizes take the model's group names (``ef`` was renamed)."""
+    saved_groups, groups = state["param_groups"], optimizer.param_groups
+    saved_sizes = [len(group["params"]) for group in saved_groups]
+    sizes = [len(group["params"]) for group in groups]
+    if saved_sizes == sizes:
+        regrouped = [
+            {**saved, "name": group["name"]} if "name" in group and saved.get("name") == EF_GROUP else saved
+            for saved, group in zip(saved_groups, groups, strict=True)
+        ]
+    elif len(saved_groups) == 1 and sum(sizes) == saved_sizes[0]:
+        indices, start, regrouped = saved_groups[0]["params"], 0, []
+        for size in sizes:
+            regrouped.append({**saved_groups[0], "params": indices[start : start + size]})
+            start += size
+    else:
+        raise ValueError(
+            f"The saved {name} has parameter groups of {saved_sizes} parameters, which do not match the model's "
+            f"{sizes}: the file was saved with other network sizes"
+        )
+    return {**state, "param_groups": regrouped}
