@@ -15,7 +15,7 @@ import gymnasium as gym
 import yaml
 
 #: Algorithm keys this package registers in rl-zoo3.
-ZOO_ALGORITHMS = ("drqv2_ef", "drqv2", "tdmpc2_ef", "tdmpc2")
+ZOO_ALGORITHMS = ("drqv2_ef", "drqv2", "tdmpc2_ef", "tdmpc2", "sear", "curl")
 
 #: Keys rl-zoo3's ExperimentManager consumes before the remaining ones reach the algorithm constructor.
 ZOO_KEYS = frozenset(
@@ -64,9 +64,18 @@ def select_entry(config: dict[str, dict[str, Any]], env_id: str) -> dict[str, An
 
 
 def allowed_keys(algo_class: type) -> frozenset[str]:
-    """Keys an entry may hold for ``algo_class``: its constructor arguments plus rl-zoo3's own keys."""
-    parameters = inspect.signature(algo_class.__init__).parameters
-    return frozenset(parameters) - SET_BY_ZOO | ZOO_KEYS
+    """Keys an entry may hold for ``algo_class``: its constructor arguments plus rl-zoo3's own keys. A constructor
+    that passes ``**kwargs`` on (a mixin's, e.g. CURL's) also accepts those of the next constructor in the MRO."""
+    names: set[str] = set()
+    for cls in algo_class.__mro__:
+        if "__init__" not in vars(cls):
+            continue
+        parameters = inspect.signature(vars(cls)["__init__"]).parameters.values()
+        variadic = (inspect.Parameter.VAR_POSITIONAL, inspect.Parameter.VAR_KEYWORD)
+        names |= {parameter.name for parameter in parameters if parameter.kind not in variadic}
+        if all(parameter.kind is not inspect.Parameter.VAR_KEYWORD for parameter in parameters):
+            break
+    return frozenset(names) - SET_BY_ZOO | ZOO_KEYS
 
 
 def check_keys(algo: str, algo_class: type, keys: Any, where: str) -> None:

@@ -18,10 +18,19 @@ from sb3_ef.zoo.hyperparams_opt import CONVERTERS, SAMPLERS
 
 def algorithm_classes() -> dict[str, type]:
     """rl-zoo3 key -> algorithm class (imported on demand: the algorithms pull in torch)."""
+    from sb3_ef.curl import CURL
     from sb3_ef.drqv2 import DrQv2, DrQv2EF
+    from sb3_ef.sear import SEAR
     from sb3_ef.tdmpc2 import TDMPC2, TDMPC2EF
 
-    return {"drqv2_ef": DrQv2EF, "drqv2": DrQv2, "tdmpc2_ef": TDMPC2EF, "tdmpc2": TDMPC2}
+    return {
+        "drqv2_ef": DrQv2EF,
+        "drqv2": DrQv2,
+        "tdmpc2_ef": TDMPC2EF,
+        "tdmpc2": TDMPC2,
+        "sear": SEAR,
+        "curl": CURL,
+    }
 
 
 def config_namespace() -> dict[str, Any]:
@@ -32,7 +41,8 @@ def config_namespace() -> dict[str, Any]:
 
 
 def register_algorithms(base_policy_kwargs: dict[str, Any] | None = None) -> None:
-    """Add ``drqv2_ef``, ``drqv2``, ``tdmpc2_ef`` and ``tdmpc2`` to rl-zoo3 (algorithms, samplers, converters).
+    """Add the algorithms of :func:`algorithm_classes` to rl-zoo3, with the Optuna samplers and converters of those
+    that have one (``sb3_ef.zoo.hyperparams_opt``).
 
     :param base_policy_kwargs: ``policy_kwargs`` of the config entry in use. rl-zoo3 replaces the entry's
         ``policy_kwargs`` with the sampled ones; the samplers merge into these instead, so tuning ``agent_dim`` keeps

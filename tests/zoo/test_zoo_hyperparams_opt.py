@@ -12,7 +12,7 @@ from rl_zoo3.utils import get_latest_run_id
 from zoo_tiny import HYPERPARAMS, train_args
 
 from sb3_ef.zoo import train
-from sb3_ef.zoo.config import ZOO_ALGORITHMS, default_config_path, load_config
+from sb3_ef.zoo.config import default_config_path, load_config
 from sb3_ef.zoo.hyperparams_opt import CONVERTERS, SAMPLERS
 from sb3_ef.zoo.registration import algorithm_classes
 
@@ -20,7 +20,7 @@ EF_KEYS = {"beta", "ef_horizon", "babbling_steps"}
 LOG_NAME = "dmc-cartpole-swingup-v0"
 
 
-@pytest.mark.parametrize("algo", ZOO_ALGORITHMS)
+@pytest.mark.parametrize("algo", SAMPLERS)
 def test_samples_are_constructor_arguments_and_convert_back(algo):
     study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=0))
     trial = study.ask()
