@@ -69,14 +69,6 @@ class CURL(AuxiliaryStepMixin, CroppedHostUpdates, SAC):
             "crop_size": crop_size,
         }
         super().__init__(policy, env, policy_kwargs=policy_kwargs, _init_setup_model=False, **kwargs)
-        _, height, width = self.observation_space.shape  # type: ignore[misc]
-        if isinstance(crop_size, bool) or not isinstance(crop_size, int) or not 1 <= crop_size <= min(height, width):
-            raise ValueError(
-                f"CURL's crop_size must be an int in [1, {min(height, width)}] (at most the {height}x{width} frames: "
-                f"render larger frames, e.g. make_env(..., size=100) for crops of 84), got {crop_size!r}"
-            )
-        if not 0.0 < encoder_tau <= 1.0:
-            raise ValueError(f"encoder_tau must be in (0, 1], got {encoder_tau!r}")
         self.crop_size = crop_size
         self.encoder_tau = encoder_tau
         self.features_dim = features_dim
@@ -84,7 +76,17 @@ class CURL(AuxiliaryStepMixin, CroppedHostUpdates, SAC):
             self._setup_model()
 
     def _setup_model(self) -> None:
-        """A :class:`CroppedSequenceReplayBuffer` of ``crop_size`` crops, then the host's setup."""
+        """Check the crop against the frames (here, so that ``load`` checks the saved values), then a
+        :class:`CroppedSequenceReplayBuffer` of ``crop_size`` crops and the host's setup."""
+        _, height, width = self.observation_space.shape  # type: ignore[misc]
+        crop_size = self.crop_size
+        if isinstance(crop_size, bool) or not isinstance(crop_size, int) or not 1 <= crop_size <= min(height, width):
+            raise ValueError(
+                f"CURL's crop_size must be an int in [1, {min(height, width)}] (at most the {height}x{width} frames: "
+                f"render larger frames, e.g. make_env(..., size=100) for crops of 84), got {crop_size!r}"
+            )
+        if not 0.0 < self.encoder_tau <= 1.0:
+            raise ValueError(f"encoder_tau must be in (0, 1], got {self.encoder_tau!r}")
         if self.replay_buffer_class is None:
             self.replay_buffer_class = CroppedSequenceReplayBuffer
         elif not issubclass(self.replay_buffer_class, CroppedSequenceReplayBuffer):
