@@ -61,7 +61,7 @@ def test_batches_carry_the_agent_masks_of_the_observations_frames():
     assert th.equal(batch.masks.bool(), red)
     # One shift for frames and masks: after prepare the masks still cover the red pixels.
     observations, targets = model.auxiliary.prepare(batch, pad=4, generator=th.Generator().manual_seed(0))
-    shifted = (observations.unflatten(1, (3, 3)) == th.tensor(AGENT_COLOUR, dtype=th.uint8).view(1, 1, 3, 1, 1))
+    shifted = observations.unflatten(1, (3, 3)) == th.tensor(AGENT_COLOUR, dtype=th.uint8).view(1, 1, 3, 1, 1)
     assert th.equal(targets.masks.bool(), shifted.all(dim=2))
     assert not th.equal(observations, batch.observations)
 
