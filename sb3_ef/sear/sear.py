@@ -58,6 +58,7 @@ class SEAR(DrQv2):
     The env must render agent masks (``make_env(..., agent_masks=True)``); the replay buffer stores one per frame
     (``SequenceReplayBuffer(store_masks=True)``, set here) and shifts each with its frames.
 
+    :param buffer_size: replay buffer capacity in transitions (250000, SEAR's).
     :param coefficients: ``"sear"`` (reconstruction 1, mask 0.25: the SEAR authors'), ``"efrl"`` (0.01, 0.0025:
         the Ego-Foresight authors' copy) or a pair ``(reconstruction_coef, mask_coef)``.
     :param policy_kwargs: see :class:`SEARPolicy` (``features_dim`` 4096, and :class:`DrQv2Policy`'s).
@@ -96,10 +97,11 @@ class SEAR(DrQv2):
         _init_setup_model: bool = True,
     ):
         resolve_coefficients(coefficients)  # a bad preset or pair fails here, before anything is built
-        if (replay_buffer_kwargs or {}).get("store_masks", True) is not True:
+        store_masks = (replay_buffer_kwargs or {}).get("store_masks", True)
+        if store_masks is not True:
             raise ValueError(
-                "SEAR reads the agent masks from the replay buffer: replay_buffer_kwargs must not set store_masks "
-                f"to {replay_buffer_kwargs['store_masks']!r}"  # type: ignore[index]
+                f"SEAR reads the agent masks from the replay buffer: replay_buffer_kwargs must not set store_masks "
+                f"to {store_masks!r}"
             )
         super().__init__(
             policy,
