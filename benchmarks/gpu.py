@@ -1,8 +1,10 @@
-"""One GPU benchmark: DrQ-v2, DrQv2-EF (84x84) and TD-MPC2, TDMPC2-EF (64x64) at the paper's settings.
+"""One GPU benchmark: DrQ-v2, DrQv2-EF, SEAR (84x84), TD-MPC2, TDMPC2-EF (64x64) and CURL (84x84 crops of 100x100
+renders) at the paper's settings.
 
 For each algorithm, eager and compiled (the torch.compile mode given by ``--compile-mode``: ``default``, or e.g.
-``reduce-overhead`` for CUDA graphs), on ``dmc/cartpole-swingup`` with real rendering (``fast_render``), batch 256
-and a 1M-frame replay buffer with ``storage_device="auto"`` (in device memory where it fits):
+``reduce-overhead`` for CUDA graphs; CURL, SB3's SAC, has no compiled mode), on ``dmc/cartpole-swingup`` with real
+rendering (``fast_render``; SEAR's env also renders agent masks), batch 256 and a 1M-frame replay buffer with
+``storage_device="auto"`` (in device memory where it fits):
 
 - ``sample ms``: median of ``SequenceReplayBuffer.sample(256)`` calls, synchronised;
 - ``updates/s``: ``train()`` alone, one gradient step at a time;
@@ -36,17 +38,29 @@ from typing import Any
 
 import torch as th
 
+from sb3_ef.curl import CURL
 from sb3_ef.drqv2 import DrQv2, DrQv2EF
 from sb3_ef.envs import make_env
+from sb3_ef.sear import SEAR
 from sb3_ef.tdmpc2 import TDMPC2, TDMPC2EF
 
 ENV_NAME = "dmc/cartpole-swingup"
-ALGORITHMS: dict[str, tuple[type, int]] = {  # name: (class, frame size)
+ALGORITHMS: dict[str, tuple[type, int]] = {  # name: (class, rendered frame size)
     "DrQv2": (DrQv2, 84),
     "DrQv2EF": (DrQv2EF, 84),
+    "SEAR": (SEAR, 84),
     "TDMPC2": (TDMPC2, 64),
     "TDMPC2EF": (TDMPC2EF, 64),
+    "CURL": (CURL, 100),
 }
+# What an algorithm needs beyond the others: SEAR's env renders agent masks, CURL crops 84x84 windows.
+ENV_KWARGS: dict[str, dict[str, Any]] = {"SEAR": {"agent_masks": True}}
+ALGORITHM_KWARGS: dict[str, dict[str, Any]] = {"CURL": {"crop_size": 84}}
+# Algorithms without a ``compile`` argument (SB3's own updates).
+EAGER_ONLY = frozenset({"CURL"})
+# (baseline, algorithm) pairs of the ratio table: EF against its host, and the paper's other baselines against
+# DrQ-v2 (its throughput table: SEAR 88 and CURL 44 against DrQ-v2's 155 env steps/s).
+RATIOS = (("DrQv2", "DrQv2EF"), ("TDMPC2", "TDMPC2EF"), ("DrQv2", "SEAR"), ("DrQv2", "CURL"))
 
 
 @dataclass(frozen=True)
@@ -77,6 +91,8 @@ SMOKE = Sizes(
 # Small networks for the smoke run only: the code paths are the same, the CPU time is not.
 SMOKE_POLICY: dict[str, dict[str, Any]] = {
     "DrQv2": {"net_arch": [32], "trunk_dim": 16, "features_dim": 64},
+    "SEAR": {"net_arch": [32], "trunk_dim": 16, "features_dim": 64},
+    "CURL": {"net_arch": [32], "features_extractor_kwargs": {"features_dim": 16}},
     "TDMPC2": {
         "num_channels": 4,
         "mlp_dim": 32,
@@ -110,8 +126,9 @@ def synchronize(device: th.device) -> None:
 def build(name: str, compiled: bool | str | dict, device: th.device, sizes: Sizes, smoke: bool):
     """The model on a fast-rendering cartpole, its 1M-frame (smoke: small) buffer in ``auto`` storage."""
     algorithm, frame_size = ALGORITHMS[name]
-    env = make_env(ENV_NAME, size=frame_size, fast_render=True, seed=0)
+    env = make_env(ENV_NAME, size=frame_size, fast_render=True, seed=0, **ENV_KWARGS.get(name, {}))
     kwargs: dict[str, Any] = {
+        **ALGORITHM_KWARGS.get(name, {}),
         "batch_size": sizes.batch_size,
         "buffer_size": sizes.buffer_size,
         "learning_starts": sizes.warmup_steps,
@@ -137,6 +154,9 @@ def measure(name: str, compiled: bool | str | dict, device: th.device, sizes: Si
     """Build, warm up and time one algorithm (``compiled``: the algorithm's ``compile`` argument); errors become the
     result's status, so later runs still happen."""
     result = Result(name, bool(compiled), ALGORITHMS[name][1])
+    if compiled and name in EAGER_ONLY:
+        result.status = "skipped (no compiled mode)"
+        return result
     started = time.perf_counter()
     if device.type == "cuda":
         th.cuda.reset_peak_memory_stats(device)
@@ -207,13 +227,17 @@ def markdown(results: list[Result], header: str) -> str:
             f"| {r.storage_device or '-'} | {cell(r.buffer_gb)} | {cell(r.sample_ms)} | {cell(r.updates_per_s)} "
             f"| {cell(r.env_steps_per_s)} | {cell(r.peak_memory_gb)} | {cell(r.seconds)} |"
         )
-    lines += ["", "| host | mode | EF/plain updates/s | EF/plain env steps/s |", "|---|---|---|---|"]
-    for plain, ef in (("DrQv2", "DrQv2EF"), ("TDMPC2", "TDMPC2EF")):
+    lines += [
+        "",
+        "| algorithm / baseline | mode | updates/s ratio | env steps/s ratio |",
+        "|---|---|---|---|",
+    ]
+    for baseline, algorithm in RATIOS:
         for compiled in (False, True):
             lines.append(
-                f"| {plain} | {'compiled' if compiled else 'eager'} | "
-                f"{ratio(results, plain, ef, compiled, 'updates_per_s')} | "
-                f"{ratio(results, plain, ef, compiled, 'env_steps_per_s')} |"
+                f"| {algorithm} / {baseline} | {'compiled' if compiled else 'eager'} | "
+                f"{ratio(results, baseline, algorithm, compiled, 'updates_per_s')} | "
+                f"{ratio(results, baseline, algorithm, compiled, 'env_steps_per_s')} |"
             )
     return "\n".join(lines) + "\n"
 

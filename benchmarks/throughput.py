@@ -1,18 +1,20 @@
-"""Training throughput of the Ego-Foresight algorithms against their plain versions, in the same run.
+"""Training throughput of the Ego-Foresight algorithms against their plain versions, and of the paper's other
+baselines against their hosts (SEAR against DrQ-v2, CURL against SAC), in the same run.
 
-For each pair (plain, EF) and each setting it measures, after a warm-up that fills the buffer:
+For each pair (baseline, algorithm) and each setting it measures, after a warm-up that fills the buffer:
 - env steps/s of the whole training loop (acting, env step with rendering, buffer, updates at the algorithm's
   ``train_freq``), as the paper's throughput table does;
 - updates/s of ``train()`` alone (one gradient step at the setting's batch size).
-Plain and EF runs are interleaved ``--repeats`` times and the medians are reported, with wall-clock rates and rates
-per CPU-second of this process (the latter are less sensitive to other processes on a shared machine).
+Baseline and algorithm runs are interleaved ``--repeats`` times and the medians are reported, with wall-clock rates
+and rates per CPU-second of this process (the latter are less sensitive to other processes on a shared machine).
 
 Usage (headless rendering needs EGL)::
 
     MUJOCO_GL=egl python benchmarks/throughput.py --setting all --threads 1
+    MUJOCO_GL=egl python benchmarks/throughput.py --setting cpu-64 --threads 1 --pair SEAR CURL
 
-To add a pair, append ``(name, plain class, EF class, algorithm kwargs)`` to ``PAIRS``; both classes must accept
-``policy, env, batch_size, buffer_size, learning_starts, seed`` and the EF class ``babbling_steps``.
+To add a pair, append a :class:`Pair` to ``PAIRS``; both classes must accept
+``policy, env, batch_size, buffer_size, learning_starts, seed``.
 """
 
 from __future__ import annotations
@@ -27,20 +29,56 @@ from dataclasses import dataclass
 from typing import Any
 
 import torch as th
+from stable_baselines3 import SAC
 
+from sb3_ef.common.buffers import SequenceReplayBuffer
+from sb3_ef.curl import CURL, CURLEncoder
 from sb3_ef.drqv2 import DrQv2, DrQv2EF
 from sb3_ef.envs import make_env
+from sb3_ef.sear import SEAR
 from sb3_ef.tdmpc2 import TDMPC2, TDMPC2EF
 
 ENV_NAME = "dmc/cartpole-swingup"
 
-# (name, plain class, EF class, algorithm kwargs shared by both).
-PAIRS: list[tuple[str, type, type, dict[str, Any]]] = [
-    ("DrQ-v2", DrQv2, DrQv2EF, {}),
-    ("TD-MPC2", TDMPC2, TDMPC2EF, {"seed_burst": False}),  # the warm-up's burst of updates is not measured
+
+@dataclass(frozen=True)
+class Pair:
+    """A baseline and the algorithm compared with it. ``input_size(size)`` is the encoders' input size at a setting's
+    ``size``; ``kwargs(input)`` gives the (baseline, algorithm) constructor arguments for it; ``render(input)`` the
+    rendered frame size; ``env_kwargs`` go to the algorithm's env only (``make_env``'s)."""
+
+    name: str
+    baseline: type
+    algorithm: type
+    kwargs: Callable[[int], tuple[dict[str, Any], dict[str, Any]]]
+    input_size: Callable[[int], int] = lambda size: size
+    render: Callable[[int], int] = lambda size: size
+    env_kwargs: dict[str, Any] = dataclasses.field(default_factory=dict)
+    is_ef: bool = False
+
+
+def _curl_kwargs(size: int) -> tuple[dict[str, Any], dict[str, Any]]:
+    """SAC with CURL's encoder, acting and learning on the centre crop of whole frames, against CURL (the same
+    encoder on random crops, plus its contrastive step); both at the CURL paper's networks."""
+    sac_policy = {
+        "features_extractor_class": CURLEncoder,
+        "features_extractor_kwargs": {"crop_size": size},
+        "normalize_images": False,
+        "net_arch": [1024, 1024],
+    }
+    shared = {"learning_rate": 1e-3, "ent_coef": "auto_0.1", "target_update_interval": 2}
+    sac = {**shared, "policy_kwargs": sac_policy, "replay_buffer_class": SequenceReplayBuffer}
+    return sac, {**shared, "crop_size": size, "policy_kwargs": {"net_arch": [1024, 1024]}}
+
+
+PAIRS: list[Pair] = [
+    Pair("DrQ-v2", DrQv2, DrQv2EF, lambda size: ({}, {}), is_ef=True),
+    # The warm-up's burst of updates is not measured; TD-MPC2's conv stack is built for 64x64.
+    Pair("TD-MPC2", TDMPC2, TDMPC2EF, lambda size: ({"seed_burst": False},) * 2, lambda size: 64, is_ef=True),
+    Pair("SEAR", DrQv2, SEAR, lambda size: ({}, {}), env_kwargs={"agent_masks": True}),
+    # CURL renders 100x100 frames for 84x84 crops: the same ratio at other sizes.
+    Pair("CURL", SAC, CURL, _curl_kwargs, render=lambda size: round(size * 100 / 84)),
 ]
-# Pairs whose encoder takes another frame size than the setting's (TD-MPC2's conv stack is built for 64x64).
-FRAME_SIZES = {"TD-MPC2": 64}
 
 
 @dataclass(frozen=True)
@@ -57,6 +95,7 @@ class Setting:
 SETTINGS = {
     "paper": Setting(size=84, batch_size=256, warmup_steps=300, loop_steps=20, updates=4),
     "cpu-small": Setting(size=84, batch_size=32, warmup_steps=300, loop_steps=60, updates=20),
+    "cpu-64": Setting(size=64, batch_size=32, warmup_steps=300, loop_steps=40, updates=10),
 }
 
 
@@ -77,9 +116,9 @@ def timed(function: Callable[[], object]) -> tuple[float, float]:
     return time.perf_counter() - wall, time.process_time() - cpu
 
 
-def build(algorithm: type, setting: Setting, kwargs: dict[str, Any]):
+def build(algorithm: type, setting: Setting, kwargs: dict[str, Any], env_kwargs: dict[str, Any] | None = None):
     """A model on a fast-rendering cartpole, its buffer filled with warm-up steps and its first updates done."""
-    env = make_env(ENV_NAME, size=setting.size, fast_render=True, seed=0)
+    env = make_env(ENV_NAME, size=setting.size, fast_render=True, seed=0, **(env_kwargs or {}))
     model = algorithm(
         "CnnPolicy",
         env,
@@ -93,14 +132,18 @@ def build(algorithm: type, setting: Setting, kwargs: dict[str, Any]):
     return model
 
 
-def measure_pair(
-    plain: type, ef: type, setting: Setting, kwargs: dict[str, Any], ef_kwargs: dict[str, Any], repeats: int
-) -> dict[str, Rates]:
-    """Interleaved plain / EF measurements; returns the median rates of each. Babbling is off in the EF model:
-    it skips the actor, which is not the steady state."""
+def measure_pair(pair: Pair, setting: Setting, ef_kwargs: dict[str, Any], repeats: int) -> dict[str, Rates]:
+    """Interleaved baseline / algorithm measurements at the setting's encoder input size; returns the median rates of
+    each (keys ``plain`` and ``ef``). Babbling is off in an EF model: it skips the actor, which is not the steady
+    state; ``ef_kwargs`` apply to EF models only."""
+    size = pair.input_size(setting.size)
+    baseline_kwargs, algorithm_kwargs = pair.kwargs(size)
+    if pair.is_ef:
+        algorithm_kwargs = {**algorithm_kwargs, "babbling_steps": 0, **ef_kwargs}
+    rendered = dataclasses.replace(setting, size=pair.render(size))
     models = {
-        "plain": build(plain, setting, kwargs),
-        "ef": build(ef, setting, {**kwargs, "babbling_steps": 0, **ef_kwargs}),
+        "plain": build(pair.baseline, rendered, baseline_kwargs),
+        "ef": build(pair.algorithm, rendered, algorithm_kwargs, pair.env_kwargs),
     }
     samples: dict[str, list[tuple[float, float, float, float]]] = {name: [] for name in models}
     try:
@@ -128,7 +171,7 @@ def measure_pair(
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--setting", choices=[*SETTINGS, "all"], default="all")
-    parser.add_argument("--pair", choices=[name for name, *_ in PAIRS] + ["all"], default="all")
+    parser.add_argument("--pair", nargs="+", choices=[pair.name for pair in PAIRS] + ["all"], default=["all"])
     parser.add_argument("--repeats", type=int, default=3)
     # One thread by default: on a shared, loaded 2-core machine two threads wait on each other at every barrier.
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
@@ -145,22 +188,25 @@ def main() -> None:
     th.set_num_threads(args.threads)
 
     settings = SETTINGS if args.setting == "all" else {args.setting: SETTINGS[args.setting]}
-    pairs = [pair for pair in PAIRS if args.pair in ("all", pair[0])]
+    pairs = [pair for pair in PAIRS if "all" in args.pair or pair.name in args.pair]
     device = "CUDA " + th.cuda.get_device_name() if th.cuda.is_available() else f"CPU, {args.threads} torch threads"
     decoded = "whole batch" if args.decode_batch_size is None else f"{args.decode_batch_size} samples"
     print(f"{ENV_NAME}, fast_render, {device}; EF decodes {decoded}; load average before: {os.getloadavg()[0]:.1f}")
     print(
-        "| setting | pair | env steps/s plain | env steps/s EF | EF/plain | updates/s plain | updates/s EF | EF/plain "
-        "| EF/plain per CPU-s (steps, updates) |"
+        "| setting | pair (algorithm / baseline) | env steps/s baseline | env steps/s algorithm | ratio "
+        "| updates/s baseline | updates/s algorithm | ratio | ratio per CPU-s (steps, updates) |"
     )
     print("|---|---|---|---|---|---|---|---|---|")
     for setting_name, setting in settings.items():
-        for name, plain, ef, kwargs in pairs:
-            pair_setting = dataclasses.replace(setting, size=FRAME_SIZES.get(name, setting.size))
-            rates = measure_pair(plain, ef, pair_setting, kwargs, ef_kwargs, args.repeats)
+        for pair in pairs:
+            rates = measure_pair(pair, setting, ef_kwargs, args.repeats)
             p, e = rates["plain"], rates["ef"]
+            size = pair.input_size(setting.size)
+            rendered = pair.render(size)
+            frames = f"{size}x{size}" if size == rendered else f"{size}x{size} crops of {rendered}x{rendered}"
+            label = f"{pair.algorithm.__name__} / {pair.baseline.__name__}"
             print(
-                f"| {setting_name} ({pair_setting.size}x{pair_setting.size}, batch {setting.batch_size}) | {name} "
+                f"| {setting_name} ({frames}, batch {setting.batch_size}) | {label} "
                 f"| {p.steps_per_s:.2f} | {e.steps_per_s:.2f} | {e.steps_per_s / p.steps_per_s:.2f} "
                 f"| {p.updates_per_s:.2f} | {e.updates_per_s:.2f} | {e.updates_per_s / p.updates_per_s:.2f} "
                 f"| {e.steps_per_cpu_s / p.steps_per_cpu_s:.2f}, {e.updates_per_cpu_s / p.updates_per_cpu_s:.2f} |",

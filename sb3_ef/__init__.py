@@ -23,6 +23,8 @@ _PUBLIC = {
     "SACEF": "sb3_ef.sb3_hosts",
     "TD3EF": "sb3_ef.sb3_hosts",
     "TQCEF": "sb3_ef.sb3_hosts",
+    "SEAR": "sb3_ef.sear",
+    "CURL": "sb3_ef.curl",
     "SequenceReplayBuffer": "sb3_ef.common.buffers",
     "make_env": "sb3_ef.envs",
 }

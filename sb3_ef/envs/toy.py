@@ -12,6 +12,8 @@ from gymnasium import spaces
 AGENT_COLOUR = (255, 0, 0)
 DISTRACTOR_COLOUR = (0, 255, 0)
 WALL_COLOUR = (0, 0, 160)
+#: Info key of the agent masks, that of ``sb3_ef.envs.pixel_env`` (not imported: this module needs no MuJoCo).
+AGENT_MASKS_INFO_KEY = "agent_masks"
 
 
 class ToyAgentEnv(gym.Env):
@@ -28,6 +30,10 @@ class ToyAgentEnv(gym.Env):
     :param frame_stack: number of stacked frames.
     :param max_episode_steps: episode length, reported as ``truncated``.
     :param distractor: whether to draw the distractor.
+    :param agent_masks: put the agent masks of the frames in the infos, as ``make_env(..., agent_masks=True)``'s
+        envs do (``info["agent_masks"]``: ``reset``'s the ``(frame_stack, size, size)`` masks of the observation's
+        frames, ``step``'s the ``(frame_stack + 1, size, size)`` masks of the previous observation's frames and of
+        the new frame, oldest first).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
@@ -39,6 +45,7 @@ class ToyAgentEnv(gym.Env):
         max_episode_steps: int = 50,
         distractor: bool = True,
         render_mode: str | None = None,
+        agent_masks: bool = False,
     ):
         if size < 8:
             raise ValueError(f"size must be >= 8 pixels, got {size}")
@@ -51,11 +58,13 @@ class ToyAgentEnv(gym.Env):
         self.max_episode_steps = max_episode_steps
         self.distractor = distractor
         self.render_mode = render_mode
+        self.agent_masks = agent_masks
         self.square = max(2, size * 3 // 16)
         self.speed = max(1.0, size / 16)
         self.observation_space = spaces.Box(0, 255, (3 * frame_stack, size, size), np.uint8)
         self.action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
         self._frames: deque[np.ndarray] = deque(maxlen=frame_stack)
+        self._masks: deque[np.ndarray] = deque(maxlen=frame_stack + 1)
         self._agent = np.zeros(2)
         self._distractor = np.zeros(2)
         self._wall = np.zeros(2, dtype=int)
@@ -70,7 +79,12 @@ class ToyAgentEnv(gym.Env):
         self._steps = 0
         frame = self._render_frame()
         self._frames.extend([frame] * self.frame_stack)
-        return self._observation(), {}
+        info: dict[str, Any] = {}
+        if self.agent_masks:
+            self._masks.clear()
+            self._masks.extend([self.agent_mask()] * self.frame_stack)
+            info[AGENT_MASKS_INFO_KEY] = np.stack(self._masks)
+        return self._observation(), info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         action = np.asarray(action, dtype=np.float64)
@@ -85,7 +99,11 @@ class ToyAgentEnv(gym.Env):
         self._frames.append(self._render_frame())
         centre = (self.size - self.square) / 2
         reward = -float(np.linalg.norm(self._agent - centre)) / self.size
-        return self._observation(), reward, False, self._steps >= self.max_episode_steps, {}
+        info: dict[str, Any] = {}
+        if self.agent_masks:
+            self._masks.append(self.agent_mask())
+            info[AGENT_MASKS_INFO_KEY] = np.stack(self._masks)
+        return self._observation(), reward, False, self._steps >= self.max_episode_steps, info
 
     def render(self) -> np.ndarray:
         """The newest frame, (size, size, 3) uint8."""

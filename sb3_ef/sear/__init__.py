@@ -2,5 +2,15 @@
 
 from sb3_ef.sear.decoder import SEARDecoder
 from sb3_ef.sear.loss import SEAR_COEFFICIENTS, SEAR_LATENT_DIM, SEARLoss, SEARTargets, resolve_coefficients
+from sb3_ef.sear.sear import SEAR, SEARPolicy
 
-__all__ = ["SEAR_COEFFICIENTS", "SEAR_LATENT_DIM", "SEARDecoder", "SEARLoss", "SEARTargets", "resolve_coefficients"]
+__all__ = [
+    "SEAR",
+    "SEAR_COEFFICIENTS",
+    "SEAR_LATENT_DIM",
+    "SEARDecoder",
+    "SEARLoss",
+    "SEARPolicy",
+    "SEARTargets",
+    "resolve_coefficients",
+]

@@ -17,8 +17,9 @@ import yaml
 
 from sb3_ef.common.validation import did_you_mean
 
-#: Algorithm keys whose configs hold the paper's tasks and settings.
-PAPER_ALGORITHMS = ("drqv2_ef", "drqv2", "tdmpc2_ef", "tdmpc2")
+#: Algorithm keys whose configs hold the paper's tasks and settings: EF's hosts with and without EF, and the
+#: paper's baselines SEAR and CURL.
+PAPER_ALGORITHMS = ("drqv2_ef", "drqv2", "tdmpc2_ef", "tdmpc2", "sear", "curl")
 #: Algorithm keys this package registers in rl-zoo3: the paper's, and EF on SB3's SAC, TD3 and sb3-contrib's TQC.
 ZOO_ALGORITHMS = (*PAPER_ALGORITHMS, "sac_ef", "td3_ef", "tqc_ef")
 

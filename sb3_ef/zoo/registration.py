@@ -18,8 +18,10 @@ from sb3_ef.zoo.hyperparams_opt import CONVERTERS, SAMPLERS
 
 def algorithm_classes() -> dict[str, type]:
     """rl-zoo3 key -> algorithm class (imported on demand: the algorithms pull in torch)."""
+    from sb3_ef.curl import CURL
     from sb3_ef.drqv2 import DrQv2, DrQv2EF
     from sb3_ef.sb3_hosts import SACEF, TD3EF, TQCEF
+    from sb3_ef.sear import SEAR
     from sb3_ef.tdmpc2 import TDMPC2, TDMPC2EF
 
     return {
@@ -27,6 +29,8 @@ def algorithm_classes() -> dict[str, type]:
         "drqv2": DrQv2,
         "tdmpc2_ef": TDMPC2EF,
         "tdmpc2": TDMPC2,
+        "sear": SEAR,
+        "curl": CURL,
         "sac_ef": SACEF,
         "td3_ef": TD3EF,
         "tqc_ef": TQCEF,
@@ -43,8 +47,8 @@ def config_namespace() -> dict[str, Any]:
 
 
 def register_algorithms(base_policy_kwargs: dict[str, Any] | None = None) -> None:
-    """Add sb3-ef's algorithms (:func:`algorithm_classes`) to rl-zoo3, with the samplers and converters of
-    :mod:`sb3_ef.zoo.hyperparams_opt`.
+    """Add the algorithms of :func:`algorithm_classes` to rl-zoo3, with the Optuna samplers and converters of those
+    that have one (``sb3_ef.zoo.hyperparams_opt``).
 
     :param base_policy_kwargs: ``policy_kwargs`` of the config entry in use. rl-zoo3 replaces the entry's
         ``policy_kwargs`` with the sampled ones; the samplers merge into these instead, so tuning ``agent_dim`` keeps

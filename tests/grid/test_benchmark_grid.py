@@ -130,7 +130,14 @@ def test_paper_grid_covers_the_papers_tasks_at_its_budgets_with_expected_hours(t
         by_algorithm.setdefault(run.label, set()).add(run.task)
     dmc = {f"dmc/{task}-v0" for task in DMC_PAPER_TASKS}
     metaworld = {f"metaworld/{task}-v0" for task in METAWORLD_PAPER_TASKS}
-    assert by_algorithm == {"drqv2": dmc | metaworld, "drqv2_ef": dmc | metaworld, "tdmpc2": dmc, "tdmpc2_ef": dmc}
+    assert by_algorithm == {
+        "drqv2": dmc | metaworld,
+        "drqv2_ef": dmc | metaworld,
+        "tdmpc2": dmc,
+        "tdmpc2_ef": dmc,
+        "sear": dmc | metaworld,
+        "curl": dmc,
+    }
     assert {run.seed for run in runs} == set(range(5))
     for run in runs:
         frames = run.n_timesteps * run.action_repeat

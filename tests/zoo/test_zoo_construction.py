@@ -62,9 +62,11 @@ def test_sample_entries_build_env_and_model(algo, env_id, tmp_path):
 def test_all_entries_build_env_and_model_at_paper_sizes(algo, tmp_path):
     """Paper networks and frame sizes; only the replay buffer is shrunk (1M frames would be ~21 GB at 84x84)."""
     overrides = {"buffer_size": 1000}
-    for env_id in load_config(default_config_path(algo)):
+    config = load_config(default_config_path(algo))
+    for env_id, entry in config.items():
         if env_id == "default":
             continue
-        size = 64 if algo.startswith("tdmpc2") else 84
-        model = build(algo, env_id, str(tmp_path), overrides, {"size": size, "fast_render": True})
+        size = 64 if algo.startswith("tdmpc2") else 100 if algo == "curl" else 84
+        env_kwargs = {**entry.get("env_kwargs", {}), "size": size, "fast_render": True}
+        model = build(algo, env_id, str(tmp_path), overrides, env_kwargs)
         check_entry(algo, env_id, model, overrides, size)

@@ -9,11 +9,13 @@ from typing import Any
 
 from sb3_ef.zoo.config import ZOO_ALGORITHMS
 
-#: Per algorithm: frames of this size (TD-MPC2's encoder takes 64x64 only), short episodes, fast rendering.
+#: Per algorithm: frames of this size (TD-MPC2's encoder takes 64x64 only; CURL's are cropped to 32x32), short
+#: episodes, fast rendering.
+_SIZES = {"tdmpc2_ef": 64, "tdmpc2": 64, "curl": 40}
 ENV_KWARGS: dict[str, dict[str, Any]] = {
-    algo: {"size": 64 if algo.startswith("tdmpc2") else 32, "fast_render": True, "episode_length": 40}
-    for algo in ZOO_ALGORITHMS
+    algo: {"size": _SIZES.get(algo, 32), "fast_render": True, "episode_length": 40} for algo in ZOO_ALGORITHMS
 }
+ENV_KWARGS["sear"]["agent_masks"] = True  # rl-zoo3's --env-kwargs replace the entry's
 
 _DRQV2_POLICY = {"net_arch": [32], "trunk_dim": 16}
 _TDMPC2_POLICY = {
@@ -60,6 +62,20 @@ HYPERPARAMS: dict[str, dict[str, Any]] = {
             "policy_kwargs": _SB3_POLICY,
         }
         for algo in ("sac_ef", "td3_ef", "tqc_ef")
+    },
+    "sear": {
+        "buffer_size": 4000,
+        "batch_size": 8,
+        "learning_starts": 40,
+        "policy_kwargs": {**_DRQV2_POLICY, "features_dim": 64},
+    },
+    "curl": {
+        "buffer_size": 4000,
+        "batch_size": 8,
+        "learning_starts": 40,
+        "crop_size": 32,
+        "features_dim": 16,
+        "policy_kwargs": {"net_arch": [32]},
     },
 }
 

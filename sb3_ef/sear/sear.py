@@ -1,0 +1,146 @@
+"""SEAR: DrQ-v2 whose encoder is also trained to reconstruct the frames and the agent masks (Gmelin et al., 2023)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any, ClassVar
+
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import GymEnv, Schedule
+from stable_baselines3.common.vec_env import VecEnv
+
+from sb3_ef.common.compile import CompileOption
+from sb3_ef.common.schedules import StepSchedule
+from sb3_ef.drqv2.drqv2 import DrQv2
+from sb3_ef.drqv2.policies import DrQv2Policy
+from sb3_ef.sear.loss import SEAR_LATENT_DIM, SEARLoss, resolve_coefficients
+
+
+class SEARPolicy(DrQv2Policy):
+    """:class:`DrQv2Policy` whose encoder projects to SEAR's latent (``features_dim`` 4096, split in halves by
+    :class:`SEARLoss`). The other arguments are :class:`DrQv2Policy`'s."""
+
+    def __init__(
+        self,
+        observation_space: spaces.Box,
+        action_space: spaces.Box,
+        lr_schedule: Schedule,
+        features_dim: int | None = SEAR_LATENT_DIM,
+        **kwargs: Any,
+    ):
+        super().__init__(observation_space, action_space, lr_schedule, features_dim=features_dim, **kwargs)
+
+
+def check_agent_masks(env: VecEnv) -> None:
+    """Raise a ``ValueError`` unless every env of ``env`` renders agent masks (``agent_masks`` true)."""
+    try:
+        flags = env.get_attr("agent_masks")
+    except AttributeError:
+        flags = [False]
+    if not all(flags):
+        raise ValueError(
+            "SEAR needs an env that renders the agent mask of every frame: build it with "
+            "make_env(..., agent_masks=True) (with rl-zoo3: env_kwargs agent_masks: true, also in --env-kwargs, "
+            f"which replaces the entry's env_kwargs), got an env whose agent_masks are {flags}"
+        )
+
+
+class SEAR(DrQv2):
+    """SEAR (Gmelin, Bahl, Mendonca and Pathak, "Efficient RL via Disentangled Environment and Agent
+    Representations", ICML 2023): :class:`DrQv2` whose encoder's latent is split in halves, the first decoded to the
+    observation's frames, the second to their agent masks (:class:`SEARLoss`); the encoder is trained by
+    ``critic_loss + reconstruction_coef * reconstruction + mask_coef * mask`` and both decoders learn in the
+    critic's Adam.
+
+    The env must render agent masks (``make_env(..., agent_masks=True)``); the replay buffer stores one per frame
+    (``SequenceReplayBuffer(store_masks=True)``, set here) and shifts each with its frames.
+
+    :param buffer_size: replay buffer capacity in transitions (250000, SEAR's).
+    :param coefficients: ``"sear"`` (reconstruction 1, mask 0.25: the SEAR authors'), ``"efrl"`` (0.01, 0.0025:
+        the Ego-Foresight authors' copy) or a pair ``(reconstruction_coef, mask_coef)``.
+    :param policy_kwargs: see :class:`SEARPolicy` (``features_dim`` 4096, and :class:`DrQv2Policy`'s).
+
+    The other arguments are :class:`DrQv2`'s.
+    """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"CnnPolicy": SEARPolicy}
+
+    def __init__(
+        self,
+        policy: str | type[DrQv2Policy],
+        env: GymEnv | str,
+        learning_rate: float | Schedule = 1e-4,
+        buffer_size: int = 250_000,
+        learning_starts: int = 2000,
+        batch_size: int = 256,
+        tau: float = 0.01,
+        gamma: float = 0.99,
+        train_freq: int | tuple[int, str] = 2,
+        gradient_steps: int = 1,
+        n_steps: int = 3,
+        exploration_std: float | str | StepSchedule = "linear(1.0,0.1,500000)",
+        target_noise_clip: float = 0.3,
+        coefficients: str | Sequence[float] = "sear",
+        check_finite_losses: bool = False,
+        compile: CompileOption = False,
+        replay_buffer_class: type[ReplayBuffer] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+    ):
+        resolve_coefficients(coefficients)  # a bad preset or pair fails here, before anything is built
+        store_masks = (replay_buffer_kwargs or {}).get("store_masks", True)
+        if store_masks is not True:
+            raise ValueError(
+                f"SEAR reads the agent masks from the replay buffer: replay_buffer_kwargs must not set store_masks "
+                f"to {store_masks!r}"
+            )
+        super().__init__(
+            policy,
+            env,
+            learning_rate,
+            buffer_size,
+            learning_starts,
+            batch_size,
+            tau,
+            gamma,
+            train_freq,
+            gradient_steps,
+            n_steps=n_steps,
+            exploration_std=exploration_std,
+            target_noise_clip=target_noise_clip,
+            check_finite_losses=check_finite_losses,
+            compile=compile,
+            replay_buffer_class=replay_buffer_class,
+            replay_buffer_kwargs={**(replay_buffer_kwargs or {}), "store_masks": True},
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            policy_kwargs=policy_kwargs,
+            verbose=verbose,
+            seed=seed,
+            device=device,
+            _init_setup_model=False,
+        )
+        if self.env is not None:
+            check_agent_masks(self.env)
+        self.coefficients = coefficients
+        if _init_setup_model:
+            self._setup_model()
+
+    def set_env(self, env: GymEnv, force_reset: bool = True) -> None:
+        """SB3's ``set_env``, refusing an env without agent masks."""
+        super().set_env(env, force_reset)
+        assert self.env is not None
+        check_agent_masks(self.env)
+
+    def _build_auxiliary(self) -> SEARLoss:
+        """SEAR's two decoders on the halves of the encoder's latent, for this env's observations."""
+        return SEARLoss(self.policy.encoder.features_dim, self.observation_space.shape, self.coefficients)  # type: ignore[arg-type]
