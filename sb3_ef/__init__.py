@@ -23,6 +23,7 @@ _PUBLIC = {
     "SACEF": "sb3_ef.sb3_hosts",
     "TD3EF": "sb3_ef.sb3_hosts",
     "TQCEF": "sb3_ef.sb3_hosts",
+    "MotorBabblingCallback": "sb3_ef.ef.babbling",
     "SequenceReplayBuffer": "sb3_ef.common.buffers",
     "make_env": "sb3_ef.envs",
 }

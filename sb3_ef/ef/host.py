@@ -2,9 +2,10 @@
 
 A host is an SB3 ``OffPolicyAlgorithm`` whose policy has an encoder and, when EF is on, an ``ef`` module (``None``
 when off: that is the only switch). :class:`EFHostMixin` gives it EF's training step (the window: rollout length k,
-frame t+k shifted together with the context, validity), the EF loss, motor babbling in its action selection, the
-sequence replay buffer, the accessors ``ef`` / ``encode`` / ``frame_shape`` read by ``sb3_ef.analysis``, and the
-optional finite-loss check. :func:`build_ef` builds the EF module for a policy.
+frame t+k shifted together with the context, validity), the EF loss, motor babbling (a
+:class:`~sb3_ef.ef.babbling.MotorBabblingCallback` added to ``learn``'s callbacks), the sequence replay buffer, the
+accessors ``ef`` / ``encode`` / ``frame_shape`` read by ``sb3_ef.analysis``, and the optional finite-loss check.
+:func:`build_ef` builds the EF module for a policy.
 """
 
 from __future__ import annotations
@@ -18,15 +19,14 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import Logger
-from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.type_aliases import MaybeCallback
-from stable_baselines3.common.utils import is_vectorized_observation
 
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_sequence_buffer
-from sb3_ef.ef.babbling import babble, check_babbling
+from sb3_ef.ef.babbling import MotorBabblingCallback, check_babbling, with_babbling
 from sb3_ef.ef.foresight import EgoForesight
 
 SelfEFHost = TypeVar("SelfEFHost", bound="EFHostMixin")
@@ -115,8 +115,8 @@ class EFHostMixin:
 
     The host calls :meth:`_init_ef` in ``__init__``, :meth:`_use_sequence_buffer` before ``super()._setup_model()``
     and, in its update, :meth:`_ef_window` (the context it encodes, and the EF window) and :meth:`_ef_loss`.
-    Babbling needs nothing from the host: while ``num_timesteps < babbling_steps`` the rollout actions are random
-    (own generator seeded from the model's ``seed``, saved with the model), logged as ``rollout/babbling``.
+    Babbling needs nothing from the host: with ``babbling_steps > 0``, ``learn`` runs a
+    :class:`MotorBabblingCallback` of those steps before the caller's callbacks (its state is saved with the model).
     """
 
     policy: Any
@@ -136,11 +136,9 @@ class EFHostMixin:
     babbling_mode: str = "sign"
     babbling_in_eval: bool = False
     check_finite_losses: bool = False
-    # Generators of EF's rollout lengths and of the babbling actions (training, evaluation); created in
-    # ``_setup_model`` from the seed, saved with the model so that a resumed run continues their streams.
+    # Generator of EF's rollout lengths; created in ``_setup_model`` from the seed, saved with the model so that a
+    # resumed run continues its stream.
     _ef_generator: th.Generator | None = None
-    _babbling_rng: np.random.Generator | None = None
-    _eval_babbling_rng: np.random.Generator | None = None
 
     def _init_ef(
         self,
@@ -172,7 +170,7 @@ class EFHostMixin:
 
     def _setup_model(self) -> None:
         """SB3's ``_setup_model`` (the buffer's n-step returns are configured through its kwargs, so SB3's warning
-        that ``n_steps`` is ignored does not apply), then EF's generators unless they were loaded."""
+        that ``n_steps`` is ignored does not apply), then EF's generator unless it was loaded."""
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message=r"`n_steps=\d+` is ignored because a custom")
             super()._setup_model()  # type: ignore[misc]
@@ -180,9 +178,6 @@ class EFHostMixin:
             # On the CPU, so that a saved model loads on any device.
             self._ef_generator = th.Generator()
             self._ef_generator.manual_seed(int(np.random.randint(2**31)) if self.seed is None else self.seed)
-        if self._babbling_rng is None or self._eval_babbling_rng is None:
-            seeds = np.random.SeedSequence(None if self.seed is None else self.seed % 2**32).spawn(2)
-            self._babbling_rng, self._eval_babbling_rng = (np.random.default_rng(seed) for seed in seeds)
 
     @property
     def ef(self) -> EgoForesight | None:
@@ -234,38 +229,12 @@ class EFHostMixin:
             values = th.stack([update[key].detach().reshape(()) for update in updates])
             self.logger.record(f"train/{key}", float(values.double().mean()))
 
-    def _babble(self, n_envs: int, rng: np.random.Generator | None) -> np.ndarray:
-        """Babbling actions ``(n_envs, *action_shape)`` in [-1, 1]."""
-        assert rng is not None, "the babbling generator is created in _setup_model"
-        return babble(rng, (n_envs, *self.action_space.shape), self.babbling_mode)  # type: ignore[misc]
-
-    def _sample_action(
-        self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Motor babbling while ``num_timesteps < babbling_steps``, else the host's own action selection."""
-        babbling = self.num_timesteps < self.babbling_steps
+    def _init_callback(self, callback: MaybeCallback, progress_bar: bool = False) -> BaseCallback:
+        """SB3's, with the :class:`MotorBabblingCallback` of ``babbling_steps`` first when babbling is on."""
         if self.babbling_steps > 0:
-            self.logger.record("rollout/babbling", float(babbling))
-        if not babbling:
-            return super()._sample_action(learning_starts, action_noise, n_envs)  # type: ignore[misc]
-        buffer_action = self._babble(n_envs, self._babbling_rng)
-        return self.policy.unscale_action(buffer_action), buffer_action
-
-    def predict(
-        self,
-        observation: np.ndarray | dict[str, np.ndarray],
-        state: tuple[np.ndarray, ...] | None = None,
-        episode_start: np.ndarray | None = None,
-        deterministic: bool = False,
-    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
-        """SB3's ``predict``; with ``babbling_in_eval``, babbling actions while ``num_timesteps < babbling_steps``
-        (the EF authors' Meta-World evaluation protocol), from a generator separate from training's."""
-        if self.babbling_in_eval and self.num_timesteps < self.babbling_steps:
-            vectorized = is_vectorized_observation(observation, self.observation_space)
-            n_envs = len(observation) if vectorized else 1  # type: ignore[arg-type]
-            actions = self.policy.unscale_action(self._babble(n_envs, self._eval_babbling_rng))
-            return (actions if vectorized else actions[0]), state
-        return super().predict(observation, state, episode_start, deterministic)  # type: ignore[misc]
+            babbling = MotorBabblingCallback(self.babbling_steps, self.babbling_mode, self.babbling_in_eval)
+            callback = with_babbling(babbling, callback)
+        return super()._init_callback(callback, progress_bar)  # type: ignore[misc]
 
     def learn(
         self: SelfEFHost,
