@@ -344,6 +344,11 @@ class MotorBabblingCallback(BaseCallback):
     def end_reason(self) -> str | None:
         return self.state.end_reason
 
+    @property
+    def scores(self) -> list[tuple[int, float]]:
+        """Adaptive babbling's evaluations so far, ``(step, score)``."""
+        return self.state.scores
+
     def _init_callback(self) -> None:
         model = self.model
         if not isinstance(model, OffPolicyAlgorithm):
