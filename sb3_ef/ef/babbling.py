@@ -220,18 +220,18 @@ class MotorBabblingCallback(BaseCallback):
         during training) babbles too, from a separate generator (the EF authors' Meta-World protocol).
     :param seed: seed of the babbling generators; ``None`` takes the model's ``seed``. A model that already holds
         a babbling state (a loaded checkpoint, an earlier ``learn``) continues it instead.
-    :param min_steps: adaptive: babbling never ends before this step.
+    :param min_steps: adaptive: babbling never ends before this step (default 0).
     :param max_steps: adaptive: babbling always ends at this step.
-    :param patience: adaptive: evaluations in a row without improvement that make a plateau.
-    :param min_delta: adaptive: relative improvement of the best score that counts (0.01: 1% lower).
-    :param eval_freq: adaptive: steps between two evaluations.
+    :param patience: adaptive: evaluations in a row without improvement that make a plateau (default 3).
+    :param min_delta: adaptive: relative improvement of the best score that counts (default 0.01: 1% lower).
+    :param eval_freq: adaptive: steps between two evaluations (default 1000).
     :param eval_env: adaptive: a single env like the training one (same observations), in which
         ``holdout_steps`` babbling steps are recorded at the start of training; EF is scored on
         ``holdout_windows`` windows of them (never stored in the replay buffer).
     :param criterion: adaptive: ``criterion(model) -> float``, a non-negative score, lower is better; instead of
         ``eval_env``.
-    :param holdout_steps: adaptive with ``eval_env``: babbling steps recorded in it.
-    :param holdout_windows: adaptive with ``eval_env``: windows scored at each evaluation.
+    :param holdout_steps: adaptive with ``eval_env``: babbling steps recorded in it (default 200).
+    :param holdout_windows: adaptive with ``eval_env``: windows scored at each evaluation (default 64).
     :param verbose: 1 to print when babbling ends.
     """
 
