@@ -7,7 +7,8 @@ The adaptive stage's end is the step at which ``MotorBabblingCallback("adaptive"
 ends: the library's :class:`~sb3_ef.ef.babbling.Plateau` rule applied to the same scores, from ``--min-steps`` on.
 Up to that step the adaptive run is the fixed run (same seed, same babbling draws; scoring draws nothing from the
 training generators), so one run gives both. Reported per run: the adaptive end step, the ratio there and at the
-fixed end, and the wall time of the babbling steps the adaptive stage saves.
+fixed end, and the wall time of the babbling steps the adaptive stage saves; also where the rule would end on the
+same ratio over all pixels (``frame_score_end``).
 
     MUJOCO_GL=egl OMP_NUM_THREADS=1 nice -n 19 python benchmarks/babbling.py --out babbling.jsonl
 """
@@ -30,12 +31,14 @@ from sb3_ef.envs import make_env
 
 
 class Scores(BaseCallback):
-    """EF's held-out error ratio every ``eval_freq`` steps from ``learning_starts`` on, with the wall time."""
+    """EF's held-out error ratios (agent pixels, all pixels) every ``eval_freq`` steps from ``learning_starts`` on,
+    with the wall time."""
 
     def __init__(self, held_out, eval_freq: int):
         super().__init__()
         self.held_out, self.eval_freq = held_out, eval_freq
-        self.scores: list[tuple[int, float, float]] = []  # step, ratio, seconds since the start of training
+        self.scores: list[tuple[int, float, float]] = []  # step, agent ratio, seconds since the start of training
+        self.frame_scores: list[tuple[int, float, float]] = []  # step, all-pixel ratio, seconds
         self.start = 0.0
 
     def _on_training_start(self) -> None:
@@ -43,14 +46,11 @@ class Scores(BaseCallback):
 
     def _on_rollout_start(self) -> None:
         step = self.num_timesteps
-        if (
-            step >= self.model.learning_starts
-            and step % self.eval_freq == 0
-            and step not in {s for s, *_ in self.scores}
-        ):
-            self.scores.append(
-                (step, foresight_error_ratio(self.model, self.held_out), time.perf_counter() - self.start)
-            )
+        if step < self.model.learning_starts or step % self.eval_freq or step in {s for s, *_ in self.scores}:
+            return
+        seconds = time.perf_counter() - self.start
+        self.scores.append((step, foresight_error_ratio(self.model, self.held_out), seconds))
+        self.frame_scores.append((step, foresight_error_ratio(self.model, self.held_out, agent_pixels=False), seconds))
 
     def _on_step(self) -> bool:
         return True
@@ -85,6 +85,7 @@ def run(task: str, seed: int, args: argparse.Namespace) -> dict:
     scores = Scores(held_out, args.eval_freq)
     model.learn(args.fixed_steps + 1, callback=scores)  # the rollout at fixed_steps scores the last babbling update
     end, reason = adaptive_end(scores.scores, args)
+    frame_end, frame_reason = adaptive_end(scores.frame_scores, args)
     by_step = {step: (score, seconds) for step, score, seconds in scores.scores}
     at_end = by_step[max(step for step in by_step if step <= end)]  # min_steps is a multiple of eval_freq
     at_fixed = by_step[args.fixed_steps]
@@ -93,6 +94,7 @@ def run(task: str, seed: int, args: argparse.Namespace) -> dict:
         "ratio_at_adaptive_end": at_end[0], "ratio_at_fixed_end": at_fixed[0],
         "seconds_at_adaptive_end": at_end[1], "seconds_at_fixed_end": at_fixed[1],
         "seconds_saved": at_fixed[1] - at_end[1], "scores": scores.scores,
+        "frame_score_end": frame_end, "frame_score_reason": frame_reason, "frame_scores": scores.frame_scores,
     }  # fmt: skip
 
 
@@ -120,7 +122,7 @@ def main() -> None:
                 result = run(task, seed, args)
                 file.write(json.dumps({**result, "settings": vars(args)}) + "\n")
                 file.flush()
-                print({key: value for key, value in result.items() if key != "scores"}, flush=True)
+                print({key: value for key, value in result.items() if not key.endswith("scores")}, flush=True)
     print(f"# load at the end {os.getloadavg()}", flush=True)
 
 

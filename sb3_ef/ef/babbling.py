@@ -164,10 +164,13 @@ def record_held_out_windows(
     )
 
 
-def foresight_error_ratio(model: Any, windows: HeldOutWindows, batch_size: int = 16) -> float:
+def foresight_error_ratio(
+    model: Any, windows: HeldOutWindows, agent_pixels: bool = True, batch_size: int = 16
+) -> float:
     """EF's open-loop prediction error on ``windows`` over the error of copying the newest context frame: squared
     error per pixel, over the agent's pixels (where the agent is in the newest context frame or in frame t+k) when
-    the windows have masks, else over all pixels; averaged over k = 1..H for the model and the copy, then divided."""
+    ``agent_pixels`` and the windows have masks, else over all pixels; averaged over k = 1..H for the model and the
+    copy, then divided."""
     horizon = windows.actions.shape[1]
     sums = np.zeros((3, horizon))  # model error, copy error, pixels, per k
     policy = model.policy
@@ -184,7 +187,7 @@ def foresight_error_ratio(model: Any, windows: HeldOutWindows, batch_size: int =
                 truth = th.as_tensor(windows.targets[rows], device=model.device).float() / 255.0
                 last = observations[:, None, -_CHANNELS:].float() / 255.0
                 errors = [(frames - truth).pow(2).mean(dim=2) for frames in (predicted, last)]
-                if windows.masks is None:
+                if windows.masks is None or not agent_pixels:
                     weight = th.ones_like(errors[0])
                 else:
                     masks = th.as_tensor(windows.masks[rows], device=model.device)
