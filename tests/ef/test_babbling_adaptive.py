@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from stable_baselines3 import SAC
@@ -9,8 +11,8 @@ from stable_baselines3.common.logger import KVWriter, Logger
 
 from sb3_ef import DrQv2EF, MotorBabblingCallback
 from sb3_ef.drqv2.policies import DrQv2Encoder
-from sb3_ef.ef.babbling import Plateau
-from sb3_ef.envs.toy import ToyAgentEnv
+from sb3_ef.ef.babbling import Plateau, foresight_error_ratio, record_held_out_windows
+from sb3_ef.envs.toy import AGENT_COLOUR, ToyAgentEnv
 
 EF_POLICY = {
     "net_arch": [16], "trunk_dim": 8, "features_dim": 32, "agent_dim": 8,
@@ -114,3 +116,27 @@ def test_the_held_out_env_must_match_the_model():
     model = drqv2_ef(learning_rate=1e-3)
     with pytest.raises(ValueError, match=r"eval_env observations must have the model's shape \(9, 32, 32\)"):
         model.learn(10, callback=adaptive(max_steps=50, eval_env=ToyAgentEnv(size=64)))
+
+
+def test_held_out_windows_are_consecutive_babbling_frames_with_their_agent_masks():
+    horizon = 3
+    windows = record_held_out_windows(
+        toy_env(), horizon, steps=50, windows=10, rng=np.random.default_rng(0), mode="sign"
+    )
+    assert windows.observations.shape == (10, 9, 32, 32) and windows.targets.shape == (10, horizon, 3, 32, 32)
+    assert windows.actions.shape == (10, horizon, 2) and np.all(np.abs(windows.actions) == 1.0)
+    red = np.array(AGENT_COLOUR, dtype=np.uint8)[:, None, None]
+    # The toy agent is the red square, drawn on top: its mask is where the frame is red.
+    np.testing.assert_array_equal(windows.masks[:, 1:], np.all(windows.targets == red, axis=2))
+    np.testing.assert_array_equal(windows.masks[:, 0], np.all(windows.observations[:, -3:] == red, axis=1))
+    # Windows spread over the episodes; one step later, a window's first target is the next context's newest frame.
+    again = record_held_out_windows(toy_env(), horizon, steps=50, windows=50, rng=np.random.default_rng(0), mode="sign")
+    np.testing.assert_array_equal(again.targets[:10, 0], again.observations[1:11, -3:])
+
+
+def test_the_agent_pixel_ratio_scores_only_where_the_agent_is():
+    model = drqv2_ef(learning_rate=1e-3)
+    windows = record_held_out_windows(toy_env(), 3, steps=40, windows=8, rng=np.random.default_rng(0), mode="sign")
+    agent, frame = (foresight_error_ratio(model, windows, agent_pixels=flag) for flag in (True, False))
+    without_masks = foresight_error_ratio(model, dataclasses.replace(windows, masks=None))
+    assert agent > 0 and frame > 0 and agent != frame and without_masks == frame
