@@ -37,6 +37,7 @@ _CHANNELS = 3
 
 
 def check_babbling(babbling_steps: int, mode: str) -> None:
+    """Check the hosts' ``babbling_steps`` and ``babbling_mode`` (and the offline collector's mode)."""
     if babbling_steps < 0:
         raise ValueError(f"babbling_steps must be >= 0, got {babbling_steps}")
     if mode not in BABBLING_MODES:
