@@ -25,6 +25,7 @@ _PUBLIC = {
     "TQCEF": "sb3_ef.sb3_hosts",
     "SEAR": "sb3_ef.sear",
     "CURL": "sb3_ef.curl",
+    "MotorBabblingCallback": "sb3_ef.ef.babbling",
     "SequenceReplayBuffer": "sb3_ef.common.buffers",
     "make_env": "sb3_ef.envs",
 }

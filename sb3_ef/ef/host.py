@@ -2,11 +2,11 @@
 
 :class:`AuxiliaryHostMixin` is mixed into every host (DrQ-v2, TD-MPC2, and SB3's SAC / TD3 / TQC through
 ``sb3_ef.sb3_hosts``): the sequence replay buffer; an optional auxiliary representation loss on the host's encoder
-(an :class:`~sb3_ef.ef.auxiliary.AuxiliaryLoss` that a subclass returns from ``_build_auxiliary``, kept on the policy
-as ``policy.auxiliary`` and trained by the optimiser the host names in ``_optimise_auxiliary``); motor babbling in
-its action selection; the accessors ``ef`` / ``encode`` / ``frame_shape`` read by ``sb3_ef.analysis``; the
-finite-loss check; logging; and a ``load`` that refuses a file another algorithm saved and reads those saved by
-sb3-ef 0.1.0 (:mod:`sb3_ef.ef.legacy`).
+(an :class:`~sb3_ef.ef.auxiliary.AuxiliaryLoss` that a subclass returns from ``_build_auxiliary``, kept where
+``_keep_auxiliary`` puts it and trained by the optimiser the host names in ``_optimise_auxiliary``); motor babbling
+(a :class:`~sb3_ef.ef.babbling.MotorBabblingCallback` added to ``learn``'s callbacks); the accessors ``ef`` /
+``encode`` / ``frame_shape`` read by ``sb3_ef.analysis``; the finite-loss check; logging; and a ``load`` that
+refuses a file another algorithm saved and reads those saved by sb3-ef 0.1.0 (:mod:`sb3_ef.ef.legacy`).
 
 :class:`EFMixin`, mixed in before a plain host (``class DrQv2EF(EFMixin, DrQv2)``), adds Ego-Foresight's arguments
 and its loss (:class:`~sb3_ef.ef.foresight.ForesightLoss`).
@@ -27,13 +27,11 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import Logger
-from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
-from stable_baselines3.common.preprocessing import maybe_transpose
 from stable_baselines3.common.save_util import open_path
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
-from stable_baselines3.common.utils import is_vectorized_observation
 from stable_baselines3.common.vec_env import VecEnv
 from torch import nn
 
@@ -48,7 +46,7 @@ from sb3_ef.common.validation import (
     check_saved_algorithm,
 )
 from sb3_ef.ef.auxiliary import AuxiliaryLoss
-from sb3_ef.ef.babbling import babble, check_babbling
+from sb3_ef.ef.babbling import MotorBabblingCallback, check_babbling, with_babbling
 from sb3_ef.ef.foresight import EgoForesight, ForesightLoss
 from sb3_ef.ef.legacy import upgraded_file, upgraded_parameters
 
@@ -112,9 +110,9 @@ class AuxiliaryHostMixin:
     ``policy.auxiliary(features, targets)`` to the loss that trains its encoder (or steps it on its own optimiser) and
     calls ``auxiliary.after_update(encoder)`` after its optimiser steps. A subclass supplies the auxiliary loss by
     overriding :meth:`_build_auxiliary` (and :meth:`_auxiliary_horizon` when the loss reads future steps); the host
-    says in :meth:`_optimise_auxiliary` which optimiser trains it. Babbling needs nothing from the host: while
-    ``num_timesteps < babbling_steps`` the rollout actions are random (own generator seeded from the model's
-    ``seed``, saved with the model), logged as ``rollout/babbling``.
+    says in :meth:`_optimise_auxiliary` which optimiser trains it. Babbling needs nothing from the host: with
+    ``babbling_steps > 0``, ``learn`` runs a :class:`MotorBabblingCallback` of those steps before the caller's
+    callbacks (its state is saved with the model).
     """
 
     policy: Any
@@ -135,11 +133,9 @@ class AuxiliaryHostMixin:
     babbling_mode: str = "sign"
     babbling_in_eval: bool = False
     check_finite_losses: bool = False
-    # Generators of the auxiliary loss's draws and of the babbling actions (training, evaluation); created in
-    # ``_setup_model`` from the seed, saved with the model so that a resumed run continues their streams.
+    # Generator of the auxiliary loss's draws; created in ``_setup_model`` from the seed, saved with the model so
+    # that a resumed run continues its stream.
     _auxiliary_generator: th.Generator | None = None
-    _babbling_rng: np.random.Generator | None = None
-    _eval_babbling_rng: np.random.Generator | None = None
 
     def _build_auxiliary(self) -> AuxiliaryLoss | None:
         """The auxiliary loss on this host's encoder, built after the policy (``None``: the plain algorithm)."""
@@ -165,7 +161,7 @@ class AuxiliaryHostMixin:
     def _setup_model(self) -> None:
         """SB3's ``_setup_model`` (the buffer's n-step returns are configured through its kwargs, so SB3's warning
         that ``n_steps`` is ignored does not apply), then the auxiliary loss on the policy (moved to the model's
-        device, given to its optimiser), then the generators unless they were loaded."""
+        device, given to its optimiser), then the generator unless it was loaded."""
         self.algorithm = type(self).__name__
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message=r"`n_steps=\d+` is ignored because a custom")
@@ -178,9 +174,6 @@ class AuxiliaryHostMixin:
             # On the CPU, so that a saved model loads on any device.
             self._auxiliary_generator = th.Generator()
             self._auxiliary_generator.manual_seed(int(np.random.randint(2**31)) if self.seed is None else self.seed)
-        if self._babbling_rng is None or self._eval_babbling_rng is None:
-            seeds = np.random.SeedSequence(None if self.seed is None else self.seed % 2**32).spawn(2)
-            self._babbling_rng, self._eval_babbling_rng = (np.random.default_rng(seed) for seed in seeds)
 
     def _keep_auxiliary(self, auxiliary: AuxiliaryLoss) -> None:
         """Keep the auxiliary module where it is saved with the model: on the policy (``policy.auxiliary``)."""
@@ -231,22 +224,12 @@ class AuxiliaryHostMixin:
             values = th.stack([update[key].detach().reshape(()) for update in updates])
             self.logger.record(f"train/{key}", float(values.double().mean()))
 
-    def _babble(self, n_envs: int, rng: np.random.Generator | None) -> np.ndarray:
-        """Babbling actions ``(n_envs, *action_shape)`` in [-1, 1]."""
-        assert rng is not None, "the babbling generator is created in _setup_model"
-        return babble(rng, (n_envs, *self.action_space.shape), self.babbling_mode)  # type: ignore[misc]
-
-    def _sample_action(
-        self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Motor babbling while ``num_timesteps < babbling_steps``, else the host's own action selection."""
-        babbling = self.num_timesteps < self.babbling_steps
+    def _init_callback(self, callback: MaybeCallback, progress_bar: bool = False) -> BaseCallback:
+        """SB3's, with the :class:`MotorBabblingCallback` of ``babbling_steps`` first when babbling is on."""
         if self.babbling_steps > 0:
-            self.logger.record("rollout/babbling", float(babbling))
-        if not babbling:
-            return super()._sample_action(learning_starts, action_noise, n_envs)  # type: ignore[misc]
-        buffer_action = self._babble(n_envs, self._babbling_rng)
-        return self.policy.unscale_action(buffer_action), buffer_action
+            babbling = MotorBabblingCallback(self.babbling_steps, self.babbling_mode, self.babbling_in_eval)
+            callback = with_babbling(babbling, callback)
+        return super()._init_callback(callback, progress_bar)  # type: ignore[misc]
 
     def predict(
         self,
@@ -255,18 +238,8 @@ class AuxiliaryHostMixin:
         episode_start: np.ndarray | None = None,
         deterministic: bool = False,
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
-        """SB3's ``predict``; with ``babbling_in_eval``, babbling actions while ``num_timesteps < babbling_steps``
-        (the EF authors' Meta-World evaluation protocol), from a generator separate from training's."""
+        """SB3's ``predict``, refusing an observation that is not the env's uint8 frames with a clear error."""
         check_observation(observation, self.observation_space)
-        if self.babbling_in_eval and self.num_timesteps < self.babbling_steps:
-            assert isinstance(observation, np.ndarray)  # the hosts observe image Boxes
-            # Transposed first, as SB3's predict does (an env of channels-last frames gives channels-last observations).
-            vectorized = is_vectorized_observation(
-                maybe_transpose(observation, self.observation_space), self.observation_space
-            )
-            n_envs = len(observation) if vectorized else 1
-            actions = self.policy.unscale_action(self._babble(n_envs, self._eval_babbling_rng))
-            return (actions if vectorized else actions[0]), state
         return super().predict(observation, state, episode_start, deterministic)  # type: ignore[misc]
 
     def learn(

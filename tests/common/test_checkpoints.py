@@ -7,7 +7,7 @@ import pytest
 import torch as th
 from stable_baselines3.common.vec_env import DummyVecEnv
 
-from sb3_ef import DrQv2EF
+from sb3_ef import DrQv2EF, MotorBabblingCallback
 from sb3_ef.common.checkpoints import (
     ResumableCheckpointCallback,
     latest_checkpoint,
@@ -24,14 +24,14 @@ def _env() -> DummyVecEnv:
     return DummyVecEnv([lambda: ToyAgentEnv(size=32, max_episode_steps=EPISODE, distractor=False)])
 
 
-def _model(env: DummyVecEnv) -> DrQv2EF:
+def _model(env: DummyVecEnv, babbling_steps: int = 30) -> DrQv2EF:
     return DrQv2EF(
         "CnnPolicy",
         env,
         buffer_size=500,
         learning_starts=40,
         batch_size=8,
-        babbling_steps=30,
+        babbling_steps=babbling_steps,
         ef_horizon=3,
         policy_kwargs={"features_dim": 32, "agent_dim": 8, "net_arch": [32], "trunk_dim": 16},
         seed=3,
@@ -61,6 +61,57 @@ def test_killed_and_resumed_run_equals_uninterrupted(tmp_path):
     resumed.learn(total - checkpoint_step, reset_num_timesteps=False)
 
     assert resumed.num_timesteps == total and resumed._n_updates == uninterrupted._n_updates > 0
+    expected, got = _parameters(uninterrupted), _parameters(resumed)
+    for name, value in expected.items():
+        assert th.equal(value, got[name]), name
+
+
+def _babbling(form: str) -> list[MotorBabblingCallback]:
+    """The callbacks of each ``learn`` for a babbling form: the host's own (constructor), or adaptive babbling."""
+    if form == "constructor":
+        return []
+    eval_env = ToyAgentEnv(size=32, max_episode_steps=EPISODE, distractor=False)
+    return [
+        MotorBabblingCallback(
+            "adaptive", min_steps=60, max_steps=90, patience=2, eval_freq=20, eval_env=eval_env, holdout_steps=40,
+            holdout_windows=8,
+        )
+    ]  # fmt: skip
+
+
+def _stored_actions(model: DrQv2EF) -> np.ndarray:
+    buffer = model.replay_buffer
+    return buffer._actions[: buffer.buffer_size][th.from_numpy(buffer._has_step[0])].numpy()
+
+
+@pytest.mark.parametrize("form", ["constructor", "adaptive"])
+def test_a_resumed_run_continues_babbling_exactly(form, tmp_path):
+    """The checkpoint at step 50 falls inside the babbling stage (70 steps, or adaptive from 60 to 90 steps)."""
+    total, checkpoint_step = 4 * EPISODE, 2 * EPISODE
+    babbling_steps = 70 if form == "constructor" else 0
+    uninterrupted = _model(_env(), babbling_steps)
+    babbling = _babbling(form)
+    uninterrupted.learn(total, callback=[*babbling, ResumableCheckpointCallback(checkpoint_step, str(tmp_path / "a"))])
+
+    killed = _model(_env(), babbling_steps)
+    killed.learn(
+        checkpoint_step + 10,
+        callback=[*_babbling(form), ResumableCheckpointCallback(checkpoint_step, str(tmp_path / "b"))],
+    )
+    del killed
+    np.random.seed(123), th.manual_seed(123)
+    resumed = load_checkpoint(DrQv2EF, latest_checkpoint(tmp_path / "b"), _env())
+    resumed_babbling = _babbling(form)
+    resumed.learn(total - checkpoint_step, reset_num_timesteps=False, callback=resumed_babbling)
+
+    actions, resumed_actions = _stored_actions(uninterrupted), _stored_actions(resumed)
+    np.testing.assert_array_equal(actions, resumed_actions)
+    end = uninterrupted._motor_babbling.end_step
+    assert resumed._motor_babbling.end_step == end and checkpoint_step < end < total
+    assert np.all(np.abs(actions[:end]) == 1.0) and not np.all(np.abs(actions[end:]) == 1.0)
+    if form == "adaptive":
+        assert resumed_babbling[0].state.scores == babbling[0].state.scores
+        assert [step for step, _ in babbling[0].state.scores][:2] == [40, 60]  # one evaluation before the checkpoint
     expected, got = _parameters(uninterrupted), _parameters(resumed)
     for name, value in expected.items():
         assert th.equal(value, got[name]), name

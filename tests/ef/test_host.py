@@ -3,12 +3,9 @@ algorithms."""
 
 import inspect
 
-import numpy as np
 import pytest
 import torch as th
 from stable_baselines3.common.buffers import ReplayBuffer
-from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.logger import KVWriter, Logger
 
 from sb3_ef import TDMPC2, TDMPC2EF, DrQv2, DrQv2EF
 from sb3_ef.ef.host import check_ef_arguments, check_horizon_fits_episodes
@@ -32,32 +29,6 @@ def make_drqv2(algorithm=DrQv2EF, **kwargs):
     else:
         params = {"policy_kwargs": {"net_arch": [8], "trunk_dim": 8}, **params}
     return algorithm("CnnPolicy", toy_env(), **params)
-
-
-class ActionRecorder(BaseCallback):
-    """The buffer actions of every rollout step."""
-
-    def __init__(self):
-        super().__init__()
-        self.actions: list[np.ndarray] = []
-
-    def _on_step(self) -> bool:
-        self.actions.append(self.locals["buffer_actions"].copy())
-        return True
-
-
-class RecordingWriter(KVWriter):
-    def __init__(self):
-        self.records: list[dict] = []
-
-    def write(self, key_values, key_excluded, step=0):
-        self.records.append(dict(key_values))
-
-
-def babbled(model, steps: int, **learn_kwargs) -> np.ndarray:
-    recorder = ActionRecorder()
-    model.learn(steps, callback=recorder, **learn_kwargs)
-    return np.concatenate(recorder.actions)
 
 
 def test_horizon_check():
@@ -118,49 +89,6 @@ def test_plain_and_ef_hosts_log_under_their_own_class_names(tmp_path):
         )
         model.learn(8)
     assert sorted(path.name for path in tmp_path.iterdir()) == ["DrQv2EF_1", "DrQv2_1"]
-
-
-def test_babbling_is_seeded_and_logged():
-    runs = [babbled(make_drqv2(seed=seed, babbling_steps=10, learning_starts=100), 20) for seed in (3, 3, 4)]
-    assert np.all(np.abs(runs[0][:10]) == 1) and np.any(runs[0][:10] == 1) and np.any(runs[0][:10] == -1)
-    assert np.all(np.abs(runs[0][10:]) < 1)  # uniform warm-up actions after babbling
-    np.testing.assert_array_equal(runs[0], runs[1])
-    assert not np.array_equal(runs[0][:10], runs[2][:10])
-
-    model = make_drqv2(babbling_steps=30, learning_starts=100)
-    writer = RecordingWriter()
-    model.set_logger(Logger(folder=None, output_formats=[writer]))
-    model.learn(80, log_interval=1)  # episodes of 20 steps: one log line per episode
-    assert [record["rollout/babbling"] for record in writer.records] == [1.0, 0.0, 0.0, 0.0]
-
-
-def test_babbling_continues_its_stream_across_save_load_and_resume(tmp_path):
-    straight = babbled(make_drqv2(babbling_steps=30, learning_starts=100), 40)
-    model = make_drqv2(babbling_steps=30, learning_starts=100)
-    first = babbled(model, 20)
-    model.save(tmp_path / "model")
-    loaded = DrQv2EF.load(tmp_path / "model", env=toy_env())
-    resumed = babbled(loaded, 20, reset_num_timesteps=False)
-    np.testing.assert_array_equal(np.concatenate([first, resumed])[:30], straight[:30])
-    assert np.all(np.abs(resumed[10:]) < 1)  # babbling stopped at 30 steps in all
-
-
-def test_clamped_uniform_babbling_saturates_about_three_quarters():
-    actions = babbled(make_drqv2(babbling_steps=400, babbling_mode="clamped_uniform", learning_starts=1000), 400)
-    assert np.all(np.abs(actions) <= 1) and 0.7 < np.mean(np.abs(actions) == 1) < 0.8
-
-
-def test_babbling_in_eval_is_opt_in():
-    observations = np.stack([toy_env().observation_space.sample() for _ in range(3)])
-    quiet = make_drqv2(babbling_steps=10)
-    assert np.all(np.abs(quiet.predict(observations)[0]) < 1)
-    model = make_drqv2(babbling_steps=10, babbling_in_eval=True)
-    actions, _ = model.predict(observations)
-    single, _ = model.predict(observations[0])
-    assert actions.shape == (3, 2) and single.shape == (2,) and np.all(np.abs(actions) == 1)
-    model.learn(10)  # babbling over: the policy acts again
-    np.testing.assert_array_equal(model.predict(observations)[0], model.predict(observations)[0])
-    assert np.all(np.abs(model.predict(observations)[0]) < 1)
 
 
 def _poison(module: th.nn.Module) -> None:

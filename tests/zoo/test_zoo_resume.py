@@ -10,6 +10,7 @@ import pytest
 from zoo_tiny import cli_pairs
 
 from sb3_ef.common.checkpoints import latest_checkpoint, list_checkpoints
+from sb3_ef.ef.babbling import babble
 from sb3_ef.zoo import train
 from sb3_ef.zoo.registration import algorithm_classes
 
@@ -82,9 +83,12 @@ def test_resume_continues_steps_warm_up_babbling_and_buffer(resumed):
     assert buffer.size() == TOTAL  # the 40 steps before the checkpoint are still there
     # The stored actions of the (only) env in step order: the ring has not wrapped.
     actions = buffer.actions[: buffer.size(), 0]
-    # Babbling (+-1 actions) went on after the resume at step 40 up to step 50, and stopped there.
-    assert np.all(np.abs(actions[:BABBLING]) == 1.0)
+    # Babbling (+-1 actions) went on after the resume at step 40 up to step 50, and stopped there; its draws after
+    # the resume continue the seeded stream (the run's --seed 0) of the uninterrupted run.
+    rng = np.random.default_rng(np.random.SeedSequence(0).spawn(2)[0])
+    np.testing.assert_array_equal(actions[:BABBLING], np.concatenate([babble(rng, (1, 1)) for _ in range(BABBLING)]))
     assert not np.all(np.abs(actions[BABBLING:]) == 1.0)
+    assert (model._motor_babbling.end_step, model._motor_babbling.end_reason) == (BABBLING, "steps")
 
 
 @pytest.mark.slow
