@@ -42,7 +42,7 @@ class CroppedSequenceReplayBuffer(SequenceReplayBuffer):
         finally:
             self._cropping = False
 
-    def sample(self, batch_size: int, env: VecNormalize | None = None) -> SequenceReplayBufferSamples:
+    def sample(self, batch_size: int, env: VecNormalize | None = None) -> SequenceReplayBufferSamples:  # type: ignore[override]
         batch = super().sample(batch_size, env)
         if not self._cropping:
             return batch

@@ -44,7 +44,7 @@ class CURL(AuxiliaryStepMixin, CroppedHostUpdates, SAC):
         sets its other options (``n_layers``, ``n_filters``).
     """
 
-    replay_buffer: CroppedSequenceReplayBuffer  # type: ignore[assignment]
+    replay_buffer: CroppedSequenceReplayBuffer
 
     def __init__(
         self,

@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
@@ -25,6 +25,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, ConvertCallback
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.preprocessing import maybe_transpose
 from stable_baselines3.common.type_aliases import MaybeCallback
 from stable_baselines3.common.utils import is_vectorized_observation
 from stable_baselines3.common.vec_env import VecEnv
@@ -258,7 +259,7 @@ class MotorBabblingCallback(BaseCallback):
         verbose: int = 0,
     ):
         super().__init__(verbose)
-        adaptive_arguments = {
+        adaptive_arguments: dict[str, Any] = {
             "min_steps": min_steps, "max_steps": max_steps, "patience": patience, "min_delta": min_delta,
             "eval_freq": eval_freq, "eval_env": eval_env, "criterion": criterion, "holdout_steps": holdout_steps,
             "holdout_windows": holdout_windows,
@@ -281,7 +282,7 @@ class MotorBabblingCallback(BaseCallback):
         self.in_eval = in_eval
         self.seed = seed
         self.min_steps = min_steps or 0
-        self.max_steps = max_steps if self.adaptive else int(steps)  # type: ignore[arg-type]
+        self.max_steps = max_steps if self.adaptive else int(steps)
         self.patience = patience or 3
         self.min_delta = 0.01 if min_delta is None else min_delta
         self.eval_freq = eval_freq or 1000
@@ -292,7 +293,7 @@ class MotorBabblingCallback(BaseCallback):
         self.held_out: HeldOutWindows | None = None
         self._shadowed: dict[str, Any] = {}
         self._instance_attributes: dict[str, Any] = {}
-        self._learn_start: int | None = None
+        self._learn_start: float | None = None
 
     @staticmethod
     def _check_adaptive(
@@ -368,7 +369,7 @@ class MotorBabblingCallback(BaseCallback):
                     "Adaptive babbling without a criterion scores Ego-Foresight's predictions, but "
                     f"{type(model).__name__} has no EF module: pass criterion=<function of the model>"
                 )
-            if getattr(model.ef, "skip_channels", 0):
+            if getattr(getattr(model, "ef", None), "skip_channels", 0):
                 raise ValueError("Adaptive babbling scores EF without U-Net skips (skip_channels=0)")
             expected, received = model.observation_space.shape, self.eval_env.observation_space.shape  # type: ignore[union-attr]
             if expected != received:
@@ -388,7 +389,7 @@ class MotorBabblingCallback(BaseCallback):
         if self.adaptive and self.eval_env is not None and state.end_step is None and self.held_out is None:
             self.held_out = record_held_out_windows(
                 self.eval_env,
-                model.ef.horizon,
+                cast(Any, model).ef.horizon,
                 self.holdout_steps,
                 self.holdout_windows,
                 np.random.default_rng(state.holdout_seed),
@@ -467,8 +468,12 @@ class MotorBabblingCallback(BaseCallback):
         """The model's ``predict`` while training with ``in_eval``: babbling actions while active."""
         if not self.active:
             return self._shadowed["predict"](observation, state, episode_start, deterministic)
-        vectorized = is_vectorized_observation(observation, self.model.observation_space)
-        n_envs = len(observation) if vectorized else 1  # type: ignore[arg-type]
+        assert isinstance(observation, np.ndarray)  # image Boxes
+        # Transposed first, as SB3's predict does (an env of channels-last frames gives channels-last observations).
+        vectorized = is_vectorized_observation(
+            maybe_transpose(observation, self.model.observation_space), self.model.observation_space
+        )
+        n_envs = len(observation) if vectorized else 1
         buffer_action = babble(self.state.eval_rng, (n_envs, *self.model.action_space.shape), self.mode)  # type: ignore[misc]
         actions = self.model.policy.unscale_action(buffer_action)
         return (actions if vectorized else actions[0]), state
