@@ -81,7 +81,7 @@ def _babbling(form: str) -> list[MotorBabblingCallback]:
 
 def _stored_actions(model: DrQv2EF) -> np.ndarray:
     buffer = model.replay_buffer
-    return buffer._actions[: buffer.buffer_size][th.from_numpy(buffer._has_step[0])].numpy()
+    return np.asarray(buffer.actions[: buffer.size(), 0])
 
 
 @pytest.mark.parametrize("form", ["constructor", "adaptive"])

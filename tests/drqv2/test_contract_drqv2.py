@@ -7,6 +7,7 @@ import pytest
 import torch as th
 from drqv2_fakes import TINY_ALGO, make_cue_env
 from gymnasium import ObservationWrapper, spaces
+from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_ef.drqv2 import DrQv2, DrQv2EF
 from sb3_ef.envs.toy import ToyAgentEnv
@@ -89,14 +90,29 @@ def test_channels_last_frames_are_transposed_as_sb3_does(size, frame_stack):
     np.testing.assert_array_equal(action, channels_first)
 
 
+class PredictDuringTraining(BaseCallback):
+    """Calls ``model.predict`` on channels-last observations while training, as an ``EvalCallback`` would."""
+
+    def __init__(self, observation: np.ndarray):
+        super().__init__()
+        self.observation = observation
+        self.predicted: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def _on_step(self) -> bool:
+        single, _ = self.model.predict(self.observation)
+        batch, _ = self.model.predict(np.stack([self.observation] * 3))
+        self.predicted.append((single, batch))
+        return True
+
+
 def test_channels_last_observations_while_babbling_in_evaluation():
     env = ChannelsLast(ToyAgentEnv(size=32, frame_stack=3, max_episode_steps=20))
     model = make(DrQv2EF, env=env, babbling_steps=100, babbling_in_eval=True)
-    observation = env.reset(seed=0)[0]
-    action, _ = model.predict(observation)
-    assert action.shape == (2,) and np.all(np.abs(action) == 1.0)  # one babbling action
-    actions, _ = model.predict(np.stack([observation] * 3))
-    assert actions.shape == (3, 2)
+    probe = PredictDuringTraining(env.reset(seed=0)[0])
+    model.learn(3, callback=probe)
+    for single, batch in probe.predicted:
+        assert single.shape == (2,) and np.all(np.abs(single) == 1.0)  # one babbling action
+        assert batch.shape == (3, 2) and np.all(np.abs(batch) == 1.0)
 
 
 class Frames(gym.Env):

@@ -32,8 +32,8 @@ EF_HOST = {"ef_horizon": 3, "agent_dim": 8, "ef_kwargs": {"rollout_hidden_dims":
 DRQV2_POLICY = {"net_arch": [16], "trunk_dim": 8, "features_dim": 16, "agent_dim": 4}
 EF_KWARGS = {"ef_kwargs": {"rollout_hidden_dims": (8,), "decoder_channels": 4}}
 TDMPC2_POLICY = {
-    "num_channels": 4, "mlp_dim": 16, "num_q": 2, "agent_dim": 16,
-    "planner_kwargs": {"iterations": 1, "num_samples": 8, "num_elites": 2, "num_pi_trajs": 1}, **EF_KWARGS,
+    "num_channels": 4, "mlp_dim": 16, "num_q": 2,
+    "planner_kwargs": {"iterations": 1, "num_samples": 8, "num_elites": 2, "num_pi_trajs": 1},
 }  # fmt: skip
 # Each algorithm's tiny arguments and its frame size (TD-MPC2's encoder needs 64x64).
 ALGORITHMS = {
@@ -47,7 +47,7 @@ ALGORITHMS = {
     DrQv2: ({"policy_kwargs": {"net_arch": [8], "trunk_dim": 8}}, 32),
     DrQv2EF: ({"policy_kwargs": {**DRQV2_POLICY, **EF_KWARGS}, "ef_horizon": 3}, 32),
     TDMPC2: ({"policy_kwargs": TDMPC2_POLICY}, 64),
-    TDMPC2EF: ({"policy_kwargs": TDMPC2_POLICY, "ef_horizon": 3}, 64),
+    TDMPC2EF: ({"policy_kwargs": {**TDMPC2_POLICY, "agent_dim": 16, **EF_KWARGS}, "ef_horizon": 3}, 64),
 }
 EF_HOSTS = (SACEF, TD3EF, TQCEF, DrQv2EF, TDMPC2EF)
 
@@ -98,10 +98,9 @@ def make(algorithm, env=None, **kwargs):
 
 
 def stored_actions(buffer: ReplayBuffer) -> np.ndarray:
-    """The actions of the (only) env's replay buffer in step order (the ring has not wrapped)."""
-    if hasattr(buffer, "_has_step"):  # SequenceReplayBuffer: step slots, in slot order
-        return buffer._actions[: buffer.buffer_size][th.from_numpy(buffer._has_step[0])].cpu().numpy()
-    return buffer.actions[: buffer.pos, 0]
+    """The actions of the (only) env's replay buffer in step order (the ring has not wrapped), through SB3's
+    ``actions`` array, which SequenceReplayBuffer offers too."""
+    return np.asarray(buffer.actions[: buffer.size(), 0])
 
 
 def babbled(model, steps: int, **learn_kwargs) -> np.ndarray:

@@ -41,9 +41,17 @@ def test_dmc_names_map_to_suite_domain_and_task():
     assert DMC_TASKS["ball-in-cup-catch"] == ("ball_in_cup", "catch")
 
 
-@pytest.mark.parametrize("name", ["dmc/cartpole", "dmc/cartpole_swingup", "gym/reacher-easy", "metaworld/hammer-v2"])
-def test_unknown_names_list_the_valid_ones(name):
-    with pytest.raises(ValueError, match=f"Unknown env name '{name}'.*metaworld/stick-push"):
+@pytest.mark.parametrize(
+    ("name", "closest"),
+    [
+        ("dmc/cartpole", "dmc/cartpole-swingup"),
+        ("dmc/cartpole_swingup", "dmc/cartpole-swingup"),
+        ("gym/reacher-easy", "dmc/reacher-easy"),
+        ("metaworld/hammer-v2", "metaworld/hammer"),
+    ],
+)
+def test_unknown_names_suggest_the_closest_valid_ones(name, closest):
+    with pytest.raises(ValueError, match=f"Unknown env name '{name}' \\(did you mean '{closest}'.*ENV_NAMES"):
         parse_env_name(name)
 
 
