@@ -112,7 +112,7 @@ def measure_streaming(args: argparse.Namespace) -> None:
     """Write the datasets, then run each reading path in its own process (peak RSS is per process)."""
     from sb3_ef.offline.episodes import write_episode
     from sb3_ef.offline.lerobot import LeRobotWriter
-    from tests.offline.offline_data import square_episode
+    from tests.helpers.offline import square_episode
 
     paths = {name: os.path.join(args.out, name) for name in ("stream", "fit", "lerobot")}
     for name, count in (("stream", args.stream_episodes), ("fit", args.fit_episodes)):

@@ -1,11 +1,11 @@
 import numpy as np
 import pytest
-from analysis_fakes import SIZE, DotEnv, FakeModel
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.logger import configure
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from sb3_ef.analysis.callbacks import ForesightLoggerCallback
+from tests.helpers.analysis import SIZE, DotEnv, FakeModel
 
 
 def test_callback_logs_images_and_mask_scores_to_tensorboard(tmp_path):

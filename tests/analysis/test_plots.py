@@ -20,11 +20,10 @@ def test_plots_are_written_as_images(tmp_path):
 
 
 def test_prediction_and_saliency_figures_are_labelled():
-    from analysis_fakes import DotEnv, FakeModel
-
     from sb3_ef.analysis.plots import prediction_figure, saliency_figure
     from sb3_ef.analysis.prediction import figure_eight_actions
     from sb3_ef.analysis.report import foresight_report, record_rollout
+    from tests.helpers.analysis import DotEnv, FakeModel
 
     probe = figure_eight_actions(4, 2, period=4)
     report = foresight_report(FakeModel(), record_rollout(DotEnv(), lambda _obs, step: probe[step], 4, seed=0))

@@ -2,7 +2,6 @@ import imageio.v2 as imageio
 import numpy as np
 import pytest
 import torch as th
-from analysis_fakes import SIZE, DotEnv, FakeModel
 from PIL import Image
 
 from sb3_ef.analysis.prediction import (
@@ -13,6 +12,7 @@ from sb3_ef.analysis.prediction import (
     save_video,
 )
 from sb3_ef.ef import EgoForesight
+from tests.helpers.analysis import SIZE, DotEnv, FakeModel
 
 
 def test_prediction_matches_ef_predict_and_restores_training_mode():

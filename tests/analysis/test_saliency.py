@@ -3,10 +3,10 @@ import time
 import numpy as np
 import pytest
 import torch as th
-from analysis_fakes import REGION, SIZE, DotEnv, FakeForesight, FakeModel
 from torch import nn
 
 from sb3_ef.analysis.saliency import compute_saliency, decoder_saliency, saliency_overlay
+from tests.helpers.analysis import REGION, SIZE, DotEnv, FakeForesight, FakeModel
 
 
 def test_agent_map_is_zero_outside_the_region_h_a_drives():

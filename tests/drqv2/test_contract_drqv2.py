@@ -5,12 +5,12 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
-from drqv2_fakes import TINY_ALGO, make_cue_env
 from gymnasium import ObservationWrapper, spaces
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_ef.drqv2 import DrQv2, DrQv2EF
 from sb3_ef.envs.toy import ToyAgentEnv
+from tests.helpers.drqv2 import TINY_ALGO, make_cue_env
 
 # JSON-like values (lists, not tuples): SB3 stores policy_kwargs as JSON when it can, and compares the loaded ones.
 EF_POLICY = {

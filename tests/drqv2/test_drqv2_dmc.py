@@ -4,10 +4,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
-from drqv2_fakes import TINY_POLICY
 
 from sb3_ef.drqv2 import DrQv2EF
 from sb3_ef.envs import make_env
+from tests.helpers.drqv2 import TINY_POLICY
 
 
 @pytest.fixture

@@ -2,7 +2,6 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
-from drqv2_fakes import EPISODE_STEPS, TINY_ALGO, TINY_POLICY, CueEnv, make_cue_env
 from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
@@ -13,6 +12,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from sb3_ef.common.buffers import SequenceReplayBuffer
 from sb3_ef.drqv2 import DrQv2, DrQv2EF
 from sb3_ef.ef.host import frozen
+from tests.helpers.drqv2 import EPISODE_STEPS, TINY_ALGO, TINY_POLICY, CueEnv, make_cue_env
 
 PLAIN_POLICY = {key: TINY_POLICY[key] for key in ("net_arch", "trunk_dim")}
 PLAIN_ALGO = {key: value for key, value in TINY_ALGO.items() if key not in ("ef_horizon", "babbling_steps")}

@@ -18,7 +18,7 @@ from sb3_ef.offline.collect import collect, record_episode
 from sb3_ef.offline.model import load_pretrained
 from sb3_ef.offline.predict import LABEL_WIDTH, predict_frames
 from sb3_ef.offline.readers import FolderDataset
-from tests.offline.offline_data import tiny_pretrain
+from tests.helpers.offline import tiny_pretrain
 
 
 def test_recorded_masks_are_the_env_agent_masks():

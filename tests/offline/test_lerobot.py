@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from sb3_ef.offline.episodes import EpisodeError
-from tests.offline.offline_data import square_episode
+from tests.helpers.offline import square_episode
 
 av = pytest.importorskip("av")
 pa = pytest.importorskip("pyarrow")

@@ -12,7 +12,7 @@ import torch as th
 from sb3_ef.offline.evaluate import evaluate, evaluation_picks
 from sb3_ef.offline.model import OfflineEF, OfflineEFConfig, load_pretrained
 from sb3_ef.offline.pretrain import CHECKPOINT, METRICS, MODEL, pretrain, split_holdout
-from tests.offline.offline_data import TINY_DRQV2, square_episode
+from tests.helpers.offline import TINY_DRQV2, square_episode
 
 TINY_EF = {"rollout_hidden_dims": (32,), "decoder_channels": 16}
 

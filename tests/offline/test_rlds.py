@@ -13,7 +13,7 @@ from sb3_ef.offline.episodes import EpisodeError, make_episode
 from sb3_ef.offline.readers import open_dataset
 from sb3_ef.offline.rlds import RLDSDataset
 from sb3_ef.offline.tfrecord import serialize_example, write_records
-from tests.offline.offline_data import square_episode
+from tests.helpers.offline import square_episode
 
 
 def encode(frame: np.ndarray, image_format: str) -> bytes:
@@ -112,7 +112,7 @@ def test_corrupt_shard_is_named_with_the_episode(tmp_path):
 
 def test_pretrain_reads_an_rlds_shard_folder_end_to_end(tmp_path):
     from sb3_ef.offline.model import load_pretrained
-    from tests.offline.offline_data import tiny_pretrain
+    from tests.helpers.offline import tiny_pretrain
 
     root = tmp_path / "pushes" / "1.0.0"
     write_tfds_folder(root, "pushes", [[square_episode(steps=9, seed=s) for s in range(2)], [square_episode(steps=9)]])

@@ -9,7 +9,7 @@ from sb3_ef.offline.episodes import write_episode
 from sb3_ef.offline.readers import FolderDataset
 from sb3_ef.offline.streaming import EpisodeList, StreamingWindowSampler, episode_bytes, window_batches
 from sb3_ef.offline.windows import WindowSampler
-from tests.offline.offline_data import square_episode
+from tests.helpers.offline import square_episode
 
 
 def data(count=6):
@@ -70,7 +70,7 @@ def test_windows_decoded_in_worker_processes_are_real_windows(tmp_path):
 
 def test_pretrain_streams_a_folder_through_a_worker_process(tmp_path):
     from sb3_ef.offline.model import load_pretrained
-    from tests.offline.offline_data import tiny_pretrain
+    from tests.helpers.offline import tiny_pretrain
 
     for index, episode in enumerate(data(count=4)):
         write_episode(tmp_path / "data" / f"episode_{index}.npz", episode)

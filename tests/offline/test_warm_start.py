@@ -10,7 +10,7 @@ from sb3_ef.envs.toy import ToyAgentEnv
 from sb3_ef.offline.model import OfflineEF, OfflineEFConfig
 from sb3_ef.offline.pretrain import MODEL
 from sb3_ef.offline.warm_start import load_ef
-from tests.offline.offline_data import square_episode, tiny_pretrain
+from tests.helpers.offline import square_episode, tiny_pretrain
 
 EF_KWARGS = {"rollout_hidden_dims": (16,), "decoder_channels": 8}
 

@@ -14,6 +14,7 @@ from sb3_ef import SACEF, TD3EF, TQCEF
 from sb3_ef.common.buffers import SequenceReplayBuffer
 from sb3_ef.drqv2.policies import DrQv2Encoder
 from sb3_ef.envs.toy import ToyAgentEnv
+from tests.helpers.learning import random_return
 
 HOSTS = [SACEF, TD3EF, TQCEF]
 LEARNING_STARTS = 12
@@ -131,19 +132,6 @@ def test_non_finite_ef_loss_raises_when_checked():
         model.learn(LEARNING_STARTS + 1)
 
 
-def random_return(episodes: int) -> float:
-    """Mean return of uniform random actions (a policy that does not read the image)."""
-    env, rng, returns = toy_env(), np.random.default_rng(0), []
-    for episode in range(episodes):
-        env.reset(seed=episode)
-        total, done = 0.0, False
-        while not done:
-            _, reward, terminated, truncated, _ = env.step(rng.uniform(-1, 1, 2))
-            total, done = total + reward, terminated or truncated
-        returns.append(total)
-    return float(np.mean(returns))
-
-
 @pytest.mark.slow
 def test_sac_ef_learns_to_bring_the_agent_to_the_centre():
     """Reward: minus the agent's distance to the frame centre, so the policy must find the red square in the image.
@@ -156,6 +144,6 @@ def test_sac_ef_learns_to_bring_the_agent_to_the_centre():
     )  # fmt: skip
     model.learn(1000)
     trained, _ = evaluate_policy(model, Monitor(toy_env()), n_eval_episodes=20)
-    baseline = random_return(20)
+    baseline = random_return(toy_env(), 20)
     assert baseline < -4.0
     assert trained > baseline + 2.5

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 import torch as th
 from stable_baselines3.common.evaluation import evaluate_policy
@@ -10,23 +9,11 @@ from stable_baselines3.common.monitor import Monitor
 
 from sb3_ef import SEAR
 from sb3_ef.envs.toy import ToyAgentEnv
+from tests.helpers.learning import random_return
 
 
 def toy_env() -> ToyAgentEnv:
     return ToyAgentEnv(size=32, max_episode_steps=20, agent_masks=True)
-
-
-def random_return(episodes: int) -> float:
-    """Mean return of uniform random actions (a policy that does not read the image)."""
-    env, rng, returns = toy_env(), np.random.default_rng(0), []
-    for episode in range(episodes):
-        env.reset(seed=episode)
-        total, done = 0.0, False
-        while not done:
-            _, reward, terminated, truncated, _ = env.step(rng.uniform(-1, 1, 2))
-            total, done = total + reward, terminated or truncated
-        returns.append(total)
-    return float(np.mean(returns))
 
 
 @pytest.mark.slow
@@ -41,6 +28,6 @@ def test_sear_learns_to_bring_the_agent_to_the_centre():
     )  # fmt: skip
     model.learn(1000)
     trained, _ = evaluate_policy(model, Monitor(toy_env()), n_eval_episodes=20)
-    baseline = random_return(20)
+    baseline = random_return(toy_env(), 20)
     assert baseline < -4.0
     assert trained > baseline + 2.5, (trained, baseline)

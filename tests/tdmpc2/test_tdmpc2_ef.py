@@ -5,10 +5,10 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
 from stable_baselines3.common.monitor import Monitor
-from tdmpc2_tiny import TINY_EF_POLICY, host_loss, tiny_policy
 
 from sb3_ef.envs.toy import ToyAgentEnv
 from sb3_ef.tdmpc2 import TDMPC2, TDMPC2EF
+from tests.helpers.tdmpc2 import TINY_EF_POLICY, host_loss, tiny_policy
 
 
 def toy_env(max_episode_steps: int = 20) -> ToyAgentEnv:

@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 import torch as th
 from gymnasium import spaces
-from tdmpc2_tiny import TINY_POLICY, host_loss, tiny_policy
 
 from sb3_ef.envs.toy import ToyAgentEnv
 from sb3_ef.tdmpc2 import TDMPC2, TDMPC2EF
 from sb3_ef.tdmpc2.math import planning_iterations, seed_steps_from_episode_length
 from sb3_ef.tdmpc2.planner import MPPIPlanner
 from sb3_ef.tdmpc2.policies import TDMPC2Policy
+from tests.helpers.tdmpc2 import TINY_POLICY, host_loss, tiny_policy
 
 
 def learning_rate(_progress_remaining: float) -> float:

@@ -14,12 +14,12 @@ import time
 from pathlib import Path
 
 import pytest
-from zoo_tiny import ENV_KWARGS, HYPERPARAMS, cli_pairs
 
 from sb3_ef import DrQv2EF, cli
 from sb3_ef.common.checkpoints import latest_checkpoint
 from sb3_ef.envs.toy import ToyAgentEnv
 from sb3_ef.zoo.options import ENJOY_OPTIONS, TRAIN_OPTIONS, Option, rl_zoo3_parser
+from tests.helpers.zoo import ENV_KWARGS, HYPERPARAMS, cli_pairs
 
 COMMANDS = ("train", "enjoy", "optimize", "analyze", "benchmark", "collect", "pretrain", "predict")
 #: Generous bound on the answer to a bad argument (the target is under 3 s on a quiet machine).

@@ -5,11 +5,11 @@ from __future__ import annotations
 import optuna
 import pytest
 import yaml
-from zoo_tiny import HYPERPARAMS, train_args
 
 from sb3_ef.zoo import train
 from sb3_ef.zoo.config import default_config_path, load_config
 from sb3_ef.zoo.hyperparams_opt import SAMPLERS
+from tests.helpers.zoo import HYPERPARAMS, train_args
 
 # Encoder feature sizes of the entries below: DrQv2-EF's projection, TD-MPC2's latent (16 per conv channel).
 CASES = {"drqv2_ef": {"features_dim": 16}, "tdmpc2_ef": {"num_channels": 1}}

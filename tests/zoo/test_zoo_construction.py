@@ -8,10 +8,10 @@ from typing import Any
 
 import pytest
 from rl_zoo3.exp_manager import ExperimentManager
-from zoo_tiny import ENV_KWARGS, HYPERPARAMS
 
 from sb3_ef.zoo.config import ZOO_ALGORITHMS, default_config_path, load_config, select_entry
 from sb3_ef.zoo.registration import algorithm_classes, register_algorithms
+from tests.helpers.zoo import ENV_KWARGS, HYPERPARAMS
 
 SAMPLE_IDS = ("dmc/walker-walk-v0", "metaworld/hammer-v0")
 

@@ -9,12 +9,12 @@ import pytest
 import yaml
 from huggingface_sb3 import EnvironmentName
 from rl_zoo3.utils import get_latest_run_id
-from zoo_tiny import HYPERPARAMS, train_args
 
 from sb3_ef.zoo import train
 from sb3_ef.zoo.config import default_config_path, load_config
 from sb3_ef.zoo.hyperparams_opt import CONVERTERS, SAMPLERS
 from sb3_ef.zoo.registration import algorithm_classes
+from tests.helpers.zoo import HYPERPARAMS, train_args
 
 EF_KEYS = {"beta", "ef_horizon", "babbling_steps"}
 LOG_NAME = "dmc-cartpole-swingup-v0"

@@ -7,12 +7,12 @@ import pickle
 
 import numpy as np
 import pytest
-from zoo_tiny import cli_pairs
 
 from sb3_ef.common.checkpoints import latest_checkpoint, list_checkpoints
 from sb3_ef.ef.babbling import babble
 from sb3_ef.zoo import train
 from sb3_ef.zoo.registration import algorithm_classes
+from tests.helpers.zoo import cli_pairs
 
 ENV_ID = "dmc/cartpole-swingup-v0"
 LOG_NAME = "dmc-cartpole-swingup-v0"

@@ -6,13 +6,13 @@ from pathlib import Path
 
 import pytest
 from rl_zoo3 import utils
-from zoo_tiny import ENV_KWARGS, HYPERPARAMS, train_args
 
 from sb3_ef.analysis.metrics import load_records
 from sb3_ef.zoo import enjoy, train
 from sb3_ef.zoo.config import ZOO_ALGORITHMS
 from sb3_ef.zoo.records import export_records
 from sb3_ef.zoo.registration import algorithm_classes
+from tests.helpers.zoo import ENV_KWARGS, HYPERPARAMS, train_args
 
 ENV_ID = "dmc/cartpole-swingup-v0"
 LOG_NAME = "dmc-cartpole-swingup-v0"  # rl-zoo3 writes "/" in env ids as "-" in folder names

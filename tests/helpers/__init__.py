@@ -1,0 +1,1 @@
+"""Shared test helpers, one module per part of the package they serve (``tests.helpers.<part>``)."""
