@@ -6,6 +6,7 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 from sb3_ef.analysis.callbacks import ForesightLoggerCallback
 from tests.helpers.analysis import SIZE, DotEnv, FakeModel
+from tests.helpers.tdmpc2 import TINY_EF_POLICY
 
 
 def test_callback_logs_images_and_mask_scores_to_tensorboard(tmp_path):
@@ -56,14 +57,6 @@ def test_bad_setups_are_refused():
         ForesightLoggerCallback(DotEnv(size=8)).init_callback(FakeModel())
 
 
-TINY_TDMPC2 = {
-    "num_channels": 4,
-    "mlp_dim": 32,
-    "num_q": 2,
-    "agent_dim": 16,
-    "planner_kwargs": {"iterations": 1, "num_samples": 8, "num_elites": 2, "num_pi_trajs": 1},
-    "ef_kwargs": {"rollout_hidden_dims": (16,), "decoder_channels": 8},
-}
 
 
 @pytest.mark.parametrize("algorithm", ["DrQv2EF", "TDMPC2EF"])
@@ -74,7 +67,7 @@ def test_callback_during_training_of_both_hosts(tmp_path, algorithm):
     from sb3_ef.analysis.callbacks import ForesightLoggerCallback
     from sb3_ef.envs.toy import ToyAgentEnv
 
-    size, policy_kwargs = (32, TINY_DRQV2) if algorithm == "DrQv2EF" else (64, TINY_TDMPC2)
+    size, policy_kwargs = (32, TINY_DRQV2) if algorithm == "DrQv2EF" else (64, TINY_EF_POLICY)
     model = getattr(sb3_ef, algorithm)(
         "CnnPolicy", ToyAgentEnv(size=size), buffer_size=100, batch_size=4, learning_starts=6, ef_horizon=3,
         babbling_steps=0, policy_kwargs=policy_kwargs, tensorboard_log=str(tmp_path), device="cpu",

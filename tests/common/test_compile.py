@@ -15,6 +15,7 @@ from sb3_ef.common.compile import compile_kwargs, maybe_compile
 from sb3_ef.drqv2 import DrQv2, DrQv2EF
 from sb3_ef.envs.toy import ToyAgentEnv
 from sb3_ef.tdmpc2 import TDMPC2, TDMPC2EF
+from tests.helpers.tdmpc2 import TINY_EF_POLICY, TINY_POLICY
 
 AOT_EAGER = {"backend": "aot_eager"}
 FILL_STEPS = 30
@@ -32,25 +33,11 @@ ARGUMENTS = {
     },
     DrQv2: {"policy_kwargs": {"net_arch": [32, 32], "trunk_dim": 16}},
     TDMPC2EF: {
-        "policy_kwargs": {
-            "num_channels": 4,
-            "mlp_dim": 32,
-            "num_q": 3,
-            "agent_dim": 16,
-            "planner_kwargs": {"iterations": 1, "num_samples": 8, "num_elites": 2, "num_pi_trajs": 2},
-            "ef_kwargs": {"rollout_hidden_dims": (32,), "decoder_channels": 8},
-        },
+        "policy_kwargs": TINY_EF_POLICY,
         "ef_horizon": 5,
         "babbling_steps": 0,
     },
-    TDMPC2: {
-        "policy_kwargs": {
-            "num_channels": 4,
-            "mlp_dim": 32,
-            "num_q": 3,
-            "planner_kwargs": {"iterations": 1, "num_samples": 8, "num_elites": 2, "num_pi_trajs": 2},
-        }
-    },
+    TDMPC2: {"policy_kwargs": TINY_POLICY},
 }
 
 

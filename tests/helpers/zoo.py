@@ -8,6 +8,7 @@ from __future__ import annotations
 from typing import Any
 
 from sb3_ef.zoo.config import ZOO_ALGORITHMS
+from tests.helpers.tdmpc2 import TINY_POLICY
 
 #: Per algorithm: frames of this size (TD-MPC2's encoder takes 64x64 only; CURL's are cropped to 32x32), short
 #: episodes, fast rendering.
@@ -18,13 +19,7 @@ ENV_KWARGS: dict[str, dict[str, Any]] = {
 ENV_KWARGS["sear"]["agent_masks"] = True  # rl-zoo3's --env-kwargs replace the entry's
 
 _DRQV2_POLICY = {"net_arch": [32], "trunk_dim": 16}
-_TDMPC2_POLICY = {
-    "num_channels": 4,
-    "mlp_dim": 32,
-    "num_q": 2,
-    "num_bins": 11,
-    "planner_kwargs": {"iterations": 1, "num_samples": 16, "num_elites": 4, "num_pi_trajs": 2},
-}
+_TDMPC2_POLICY = {**TINY_POLICY, "num_bins": 11}
 #: SB3's NatureCNN needs 36x36 frames or more: DrQ-v2's encoder (it scales the pixels itself) for the 32x32 ones.
 _SB3_POLICY = (
     "dict(net_arch=[16], normalize_images=False, features_extractor_class=DrQv2Encoder, "
