@@ -107,7 +107,7 @@ class AuxiliaryHostMixin:
 
     The host calls :meth:`_use_sequence_buffer` before ``super()._setup_model()``, and in its update
     :meth:`_augment_observations` (the observations it encodes, and the auxiliary loss's targets), then adds
-    ``policy.auxiliary(features, targets)`` to the loss that trains its encoder (or steps it on its own optimiser) and
+    ``self.auxiliary(features, targets)`` to the loss that trains its encoder (or steps it on its own optimiser) and
     calls ``auxiliary.after_update(encoder)`` after its optimiser steps. A subclass supplies the auxiliary loss by
     overriding :meth:`_build_auxiliary` (and :meth:`_auxiliary_horizon` when the loss reads future steps); the host
     says in :meth:`_optimise_auxiliary` which optimiser trains it. Babbling needs nothing from the host: with
@@ -160,8 +160,8 @@ class AuxiliaryHostMixin:
 
     def _setup_model(self) -> None:
         """SB3's ``_setup_model`` (the buffer's n-step returns are configured through its kwargs, so SB3's warning
-        that ``n_steps`` is ignored does not apply), then the auxiliary loss on the policy (moved to the model's
-        device, given to its optimiser), then the generator unless it was loaded."""
+        that ``n_steps`` is ignored does not apply), then the auxiliary loss (moved to the model's device, kept
+        where :meth:`_keep_auxiliary` says, given to its optimiser), then the generator unless it was loaded."""
         self.algorithm = type(self).__name__
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message=r"`n_steps=\d+` is ignored because a custom")
