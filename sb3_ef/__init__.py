@@ -6,10 +6,9 @@ registers the pixel environments with gymnasium.
 
 from __future__ import annotations
 
-import importlib
 import os
-from typing import Any
 
+from sb3_ef.common.lazy import lazy_attributes
 from sb3_ef.envs.registration import register_envs
 
 with open(os.path.join(os.path.dirname(__file__), "version.txt")) as _file:
@@ -34,8 +33,4 @@ __all__ = [*_PUBLIC, "__version__"]
 
 register_envs()
 
-
-def __getattr__(name: str) -> Any:
-    if name in _PUBLIC:
-        return getattr(importlib.import_module(_PUBLIC[name]), name)
-    raise AttributeError(f"module 'sb3_ef' has no attribute {name!r}")
+__getattr__ = lazy_attributes(__name__, _PUBLIC)

@@ -13,8 +13,7 @@ arguments before SB3 and torch are imported.
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from sb3_ef.common.lazy import lazy_attributes
 
 _PUBLIC = {
     "Algorithm": "sb3_ef.grid.grid",
@@ -28,8 +27,4 @@ _PUBLIC = {
 
 __all__ = list(_PUBLIC)
 
-
-def __getattr__(name: str) -> Any:
-    if name in _PUBLIC:
-        return getattr(importlib.import_module(_PUBLIC[name]), name)
-    raise AttributeError(f"module 'sb3_ef.grid' has no attribute {name!r}")
+__getattr__ = lazy_attributes(__name__, _PUBLIC)

@@ -8,8 +8,7 @@ that the command line can check its arguments first.
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from sb3_ef.common.lazy import lazy_attributes
 
 _PUBLIC = {
     "ZOO_ALGORITHMS": "sb3_ef.zoo.config",
@@ -20,8 +19,4 @@ _PUBLIC = {
 
 __all__ = list(_PUBLIC)
 
-
-def __getattr__(name: str) -> Any:
-    if name in _PUBLIC:
-        return getattr(importlib.import_module(_PUBLIC[name]), name)
-    raise AttributeError(f"module 'sb3_ef.zoo' has no attribute {name!r}")
+__getattr__ = lazy_attributes(__name__, _PUBLIC)
