@@ -1,0 +1,31 @@
+"""SEAR's supervised agent masks, to set next to EF's h_a saliency on the same frames.
+
+SEAR learns the agent's pixels from the simulator's masks (a decoder trained with a per-pixel cross-entropy);
+EF has no masks and its h_a saliency says where the agent is only if the split of the features worked. Both are
+scored against the true mask with :func:`~sb3_ef.analysis.masks.mask_scores`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch as th
+
+from sb3_ef.analysis.prediction import as_observation_batch, eval_mode, module_device
+from sb3_ef.sear import SEAR, SEARLoss
+
+
+def decoded_agent_masks(model: SEAR, observation: np.ndarray) -> np.ndarray:
+    """SEAR's mask decoder on one stacked uint8 observation ``(3 * frame_stack, h, w)``: the probability that
+    each pixel of each stacked frame shows the agent, ``(frame_stack, h, w)`` float32 in [0, 1], oldest first."""
+    auxiliary = getattr(model, "auxiliary", None)
+    if not isinstance(auxiliary, SEARLoss):
+        raise TypeError(f"Expected a SEAR model (its auxiliary loss a SEARLoss), got {type(model).__name__}")
+    batch = as_observation_batch(observation, module_device(model.policy))
+    if tuple(batch.shape[1:]) != auxiliary.observation_shape:
+        raise ValueError(
+            f"The model was trained on observations of shape {auxiliary.observation_shape}, "
+            f"got {tuple(batch.shape[1:])}"
+        )
+    with th.no_grad(), eval_mode(model.policy, auxiliary):
+        _, masks = auxiliary.decode(model.policy.encode(batch))
+    return masks[0].float().cpu().numpy()

@@ -1,0 +1,61 @@
+"""SEAR's decoded agent masks for the notebook's side-by-side with EF's saliency."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch as th
+
+from sb3_ef import SEAR, DrQv2
+from sb3_ef.analysis.masks import mask_scores
+from sb3_ef.analysis.supervised_masks import decoded_agent_masks
+from sb3_ef.envs.toy import ToyAgentEnv
+
+SIZE = 32
+POLICY = {"features_dim": 64, "net_arch": [32], "trunk_dim": 16}
+
+
+def toy_env(**kwargs) -> ToyAgentEnv:
+    return ToyAgentEnv(size=SIZE, max_episode_steps=20, **{"agent_masks": True, **kwargs})
+
+
+def make_sear(**kwargs) -> SEAR:
+    arguments = {"buffer_size": 400, "learning_starts": 16, "batch_size": 16, "seed": 0, "device": "cpu"}
+    return SEAR("CnnPolicy", toy_env(), policy_kwargs=dict(POLICY), **{**arguments, **kwargs})
+
+
+def test_decoded_masks_are_the_mask_decoders_sigmoid_on_the_second_half_of_the_features():
+    model = make_sear()
+    observation, _ = toy_env().reset(seed=0)
+    masks = decoded_agent_masks(model, observation)
+    assert masks.shape == (3, SIZE, SIZE) and masks.dtype == np.float32
+    with th.no_grad():
+        features = model.policy.encode(th.as_tensor(observation).unsqueeze(0))
+        expected = th.sigmoid(model.auxiliary.mask_decoder(features[:, POLICY["features_dim"] // 2 :]))[0]
+    np.testing.assert_allclose(masks, expected.numpy(), rtol=1e-6, atol=1e-7)
+    assert model.policy.training == model.auxiliary.training  # the modes it found are restored
+
+
+@pytest.mark.slow
+def test_a_trained_sear_finds_the_toy_agent_better_than_an_untrained_one():
+    env = toy_env()
+    observation, _ = env.reset(seed=3)
+    for _ in range(4):
+        observation, *_ = env.step(np.ones(2, dtype=np.float32))
+    target = env.agent_mask().astype(bool)
+    untrained = make_sear()
+    trained = make_sear()
+    trained.learn(600)
+    scores = {
+        name: mask_scores(decoded_agent_masks(model, observation)[-1] > 0.5, target)
+        for name, model in (("untrained", untrained), ("trained", trained))
+    }
+    assert scores["trained"].iou > 0.5
+    assert not scores["untrained"].iou > 0.5  # NaN (nothing predicted) or low
+
+
+def test_refuses_a_model_without_a_mask_decoder_and_an_observation_of_another_shape():
+    with pytest.raises(TypeError, match="Expected a SEAR model"):
+        decoded_agent_masks(DrQv2("CnnPolicy", toy_env(agent_masks=False), buffer_size=100, device="cpu"), None)
+    with pytest.raises(ValueError, match=r"trained on observations of shape \(9, 32, 32\), got \(9, 16, 16\)"):
+        decoded_agent_masks(make_sear(), np.zeros((9, 16, 16), dtype=np.uint8))
