@@ -47,14 +47,14 @@ REFERENCES = {
         "DrQ-v2 (official)",
         "drqv2_dmc.csv.gz",
         "frame",
-        "frames (agent steps x action repeat 2)",
+        "frames (official runs at action repeat 2)",
         "facebookresearch/drqv2 curves/ (MIT licence)",
     ),
     "tdmpc2": Reference(
         "TD-MPC2 (official)",
         "tdmpc2_pixels_dmc.csv.gz",
         "step",
-        "agent steps (action repeat 2)",
+        "agent steps (official runs at action repeat 2)",
         "nicklashansen/tdmpc2 results/tdmpc2-pixels/ (MIT licence)",
     ),
 }
