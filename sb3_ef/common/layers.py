@@ -1,4 +1,4 @@
-"""Small reusable layers in TD-MPC2's style: normed linear blocks, MLPs and SimNorm."""
+"""Small reusable layers in TD-MPC2's style (normed linear blocks, MLPs, SimNorm) and DrQ-v2's initialisation."""
 
 from __future__ import annotations
 
@@ -55,3 +55,15 @@ def mlp(
     else:
         layers.append(NormedLinear(dims[-1], out_dim, activation=output_activation))
     return nn.Sequential(*layers)
+
+
+def orthogonal_init(module: nn.Module) -> None:
+    """DrQ-v2's initialisation, also SEAR's (``module.apply(orthogonal_init)``): orthogonal weights, with the ReLU
+    gain for convolutions and transposed convolutions, and zero biases."""
+    if isinstance(module, nn.Linear):
+        nn.init.orthogonal_(module.weight)
+        nn.init.zeros_(module.bias)
+    elif isinstance(module, (nn.Conv2d, nn.ConvTranspose2d)):
+        nn.init.orthogonal_(module.weight, nn.init.calculate_gain("relu"))
+        if module.bias is not None:
+            nn.init.zeros_(module.bias)

@@ -14,6 +14,7 @@ from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_stacked_frames
+from sb3_ef.common.layers import orthogonal_init
 from sb3_ef.ef.auxiliary import AuxiliaryLoss, CarriesAuxiliary
 
 # Conv stack of DrQ-v2: (kernel, stride) per layer, 32 filters each.
@@ -127,17 +128,6 @@ def actor_critic_arch(net_arch: list[int] | dict[str, list[int]]) -> tuple[list[
     return get_actor_critic_arch(net_arch)
 
 
-def _orthogonal_init(module: nn.Module) -> None:
-    """DrQ-v2's initialisation: orthogonal weights (ReLU gain for convolutions), zero biases."""
-    if isinstance(module, nn.Linear):
-        nn.init.orthogonal_(module.weight)
-        nn.init.zeros_(module.bias)
-    elif isinstance(module, nn.Conv2d):
-        nn.init.orthogonal_(module.weight, nn.init.calculate_gain("relu"))
-        if module.bias is not None:
-            nn.init.zeros_(module.bias)
-
-
 class DrQv2Policy(CarriesAuxiliary, BasePolicy):
     """Encoder, actor, critic and critic target of DrQ-v2, and the algorithm's auxiliary loss module, if any
     (``auxiliary``, set by the algorithm: DrQv2-EF's Ego-Foresight).
@@ -204,7 +194,7 @@ class DrQv2Policy(CarriesAuxiliary, BasePolicy):
         self.actor = DrQv2Actor(repr_dim, action_dim, self.trunk_dim, self.actor_arch)
         self.critic = DrQv2Critic(repr_dim, action_dim, self.trunk_dim, self.critic_arch, self.n_critics)
         for module in (self.encoder, self.actor, self.critic):
-            module.apply(_orthogonal_init)
+            module.apply(orthogonal_init)
         self.critic_target = DrQv2Critic(repr_dim, action_dim, self.trunk_dim, self.critic_arch, self.n_critics)
         self.critic_target.load_state_dict(self.critic.state_dict())
         self.critic_target.train(False)

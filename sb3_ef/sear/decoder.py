@@ -14,6 +14,8 @@ import itertools
 import torch as th
 from torch import nn
 
+from sb3_ef.common.layers import orthogonal_init
+
 # Channels of the decoder's first map and of its hidden transposed convolutions (the authors' values).
 _IN_CHANNELS = 16
 _HIDDEN = (16, 32, 32, 32)
@@ -28,17 +30,6 @@ def _encoder_sizes(size: int) -> tuple[int, int]:
     """(conv output size, pooled size) of the pooled DrQ-v2 encoder along one image axis."""
     conv = (size - 3) // 2 + 1 - 2 * _STRIDE_ONE_LAYERS
     return conv, conv // _POOL
-
-
-def _weight_init(module: nn.Module) -> None:
-    """SEAR's initialisation: orthogonal weights (ReLU gain for the transposed convolutions), zero biases."""
-    if isinstance(module, nn.Linear):
-        nn.init.orthogonal_(module.weight)
-        nn.init.zeros_(module.bias)
-    elif isinstance(module, nn.ConvTranspose2d):
-        nn.init.orthogonal_(module.weight, nn.init.calculate_gain("relu"))
-        if module.bias is not None:
-            nn.init.zeros_(module.bias)
 
 
 class SEARDecoder(nn.Module):
@@ -85,7 +76,7 @@ class SEARDecoder(nn.Module):
             )
         )
         self.deconvs = nn.Sequential(*layers)
-        self.apply(_weight_init)
+        self.apply(orthogonal_init)
 
     def forward(self, latent: th.Tensor) -> th.Tensor:
         return self.deconvs(self.projection(latent).view(-1, *self.pooled_shape))
