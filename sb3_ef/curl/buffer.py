@@ -4,12 +4,14 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from contextlib import contextmanager
+from functools import partial
 from typing import Any
 
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_ef.common.augmentation import random_crop
 from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
+from sb3_ef.sb3_hosts.shifted_buffer import augment_frames
 
 
 class CroppedSequenceReplayBuffer(SequenceReplayBuffer):
@@ -46,13 +48,4 @@ class CroppedSequenceReplayBuffer(SequenceReplayBuffer):
         batch = super().sample(batch_size, env)
         if not self._cropping:
             return batch
-        horizon = batch.future_frames.shape[1]
-        observations, future_frames = random_crop(
-            batch.observations, batch.future_frames.flatten(1, 2), size=self.crop_size
-        )
-        (next_observations,) = random_crop(batch.next_observations, size=self.crop_size)
-        return batch._replace(
-            observations=observations,
-            next_observations=next_observations,
-            future_frames=future_frames.unflatten(1, (horizon, -1)),
-        )
+        return augment_frames(batch, partial(random_crop, size=self.crop_size))
