@@ -6,25 +6,16 @@ import numpy as np
 import pytest
 import torch as th
 
-from sb3_ef import SEAR, DrQv2
+from sb3_ef import DrQv2
 from sb3_ef.analysis.supervised_masks import decoded_agent_masks
-from sb3_ef.envs.toy import ToyAgentEnv
+from tests.helpers.sear import POLICY, SIZE, make_sear, toy_env
 
-SIZE = 32
-POLICY = {"features_dim": 64, "net_arch": [32], "trunk_dim": 16}
-
-
-def toy_env(**kwargs) -> ToyAgentEnv:
-    return ToyAgentEnv(size=SIZE, max_episode_steps=20, **{"agent_masks": True, **kwargs})
-
-
-def make_sear(**kwargs) -> SEAR:
-    arguments = {"buffer_size": 400, "learning_starts": 16, "batch_size": 16, "seed": 0, "device": "cpu"}
-    return SEAR("CnnPolicy", toy_env(), policy_kwargs=dict(POLICY), **{**arguments, **kwargs})
+# a larger batch and buffer than the SEAR tests' default, so that 2000 steps teach the mask decoder the agent
+MASK_TRAINING = {"buffer_size": 400, "learning_starts": 16, "batch_size": 16}
 
 
 def test_decoded_masks_are_the_mask_decoders_sigmoid_on_the_second_half_of_the_features():
-    model = make_sear()
+    model = make_sear(**MASK_TRAINING)
     observation, _ = toy_env().reset(seed=0)
     masks = decoded_agent_masks(model, observation)
     assert masks.shape == (3, SIZE, SIZE) and masks.dtype == np.float32
@@ -42,8 +33,8 @@ def test_a_trained_sear_gives_the_toy_agents_pixels_a_higher_probability_than_th
     for _ in range(4):
         observation, *_ = env.step(np.ones(2, dtype=np.float32))
     agent = env.agent_mask().astype(bool)
-    untrained = make_sear()
-    trained = make_sear()
+    untrained = make_sear(**MASK_TRAINING)
+    trained = make_sear(**MASK_TRAINING)
     trained.learn(2000)
     contrast = {}
     for name, model in (("untrained", untrained), ("trained", trained)):
@@ -57,4 +48,4 @@ def test_refuses_a_model_without_a_mask_decoder_and_an_observation_of_another_sh
     with pytest.raises(TypeError, match="Expected a SEAR model"):
         decoded_agent_masks(DrQv2("CnnPolicy", toy_env(agent_masks=False), buffer_size=100, device="cpu"), None)
     with pytest.raises(ValueError, match=r"trained on observations of shape \(9, 32, 32\), got \(9, 16, 16\)"):
-        decoded_agent_masks(make_sear(), np.zeros((9, 16, 16), dtype=np.uint8))
+        decoded_agent_masks(make_sear(**MASK_TRAINING), np.zeros((9, 16, 16), dtype=np.uint8))

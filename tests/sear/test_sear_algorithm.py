@@ -10,22 +10,11 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from sb3_ef import SEAR
 from sb3_ef.envs.pixel_env import AGENT_MASKS_INFO_KEY
-from sb3_ef.envs.toy import AGENT_COLOUR, ToyAgentEnv
+from sb3_ef.envs.toy import AGENT_COLOUR
 from sb3_ef.envs.toy import AGENT_MASKS_INFO_KEY as TOY_KEY
 from sb3_ef.sear import SEAR_LATENT_DIM, SEARLoss, SEARPolicy
-
-SIZE = 32
-POLICY = {"features_dim": 64, "net_arch": [32], "trunk_dim": 16}
-
-
-def toy_env(**kwargs) -> ToyAgentEnv:
-    return ToyAgentEnv(size=SIZE, max_episode_steps=20, **{"agent_masks": True, **kwargs})
-
-
-def make(**kwargs) -> SEAR:
-    arguments = {"buffer_size": 300, "learning_starts": 12, "batch_size": 8, "seed": 0, "device": "cpu"}
-    arguments["policy_kwargs"] = dict(POLICY)
-    return SEAR("CnnPolicy", toy_env(), **{**arguments, **kwargs})
+from tests.helpers.sear import POLICY, SIZE, toy_env
+from tests.helpers.sear import make_sear as make
 
 
 def test_the_toy_env_gives_masks_under_the_pixel_envs_info_key():
