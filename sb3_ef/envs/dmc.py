@@ -80,6 +80,7 @@ class DMCPixelEnv(PixelEnv):
                 fast_render=fast_render,
                 flip=False,
                 render_mode=render_mode,
+                seed=seed,
             )
         except Exception:
             self._env.close()
@@ -90,7 +91,8 @@ class DMCPixelEnv(PixelEnv):
         return physics.model.ptr, physics.data.ptr
 
     def _reset_sim(self, seed: int | None, options: dict[str, Any] | None) -> dict[str, Any]:
-        return self._env.reset(seed=seed, options=options)[1]
+        # dm_control draws the initial state from the task's generator, reseeded here from the env's every episode
+        return self._env.reset(seed=self._simulator_seed(), options=options)[1]
 
     def _step_sim(self, action: np.ndarray) -> tuple[float, bool, dict[str, Any]]:
         scaled = self._action_low + (action.astype(np.float64) + 1.0) * 0.5 * (self._action_high - self._action_low)

@@ -99,6 +99,7 @@ class MetaWorldPixelEnv(PixelEnv):
                 fast_render=fast_render,
                 flip=model.camera(camera_index).name in FLIPPED_CAMERAS,
                 render_mode=render_mode,
+                seed=seed,
             )
         except Exception:
             self._env.close()
@@ -110,6 +111,8 @@ class MetaWorldPixelEnv(PixelEnv):
     def _reset_sim(self, seed: int | None, options: dict[str, Any] | None) -> dict[str, Any]:
         if seed is not None:
             self._env.seed(seed)
+        elif self.resample_task:  # the variant is drawn from Meta-World's generator: reseed it from the env's
+            self._env.seed(self._simulator_seed())
         draw_variant = seed is not None or self.resample_task or self._env._last_rand_vec is None
         self._env._freeze_rand_vec = not draw_variant
         try:

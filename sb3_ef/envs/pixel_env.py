@@ -14,6 +14,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 from gymnasium import spaces
+from gymnasium.utils import seeding
 
 from sb3_ef.envs.agent_geoms import agent_geoms
 from sb3_ef.envs.renderer import FrameRenderer
@@ -54,6 +55,7 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
         fast_render: bool,
         flip: bool,
         render_mode: str | None,
+        seed: int | None = None,
     ) -> None:
         for argument, value in (("frame_stack", frame_stack), ("action_repeat", action_repeat)):
             if not isinstance(value, (int, np.integer)) or value < 1:
@@ -62,6 +64,8 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ValueError(f"episode_length must be an int >= 1 (simulator steps), got {episode_length!r}")
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        if seed is not None:
+            self.np_random, _ = seeding.np_random(seed)
         self.size = size
         self.frame_stack = frame_stack
         self.action_repeat = action_repeat
@@ -92,6 +96,11 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
     def _step_sim(self, action: np.ndarray) -> tuple[float, bool, dict[str, Any]]:
         """One simulator step with an action in [-1, 1]: ``(reward, terminated, info)``."""
         raise NotImplementedError
+
+    def _simulator_seed(self) -> int:
+        """A seed for the simulator's own generator, drawn from ``np_random``: the generator that gymnasium seeds
+        and a checkpoint records then decides every episode, so a resumed run repeats the uninterrupted one."""
+        return int(self.np_random.integers(2**31))
 
     @property
     def camera(self) -> int:

@@ -244,3 +244,23 @@ def test_envs_can_be_created_and_closed_many_times():
         environment.step(np.zeros(1, np.float32))
         environment.close()
         environment.close()
+
+
+@pytest.mark.parametrize(
+    ("task", "options"), [("dmc/cartpole-balance", {}), ("metaworld/door-open", {"resample_task": True})]
+)
+def test_the_envs_own_generator_decides_every_episode(task, options):
+    """A checkpoint records ``np_random``: an env given that generator's state plays the same next episode, whatever
+    its simulator's generator went through before (here: another seed)."""
+    first, second = (make_env(task, size=32, fast_render=True, seed=seed, **options) for seed in (0, 1))
+    try:
+        first.reset()
+        second.reset()
+        state = first.np_random.bit_generator.state
+        episode = first.reset()[0]
+        assert not np.array_equal(second.reset()[0], episode)
+        second.np_random.bit_generator.state = state
+        assert np.array_equal(second.reset()[0], episode)
+    finally:
+        first.close()
+        second.close()
