@@ -23,6 +23,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypedDict
 
 import gymnasium as gym
+import numpy as np
+from stable_baselines3.common.callbacks import EvalCallback
 
 from sb3_ef.analysis.records import RECORD_COLUMNS, RUN_RESULT_FILE, EvalRecorderCallback, append_records
 from sb3_ef.grid.grid import MAKE_ENV_SUITES, RunSpec, constructor_kwargs
@@ -127,13 +129,34 @@ def build_env(spec: RunSpec, seed: int) -> gym.Env:
 
 def build_eval_env(spec: RunSpec, seed: int) -> DummyVecEnv:
     """The evaluation env of a run trained with ``seed``: one monitored env, seeded with ``seed + EVAL_SEED_OFFSET``
-    so that its episodes differ from the training ones (deterministic actions are the caller's choice)."""
+    so that its episodes differ from the training ones (deterministic actions are the caller's choice;
+    :class:`StepSeededEvalCallback` reseeds it before every evaluation)."""
     from stable_baselines3.common.monitor import Monitor
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     eval_env = DummyVecEnv([lambda: Monitor(build_env(spec, seed=seed + EVAL_SEED_OFFSET))])
     eval_env.seed(seed + EVAL_SEED_OFFSET)
     return eval_env
+
+
+def evaluation_seed(seed: int, step: int) -> int:
+    """The seed of the evaluation episodes at agent step ``step`` of a run trained with ``seed``."""
+    return int(np.random.SeedSequence([seed + EVAL_SEED_OFFSET, step]).generate_state(1)[0])
+
+
+class StepSeededEvalCallback(EvalCallback):
+    """SB3's ``EvalCallback`` that reseeds the evaluation env before each evaluation from the run's seed and the
+    agent step (:func:`evaluation_seed`): the evaluation at a step plays the same episodes however the run got
+    there, so a run resumed from a checkpoint records the curve of the uninterrupted one."""
+
+    def __init__(self, eval_env: DummyVecEnv, seed: int, **kwargs: Any):
+        super().__init__(eval_env, **kwargs)
+        self.seed = seed
+
+    def _on_step(self) -> bool:
+        if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
+            self.eval_env.seed(evaluation_seed(self.seed, self.num_timesteps))
+        return super()._on_step()
 
 
 class RunOptions(TypedDict):
@@ -161,7 +184,6 @@ def execute_run(
     A finished run (``result.json`` present) is not trained again: its stored result comes back as ``skipped``.
     """
     import torch as th
-    from stable_baselines3.common.callbacks import EvalCallback
 
     from sb3_ef.common.checkpoints import ResumableCheckpointCallback, latest_checkpoint, load_checkpoint
     from sb3_ef.zoo.progress import ProgressLogCallback
@@ -193,8 +215,9 @@ def execute_run(
     )
     # Checkpoints are written at the start of the rollout after their step, so after that step's evaluation.
     callbacks = [
-        EvalCallback(
+        StepSeededEvalCallback(
             eval_env,
+            spec.seed,
             eval_freq=spec.eval_freq,
             n_eval_episodes=spec.eval_episodes,
             callback_after_eval=recorder,
