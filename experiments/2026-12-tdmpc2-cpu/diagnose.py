@@ -6,16 +6,21 @@ action.
 ``more-updates``: is a run short of updates? Load a grid checkpoint (model and replay buffer), evaluate it, run
 ``--updates`` more gradient steps on the same buffer without new experience, and evaluate again after them (or
 every ``--eval-every`` updates), with the planner (the grid's evaluation action) and with the policy prior alone
-(its mean action, no planning).
+(its mean action, no planning). ``--beta`` sets a TDMPC2-EF checkpoint's EF weight for those updates.
 
 ``planners``: does a bigger search help? Evaluate a checkpoint with the grid's planner, with TD-MPC2's reference
 planner (6 iterations of 512 samples, 64 elites, 24 policy-prior trajectories) on the same weights, and with the
 policy prior alone.
 
+``gradients``: what moves the encoder of a TDMPC2-EF run? On ``--batches`` batches of a checkpoint's replay buffer,
+the gradient norms of TD-MPC2's loss and of EF's (each over the parameters it is clipped on, and over the encoder
+alone), before and after their clips to ``max_grad_norm`` (the update clips them apart and adds them).
+
     MUJOCO_GL=egl python experiments/2026-12-tdmpc2-cpu/diagnose.py levels --episodes 10
     MUJOCO_GL=egl python experiments/2026-12-tdmpc2-cpu/diagnose.py planners CHECKPOINT_DIR 4000 --episodes 3
     MUJOCO_GL=egl python experiments/2026-12-tdmpc2-cpu/diagnose.py more-updates CHECKPOINT_DIR 7000 \
         --updates 6000 --eval-every 2000
+    python experiments/2026-12-tdmpc2-cpu/diagnose.py gradients CHECKPOINT_DIR 12000 --batches 20
 """
 
 from __future__ import annotations
@@ -109,6 +114,11 @@ def planners(args: argparse.Namespace) -> None:
 
 def more_updates(args: argparse.Namespace) -> None:
     model = load_checkpoint(args)
+    if args.beta is not None:
+        if not isinstance(model, TDMPC2EF):
+            raise SystemExit(f"--beta needs a TDMPC2-EF checkpoint, got a {type(model).__name__} one")
+        model.auxiliary.beta = args.beta
+        print(f"EF's weight beta set to {args.beta}")
     evaluate(model, f"{type(model).__name__} at step {args.step}", args)
     done, every = 0, args.eval_every or args.updates
     while done < args.updates:
@@ -120,6 +130,48 @@ def more_updates(args: argparse.Namespace) -> None:
         evaluate(model, f"+ {done} updates, no new data", args)
 
 
+def _norm(grads: tuple[th.Tensor | None, ...], params: list[th.Tensor], only: set[int] | None = None) -> float:
+    """The total norm of ``grads`` (of ``params``), or of those whose parameter is in ``only`` (ids)."""
+    kept = [grad for grad, param in zip(grads, params, strict=True) if grad is not None]
+    if only is not None:
+        kept = [grad for grad, param in zip(grads, params, strict=True) if grad is not None and id(param) in only]
+    return float(th.nn.utils.get_total_norm(kept))
+
+
+def gradients(args: argparse.Namespace) -> None:
+    model = load_checkpoint(args)
+    if not isinstance(model, TDMPC2EF):
+        raise SystemExit(f"gradients needs a TDMPC2-EF checkpoint, got a {type(model).__name__} one")
+    groups = {group["name"]: group["params"] for group in model.policy.optimizer.param_groups}
+    host_params = [param for name, params in groups.items() if name != "auxiliary" for param in params]
+    ef_params = [*groups["encoder"], *groups["auxiliary"]]
+    encoder = {id(param) for param in groups["encoder"]}
+    rows = []
+    for _ in range(args.batches):
+        losses, _, _ = model.losses(model.replay_buffer.sample(model.batch_size))
+        host = (
+            model.consistency_coef * losses["consistency_loss"]
+            + model.reward_coef * losses["reward_loss"]
+            + model.value_coef * losses["value_loss"]
+        )
+        host_grads = th.autograd.grad(host, host_params, retain_graph=True, allow_unused=True)
+        ef_grads = th.autograd.grad(losses["auxiliary_loss"], ef_params, allow_unused=True)
+        host_total, ef_total = _norm(host_grads, host_params), _norm(ef_grads, ef_params)
+        host_encoder, ef_encoder = _norm(host_grads, host_params, encoder), _norm(ef_grads, ef_params, encoder)
+        host_scale, ef_scale = min(1.0, model.max_grad_norm / host_total), min(1.0, model.max_grad_norm / ef_total)
+        rows.append(
+            [host_total, ef_total, host_encoder, ef_encoder, host_encoder * host_scale, ef_encoder * ef_scale]
+            + [float(losses[key].detach()) for key in ("consistency_loss", "reward_loss", "value_loss", "ef_loss")]
+        )
+    names = ["grad norm: TD-MPC2, all", "grad norm: EF, all", "grad norm: TD-MPC2, encoder", "grad norm: EF, encoder"]
+    names += ["grad norm: TD-MPC2, encoder, clipped", "grad norm: EF, encoder, clipped"]
+    names += ["consistency loss", "reward loss", "value loss", "EF loss (unweighted)"]
+    medians = np.median(np.array(rows), axis=0)
+    print(f"step {args.step}, {args.batches} batches of {model.batch_size}, max_grad_norm {model.max_grad_norm}:")
+    for name, value in zip(names, medians, strict=True):
+        print(f"  {name:40s} {value:10.3f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     commands = parser.add_subparsers(dest="command", required=True)
@@ -128,14 +180,18 @@ def main() -> None:
     update_parser = commands.add_parser("more-updates", help="a checkpoint trained further on its own buffer")
     update_parser.add_argument("--updates", type=int, default=3000)
     update_parser.add_argument("--eval-every", type=int, default=None, help="updates between evaluations")
-    for sub in (planner_parser, update_parser):
+    update_parser.add_argument("--beta", type=float, default=None, help="TDMPC2-EF: EF's weight for these updates")
+    gradient_parser = commands.add_parser("gradients", help="TD-MPC2's and EF's gradient norms on an EF checkpoint")
+    gradient_parser.add_argument("--batches", type=int, default=20)
+    for sub in (planner_parser, update_parser, gradient_parser):
         sub.add_argument("checkpoints", type=Path, help="a run's checkpoints folder")
         sub.add_argument("step", type=int, help="the checkpoint's step")
-    for sub in (level_parser, planner_parser, update_parser):
+    for sub in (level_parser, planner_parser, update_parser, gradient_parser):
         sub.add_argument("--episodes", type=int, default=5)
         sub.add_argument("--seed", type=int, default=123)
     args = parser.parse_args()
-    {"levels": levels, "planners": planners, "more-updates": more_updates}[args.command](args)
+    commands_by_name = {"levels": levels, "planners": planners, "more-updates": more_updates, "gradients": gradients}
+    commands_by_name[args.command](args)
 
 
 if __name__ == "__main__":
