@@ -18,8 +18,8 @@ Files of the checkpoint at ``step`` (the model name is SB3's and rl-zoo3's)::
 
 The envs' generators are recorded one agent step before the checkpoint, before the env reset that ends an episode
 there; a resumed run resets its envs from them. A resumed run therefore repeats the uninterrupted one exactly when
-the checkpoint falls on an episode boundary of every env and the env draws random numbers only in ``reset``
-(simulator state inside the env is never saved).
+the checkpoint falls on an episode boundary of every env and the env draws random numbers only in ``reset``, from
+its ``np_random`` (as ``make_env``'s envs do; simulator state inside the env is never saved).
 """
 
 from __future__ import annotations

@@ -57,6 +57,8 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
         render_mode: str | None,
         seed: int | None = None,
     ) -> None:
+        """Called by a suite's constructor once its simulator exists; ``seed`` seeds ``np_random``, from which the
+        suite draws its simulator's seeds (:meth:`_simulator_seed`)."""
         for argument, value in (("frame_stack", frame_stack), ("action_repeat", action_repeat)):
             if not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"{argument} must be an int >= 1, got {value!r}")
