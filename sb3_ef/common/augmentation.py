@@ -1,8 +1,14 @@
-"""Random-shift image augmentation (DrQ / DrQ-v2)."""
+"""Image augmentations (DrQ's random shift, CURL's random and centre crops) and their application to a replay batch."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
 import torch as th
+
+if TYPE_CHECKING:
+    from sb3_ef.common.buffers import SequenceReplayBufferSamples
 
 
 def random_shift(*images: th.Tensor, pad: int = 4, generator: th.Generator | None = None) -> tuple[th.Tensor, ...]:
@@ -97,3 +103,19 @@ def center_crop(images: th.Tensor, size: int) -> th.Tensor:
     _check_crop(size, height, width, "center_crop")
     top, left = (height - size) // 2, (width - size) // 2
     return images[:, :, top : top + size, left : left + size]
+
+
+def augment_frames(
+    batch: SequenceReplayBufferSamples, augment: Callable[..., tuple[th.Tensor, ...]]
+) -> SequenceReplayBufferSamples:
+    """``batch`` with its images augmented by ``augment`` (``random_shift`` or ``random_crop`` with their sizes
+    bound): the observations at t and their future frames in one call (one draw per sample), the next observations
+    in a second."""
+    horizon = batch.future_frames.shape[1]
+    observations, future_frames = augment(batch.observations, batch.future_frames.flatten(1, 2))
+    (next_observations,) = augment(batch.next_observations)
+    return batch._replace(
+        observations=observations,
+        next_observations=next_observations,
+        future_frames=future_frames.unflatten(1, (horizon, -1)),
+    )

@@ -9,9 +9,8 @@ from typing import Any
 
 from stable_baselines3.common.vec_env import VecNormalize
 
-from sb3_ef.common.augmentation import random_crop
+from sb3_ef.common.augmentation import augment_frames, random_crop
 from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
-from sb3_ef.sb3_hosts.shifted_buffer import augment_frames
 
 
 class CroppedSequenceReplayBuffer(SequenceReplayBuffer):
