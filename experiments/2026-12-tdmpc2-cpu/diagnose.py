@@ -132,9 +132,11 @@ def more_updates(args: argparse.Namespace) -> None:
 
 def _norm(grads: tuple[th.Tensor | None, ...], params: list[th.Tensor], only: set[int] | None = None) -> float:
     """The total norm of ``grads`` (of ``params``), or of those whose parameter is in ``only`` (ids)."""
-    kept = [grad for grad, param in zip(grads, params, strict=True) if grad is not None]
-    if only is not None:
-        kept = [grad for grad, param in zip(grads, params, strict=True) if grad is not None and id(param) in only]
+    kept = [
+        grad
+        for grad, param in zip(grads, params, strict=True)
+        if grad is not None and (only is None or id(param) in only)
+    ]
     return float(th.nn.utils.get_total_norm(kept))
 
 
