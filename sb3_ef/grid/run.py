@@ -23,17 +23,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypedDict
 
 import gymnasium as gym
-import numpy as np
-from stable_baselines3.common.callbacks import EvalCallback
 
 from sb3_ef.analysis.records import RECORD_COLUMNS, RUN_RESULT_FILE, EvalRecorderCallback, append_records
+from sb3_ef.common.evaluation import EVAL_SEED_OFFSET, StepSeededEvalCallback
 from sb3_ef.grid.grid import MAKE_ENV_SUITES, RunSpec, constructor_kwargs
 
 if TYPE_CHECKING:
     from stable_baselines3.common.vec_env import DummyVecEnv
-
-#: Offset added to a run's seed for its evaluation env, so evaluation episodes differ from training ones.
-EVAL_SEED_OFFSET = 10_000
 
 
 @dataclass(frozen=True)
@@ -137,26 +133,6 @@ def build_eval_env(spec: RunSpec, seed: int) -> DummyVecEnv:
     eval_env = DummyVecEnv([lambda: Monitor(build_env(spec, seed=seed + EVAL_SEED_OFFSET))])
     eval_env.seed(seed + EVAL_SEED_OFFSET)
     return eval_env
-
-
-def evaluation_seed(seed: int, step: int) -> int:
-    """The seed of the evaluation episodes at agent step ``step`` of a run trained with ``seed``."""
-    return int(np.random.SeedSequence([seed + EVAL_SEED_OFFSET, step]).generate_state(1)[0])
-
-
-class StepSeededEvalCallback(EvalCallback):
-    """SB3's ``EvalCallback`` that reseeds the evaluation env before each evaluation from the run's seed and the
-    agent step (:func:`evaluation_seed`): the evaluation at a step plays the same episodes however the run got
-    there, so a run resumed from a checkpoint records the curve of the uninterrupted one."""
-
-    def __init__(self, eval_env: DummyVecEnv, seed: int, **kwargs: Any):
-        super().__init__(eval_env, **kwargs)
-        self.seed = seed
-
-    def _on_step(self) -> bool:
-        if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
-            self.eval_env.seed(evaluation_seed(self.seed, self.num_timesteps))
-        return super()._on_step()
 
 
 class RunOptions(TypedDict):

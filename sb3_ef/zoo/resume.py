@@ -11,6 +11,10 @@ algorithm:
   the config's ``n_timesteps``) steps in all, continuing its step count; when the model lies in an rl-zoo3 run
   folder the run continues there: ``evaluations.npz`` and the monitor files are appended to, the evaluation steps
   carry on, the final model replaces the old one;
+- the evaluation env is reseeded before each evaluation from the run's seed and the step
+  (:class:`~sb3_ef.common.evaluation.StepSeededEvalCallback`), so a continued run evaluates on the episodes of the
+  uninterrupted one; a run started without ``--seed`` saves the seed rl-zoo3 drew with its arguments, for
+  ``--resume``;
 - a run that fails before training starts removes the folders it created (run folder, and log folders that did
   not exist before);
 - progress is printed every 10 s of wall time (:class:`~sb3_ef.zoo.progress.ProgressLogCallback`); ``-P``'s bar
@@ -21,6 +25,7 @@ algorithm:
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import shutil
@@ -37,6 +42,7 @@ from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback,
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_ef.common.checkpoints import Checkpoint, ResumableCheckpointCallback, checkpoint_for, load_checkpoint
+from sb3_ef.common.evaluation import StepSeededEvalCallback
 from sb3_ef.zoo.progress import ProgressLogCallback
 
 #: File in ``<run>/<env>/`` holding the sb3-ef train arguments of the run (read by ``--resume``).
@@ -54,6 +60,14 @@ class CheckpointOptions:
 def is_run_folder(folder: Path, env_name: str) -> bool:
     """Whether ``folder`` is an rl-zoo3 run folder of ``env_name`` (it holds ``<env_name>/args.yml``)."""
     return (folder / env_name / "args.yml").is_file()
+
+
+def with_seed(argv: list[str], seed: int) -> list[str]:
+    """``argv`` ending with ``--seed seed`` unless it already gives that seed (rl-zoo3 draws one for ``-1``)."""
+    parser = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    parser.add_argument("--seed", type=int, default=-1)
+    given, _ = parser.parse_known_args(argv)
+    return argv if given.seed == seed else [*argv, "--seed", str(seed)]
 
 
 def outermost_missing(path: Path) -> Path | None:
@@ -138,8 +152,11 @@ class ResumingExperimentManager(ExperimentManager):
                     keep=self.checkpoint_options.keep,
                     verbose=callback.verbose,
                 )
-            elif isinstance(callback, EvalCallback) and self.continues_folder:
-                continue_evaluations(callback)
+            elif isinstance(callback, EvalCallback):
+                step_seeded = StepSeededEvalCallback.replacing(callback, self.seed)
+                if self.continues_folder:
+                    continue_evaluations(step_seeded)
+                self.callbacks[index] = step_seeded
 
     def create_envs(self, n_envs: int, eval_env: bool = False, no_log: bool = False) -> VecEnv:
         if self.continues_folder:
@@ -163,7 +180,7 @@ class ResumingExperimentManager(ExperimentManager):
 
     def _save_config(self, saved_hyperparams: dict[str, Any]) -> None:
         super()._save_config(saved_hyperparams)
-        Path(self.params_path, ARGV_FILE).write_text(json.dumps(self.argv))
+        Path(self.params_path, ARGV_FILE).write_text(json.dumps(with_seed(self.argv, self.seed)))
 
     def learn(self, model: BaseAlgorithm) -> None:
         """rl-zoo3's ``learn`` (which stops at Ctrl-C); a continued model trains up to ``n_timesteps`` steps in all,

@@ -12,6 +12,7 @@ from sb3_ef.common.checkpoints import latest_checkpoint, list_checkpoints
 from sb3_ef.ef.babbling import babble
 from sb3_ef.zoo import train
 from sb3_ef.zoo.registration import algorithm_classes
+from sb3_ef.zoo.resume import with_seed
 from tests.helpers.zoo import cli_pairs
 
 ENV_ID = "dmc/cartpole-swingup-v0"
@@ -38,12 +39,13 @@ def _args(log_folder, n_timesteps: int) -> list[str]:
         "--algo", "drqv2_ef", "--env", ENV_ID, "-n", str(n_timesteps), "-f", str(log_folder), "--seed", "0",
         "--eval-freq", "30", "--eval-episodes", "1", "--save-freq", "40", "--checkpoint-buffer",
         "--num-threads", "1", "--verbose", "0", "--save-replay-buffer",
-        "--env-kwargs", *cli_pairs({"size": 64, "fast_render": True, "episode_length": 60}),
+        # Episodes of 40 agent steps (action repeat 2): the checkpoint at 40 falls between two, where a resume is exact.
+        "--env-kwargs", *cli_pairs({"size": 64, "fast_render": True, "episode_length": 80}),
         "--hyperparams", *cli_pairs(HYPERPARAMS),
     ]  # fmt: skip
 
 
-# About 30 s on 2 cores: slow.
+# About 30 s on 2 cores; the tests that need it are slow but one, which checks what a user sees of a resumed run.
 @pytest.fixture(scope="module")
 def resumed(tmp_path_factory):
     """A run killed after 60 steps (checkpoints at 40), then continued with --resume up to 100 steps."""
@@ -91,12 +93,16 @@ def test_resume_continues_steps_warm_up_babbling_and_buffer(resumed):
     assert (model._motor_babbling.end_step, model._motor_babbling.end_reason) == (BABBLING, "steps")
 
 
-@pytest.mark.slow
 def test_resume_appends_evaluations_and_logs(resumed):
     run, first = resumed
     assert first["evaluations"] == [30, 60]
     # The resumed run starts from the checkpoint at step 40: the evaluation at 60 is redone, then 90.
-    assert np.load(run / "evaluations.npz")["timesteps"].tolist() == [30, 60, 60, 90]
+    evaluations = np.load(run / "evaluations.npz")
+    assert evaluations["timesteps"].tolist() == [30, 60, 60, 90]
+    # The redone evaluation plays the episode of the first one (the env is reseeded from the step), with the model
+    # the exact resume trained again: the same return. A fresh evaluation env would replay the episode of step 30.
+    returns = evaluations["results"][:, 0]
+    assert returns[1] == returns[2] != returns[0]
     assert len((run / "0.monitor.csv").read_text().splitlines()) > first["monitor_lines"]
     argv = json.loads((run / LOG_NAME / "train_argv.json").read_text())
     assert argv[argv.index("-i") + 1] == str(first["checkpoint"].model_path)
@@ -108,6 +114,12 @@ def test_continuing_a_finished_run_says_so(resumed):
     run, _ = resumed
     with pytest.raises(ValueError, match=f"already at step {TOTAL}"):
         train.main([*_args(run.parent.parent, TOTAL), "-i", str(run / f"{LOG_NAME}.zip")])
+
+
+def test_the_saved_arguments_give_the_seed_rl_zoo3_drew():
+    assert with_seed(["--algo", "sear"], 7) == ["--algo", "sear", "--seed", "7"]
+    assert with_seed(["--seed", "-1"], 7) == ["--seed", "-1", "--seed", "7"]  # argparse: the last value wins
+    assert with_seed(["--seed=7", "-n", "5"], 7) == ["--seed=7", "-n", "5"]
 
 
 def test_bad_resume_and_trained_agent_are_named(tmp_path):
