@@ -57,8 +57,6 @@ def test_bad_setups_are_refused():
         ForesightLoggerCallback(DotEnv(size=8)).init_callback(FakeModel())
 
 
-
-
 @pytest.mark.parametrize("algorithm", ["DrQv2EF", "TDMPC2EF"])
 def test_callback_during_training_of_both_hosts(tmp_path, algorithm):
     from test_analysis_cli import TINY_DRQV2
