@@ -144,18 +144,12 @@ def gradients(args: argparse.Namespace) -> None:
     model = load_checkpoint(args)
     if not isinstance(model, TDMPC2EF):
         raise SystemExit(f"gradients needs a TDMPC2-EF checkpoint, got a {type(model).__name__} one")
-    groups = {group["name"]: group["params"] for group in model.policy.optimizer.param_groups}
-    host_params = [param for name, params in groups.items() if name != "auxiliary" for param in params]
-    ef_params = [*groups["encoder"], *groups["auxiliary"]]
-    encoder = {id(param) for param in groups["encoder"]}
+    host_params, ef_params = model._gradient_groups()
+    encoder = {id(param) for param in model.world_model.encoder.parameters()}
     rows = []
     for _ in range(args.batches):
         losses, _, _ = model.losses(model.replay_buffer.sample(model.batch_size))
-        host = (
-            model.consistency_coef * losses["consistency_loss"]
-            + model.reward_coef * losses["reward_loss"]
-            + model.value_coef * losses["value_loss"]
-        )
+        host = model._host_loss(losses)
         host_grads = th.autograd.grad(host, host_params, retain_graph=True, allow_unused=True)
         ef_grads = th.autograd.grad(losses["auxiliary_loss"], ef_params, allow_unused=True)
         host_total, ef_total = _norm(host_grads, host_params), _norm(ef_grads, ef_params)

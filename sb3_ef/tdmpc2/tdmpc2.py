@@ -242,11 +242,7 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         losses, latents, valid = self.losses(batch)
         self._check_finite(**losses)
         auxiliary_loss = losses.pop("auxiliary_loss", None)
-        host_loss = (
-            self.consistency_coef * losses["consistency_loss"]
-            + self.reward_coef * losses["reward_loss"]
-            + self.value_coef * losses["value_loss"]
-        )
+        host_loss = self._host_loss(losses)
         loss = host_loss if auxiliary_loss is None else host_loss + auxiliary_loss
         self.policy.optimizer.zero_grad()
         grad_norms = self._world_model_gradients(host_loss, auxiliary_loss)
@@ -270,6 +266,21 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         # CUDA graph outputs are overwritten by the next replay: keep copies.
         return {name: value.clone() for name, value in logs.items()} if compiled else logs
 
+    def _host_loss(self, losses: dict[str, th.Tensor]) -> th.Tensor:
+        """TD-MPC2's world-model loss: the weighted sum of its consistency, reward and value losses."""
+        return (
+            self.consistency_coef * losses["consistency_loss"]
+            + self.reward_coef * losses["reward_loss"]
+            + self.value_coef * losses["value_loss"]
+        )
+
+    def _gradient_groups(self) -> tuple[list[th.nn.Parameter], list[th.nn.Parameter]]:
+        """The parameters of the host's clip (the world model) and of the auxiliary loss's (the encoder and the
+        auxiliary module)."""
+        groups = {group["name"]: group["params"] for group in self.policy.optimizer.param_groups}
+        host_params = [param for name, params in groups.items() if name != "auxiliary" for param in params]
+        return host_params, [*groups["encoder"], *groups.get("auxiliary", [])]
+
     def _world_model_gradients(self, host_loss: th.Tensor, auxiliary_loss: th.Tensor | None) -> dict[str, th.Tensor]:
         """Backpropagate the world-model losses and clip; returns the gradient norms before clipping.
 
@@ -277,9 +288,7 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         The auxiliary loss's gradient (weighted; EF's is summed over pixels: norms in the thousands) is computed
         apart, clipped to the same norm over the encoder and the auxiliary module, and added: one shared clip would
         shrink the host's update by the auxiliary norm."""
-        groups = {group["name"]: group["params"] for group in self.policy.optimizer.param_groups}
-        host_params = [param for name, params in groups.items() if name != "auxiliary" for param in params]
-        auxiliary_params = [*groups["encoder"], *groups.get("auxiliary", [])]
+        host_params, auxiliary_params = self._gradient_groups()
         auxiliary_grads = None
         if auxiliary_loss is not None:
             auxiliary_grads = th.autograd.grad(auxiliary_loss, auxiliary_params, retain_graph=True, allow_unused=True)
