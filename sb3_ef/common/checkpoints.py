@@ -42,6 +42,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.type_aliases import GymEnv
 
+from sb3_ef.common.files import write_atomically
 from sb3_ef.common.validation import is_intact
 
 ModelType = TypeVar("ModelType", bound=BaseAlgorithm)
@@ -144,16 +145,6 @@ def checkpoint_for(model_path: str | os.PathLike, name_prefix: str = "rl_model")
         buffer_path if buffer_path.is_file() else None,
         rng_path if rng_path is not None and rng_path.is_file() else None,
     )
-
-
-def _write_atomically(path: Path, write: Any) -> None:
-    """``write(file)`` into a temporary file beside ``path``, flushed to disk, then renamed to ``path``."""
-    temporary = path.with_name(f"{path.name}.tmp")
-    with open(temporary, "wb") as file:
-        write(file)
-        file.flush()
-        os.fsync(file.fileno())
-    os.replace(temporary, path)
 
 
 def _env_generators(model: BaseAlgorithm) -> list[Any] | None:
@@ -277,9 +268,9 @@ class ResumableCheckpointCallback(BaseCallback):
         buffer_path = None
         if self.save_replay_buffer and isinstance(self.model, OffPolicyAlgorithm):
             buffer_path = paths.replay_buffer_path
-            _write_atomically(buffer_path, self.model.save_replay_buffer)
-        _write_atomically(paths.rng_path, lambda file: pickle.dump(states, file, protocol=pickle.HIGHEST_PROTOCOL))
-        _write_atomically(paths.model_path, self.model.save)
+            write_atomically(buffer_path, self.model.save_replay_buffer)
+        write_atomically(paths.rng_path, lambda file: pickle.dump(states, file, protocol=pickle.HIGHEST_PROTOCOL))
+        write_atomically(paths.model_path, self.model.save)
         if self.verbose >= 1:
             print(f"Saving checkpoint to {paths.model_path}")
         self._prune()

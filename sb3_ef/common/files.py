@@ -1,0 +1,52 @@
+"""Files written whole or not at all: a write goes to a temporary file beside the target, is flushed to disk and
+renamed over the target, so that a full disk, a kill or Ctrl-C leaves the previous file (or none), never a cut one."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import IO, Any
+
+#: Suffix of the temporary files; a leftover one (from a killed process) is never read as a result.
+TEMPORARY_SUFFIX = ".tmp"
+
+
+def temporary_path(path: str | os.PathLike) -> Path:
+    """The temporary file beside ``path`` that :func:`atomic_path` writes first (keeping ``path``'s suffix, so that
+    libraries that choose a format by suffix write the right one)."""
+    path = Path(path)
+    return path.with_name(f".{path.stem}{TEMPORARY_SUFFIX}{path.suffix}")
+
+
+def _fsync(path: Path) -> None:
+    with open(path, "rb") as file:
+        os.fsync(file.fileno())
+
+
+@contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary path to write ``path``'s content to (by any library); on success it is flushed to disk and
+    renamed to ``path``; on any error, or an interrupt, it is removed and ``path`` is left as it was."""
+    path = Path(path)
+    temporary = temporary_path(path)
+    try:
+        yield temporary
+        _fsync(temporary)
+        os.replace(temporary, path)
+    except BaseException:
+        temporary.unlink(missing_ok=True)
+        raise
+
+
+def write_atomically(path: str | os.PathLike, write: Callable[[IO[bytes]], Any]) -> None:
+    """``write(file)`` into a binary file that replaces ``path`` only once it is complete (:func:`atomic_path`)."""
+    with atomic_path(path) as temporary, open(temporary, "wb") as file:
+        write(file)
+        file.flush()
+
+
+def write_text_atomically(path: str | os.PathLike, text: str) -> None:
+    """``text`` (UTF-8) into ``path``, complete or not at all."""
+    write_atomically(path, lambda file: file.write(text.encode("utf-8")))
