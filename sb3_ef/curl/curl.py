@@ -8,10 +8,10 @@ import torch as th
 from stable_baselines3 import SAC
 from stable_baselines3.common.type_aliases import GymEnv
 
+from sb3_ef.auxiliary.step import AuxiliaryStepMixin
 from sb3_ef.curl.buffer import CroppedSequenceReplayBuffer
 from sb3_ef.curl.encoder import CURLEncoder
 from sb3_ef.curl.loss import CURLLoss
-from sb3_ef.sb3_hosts.auxiliary_step import AuxiliaryStepMixin
 
 
 class CroppedHostUpdates:

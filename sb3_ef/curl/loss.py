@@ -18,8 +18,8 @@ from stable_baselines3.common.utils import polyak_update
 from torch import nn
 from torch.nn import functional as F
 
+from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.common.augmentation import random_crop
-from sb3_ef.ef.auxiliary import AuxiliaryLoss
 
 
 class CURLLoss(AuxiliaryLoss):

@@ -13,9 +13,9 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, create_
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
+from sb3_ef.auxiliary.loss import AuxiliaryLoss, CarriesAuxiliary
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_stacked_frames
 from sb3_ef.common.layers import orthogonal_init
-from sb3_ef.ef.auxiliary import AuxiliaryLoss, CarriesAuxiliary
 
 # Conv stack of DrQ-v2: (kernel, stride) per layer, 32 filters each.
 _CONV_LAYERS = ((3, 2), (3, 1), (3, 1), (3, 1))

@@ -8,9 +8,9 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import torch as th
 from torch import nn
 
+from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.layers import mlp
-from sb3_ef.ef.auxiliary import AuxiliaryLoss
 from sb3_ef.ef.decoder import FrameDecoder
 
 if TYPE_CHECKING:

@@ -1,5 +1,5 @@
 """SAC-EF, TD3-EF and TQC-EF: SB3's algorithms, unchanged, plus Ego-Foresight trained on the critic's encoder as a
-step of its own after each of the host's updates (:class:`~sb3_ef.sb3_hosts.auxiliary_step.AuxiliaryStepMixin`; see
+step of its own after each of the host's updates (:class:`~sb3_ef.auxiliary.step.AuxiliaryStepMixin`; see
 docs/ef.md for the choice)."""
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ from sb3_contrib import TQC
 from stable_baselines3 import SAC, TD3
 from stable_baselines3.common.type_aliases import GymEnv
 
+from sb3_ef.auxiliary.step import AuxiliaryStepMixin
 from sb3_ef.ef.foresight import ForesightLoss
 from sb3_ef.ef.host import EFMixin
-from sb3_ef.sb3_hosts.auxiliary_step import AuxiliaryStepMixin
 
 
 class EFStepMixin(EFMixin, AuxiliaryStepMixin):

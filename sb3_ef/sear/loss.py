@@ -20,9 +20,9 @@ from typing import Any, NamedTuple
 import torch as th
 from torch.nn import functional as F
 
+from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.env_checks import FRAME_CHANNELS
-from sb3_ef.ef.auxiliary import AuxiliaryLoss
 from sb3_ef.sear.decoder import SEARDecoder
 
 #: Named (reconstruction_coef, mask_coef) pairs: ``"sear"`` is the SEAR authors' setting (sear-rl

@@ -12,8 +12,8 @@ from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 
+from sb3_ef.auxiliary.loss import AuxiliaryLoss, CarriesAuxiliary
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_stacked_frames
-from sb3_ef.ef.auxiliary import AuxiliaryLoss, CarriesAuxiliary
 from sb3_ef.tdmpc2.math import TwoHot, planning_iterations
 from sb3_ef.tdmpc2.planner import MPPIPlanner
 from sb3_ef.tdmpc2.world_model import FRAME_SIZE, WorldModel

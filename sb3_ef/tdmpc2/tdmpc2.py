@@ -13,6 +13,8 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 
+from sb3_ef.auxiliary.host import AuxiliaryHostMixin, frozen
+from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
 from sb3_ef.common.compile import CompileOption, compile_kwargs, maybe_compile
@@ -20,9 +22,8 @@ from sb3_ef.common.env_checks import FRAME_CHANNELS, check_box_actions, episode_
 from sb3_ef.common.exploration import OwnExplorationMixin
 from sb3_ef.common.policy_arguments import policy_built_with
 from sb3_ef.common.validation import check_algorithm_arguments
-from sb3_ef.ef.auxiliary import AuxiliaryLoss
 from sb3_ef.ef.foresight import ForesightLoss
-from sb3_ef.ef.host import AuxiliaryHostMixin, EFMixin, frozen
+from sb3_ef.ef.host import EFMixin
 from sb3_ef.tdmpc2.math import discount_from_episode_length, seed_steps_from_episode_length
 from sb3_ef.tdmpc2.policies import TDMPC2EFPolicy, TDMPC2Policy, check_pixel_space
 from sb3_ef.tdmpc2.world_model import WorldModel

@@ -9,9 +9,9 @@ from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv
 
+from sb3_ef.auxiliary import frozen
 from sb3_ef.common.buffers import SequenceReplayBuffer
 from sb3_ef.drqv2 import DrQv2, DrQv2EF
-from sb3_ef.ef.host import frozen
 from tests.helpers.drqv2 import EPISODE_STEPS, TINY_ALGO, TINY_POLICY, CueEnv, make_cue_env
 
 PLAIN_POLICY = {key: TINY_POLICY[key] for key in ("net_arch", "trunk_dim")}

@@ -8,7 +8,8 @@ from typing import Any
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_ef.common.augmentation import augment_frames, random_shift
-from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
+from sb3_ef.common.buffers.sampling import SequenceReplayBufferSamples
+from sb3_ef.common.buffers.sequence import SequenceReplayBuffer
 
 
 class ShiftedSequenceReplayBuffer(SequenceReplayBuffer):

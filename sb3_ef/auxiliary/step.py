@@ -14,13 +14,12 @@ import torch as th
 from stable_baselines3.common.base_class import maybe_make_env
 from stable_baselines3.common.type_aliases import GymEnv
 
+from sb3_ef.auxiliary.host import AuxiliaryHostMixin
+from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.common.batch_norm import running_stats_kept
-from sb3_ef.common.buffers import SequenceReplayBufferSamples
+from sb3_ef.common.buffers import SequenceReplayBufferSamples, ShiftedSequenceReplayBuffer
 from sb3_ef.common.env_checks import check_box_actions, check_stacked_frames, policy_observation_space
 from sb3_ef.common.validation import check_algorithm_arguments
-from sb3_ef.ef.auxiliary import AuxiliaryLoss
-from sb3_ef.ef.host import AuxiliaryHostMixin
-from sb3_ef.sb3_hosts.shifted_buffer import ShiftedSequenceReplayBuffer
 
 
 class AuxiliaryStepMixin(AuxiliaryHostMixin):
