@@ -256,7 +256,7 @@ def analyze_model(
     from sb3_ef.analysis.report import foresight_report, record_rollout
 
     model = load_ef_model(path, algo)
-    if model.ef is None:
+    if getattr(model, "ef", None) is None:
         raise ValueError(f"{path} is a {type(model).__name__} without Ego-Foresight: nothing to analyze")
     frame_stack = model.observation_space.shape[0] // 3
     if env_kwargs is None:

@@ -2,8 +2,8 @@
 loss side (:class:`AuxiliaryLoss`) and the host side (:class:`AuxiliaryHostMixin` for every host,
 :class:`AuxiliaryStepMixin` for SB3's off-policy algorithms, which train the loss as a step of its own)."""
 
-from sb3_ef.auxiliary.host import AuxiliaryHostMixin, frozen
+from sb3_ef.auxiliary.host import AuxiliaryHostMixin
 from sb3_ef.auxiliary.loss import AuxiliaryLoss, CarriesAuxiliary
 from sb3_ef.auxiliary.step import AuxiliaryStepMixin
 
-__all__ = ["AuxiliaryHostMixin", "AuxiliaryLoss", "AuxiliaryStepMixin", "CarriesAuxiliary", "frozen"]
+__all__ = ["AuxiliaryHostMixin", "AuxiliaryLoss", "AuxiliaryStepMixin", "CarriesAuxiliary"]

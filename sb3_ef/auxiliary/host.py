@@ -4,81 +4,38 @@
 :class:`~sb3_ef.auxiliary.step.AuxiliaryStepMixin`): the sequence replay buffer; an optional auxiliary
 representation loss on the host's encoder (an :class:`~sb3_ef.auxiliary.loss.AuxiliaryLoss` that a subclass returns
 from ``_build_auxiliary``, kept where ``_keep_auxiliary`` puts it and trained by the optimiser the host names in
-``_optimise_auxiliary``); motor babbling (a :class:`~sb3_ef.ef.babbling.MotorBabblingCallback` added to ``learn``'s
-callbacks); the accessors ``ef`` / ``encode`` / ``frame_shape`` read by ``sb3_ef.analysis``; the finite-loss check;
-logging; and a ``load`` that refuses a file another algorithm saved and reads those saved by sb3-ef 0.1.0
-(:mod:`sb3_ef.ef.legacy`).
+``_optimise_auxiliary``); the ``action_override`` hook (motor babbling takes the actions over through it); the
+accessors ``encode`` / ``frame_shape`` read by ``sb3_ef.analysis``; the finite-loss check; logging; and a ``load``
+that reads the file's record once and refuses a file this class cannot load, saying what to do instead.
 """
 
 from __future__ import annotations
 
 import io
-import json
 import pathlib
 import warnings
-import zipfile
-from collections.abc import Iterator
-from contextlib import contextmanager
 from typing import Any, TypeVar
 
 import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
-from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import Logger
-from stable_baselines3.common.save_util import open_path
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
 from stable_baselines3.common.vec_env import VecEnv
-from torch import nn
 
 from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_sequence_buffer
-from sb3_ef.common.validation import (
-    check_learn,
-    check_model_path,
-    check_observation,
-    check_saved_algorithm,
-)
-from sb3_ef.ef.babbling import MotorBabblingCallback, with_babbling
-from sb3_ef.ef.foresight import EgoForesight, ForesightLoss
-from sb3_ef.ef.legacy import upgraded_file, upgraded_parameters
+from sb3_ef.common.exploration import ActionOverrideMixin
+from sb3_ef.common.saved_models import check_saved_model, saved_data
+from sb3_ef.common.validation import check_learn, check_model_path, check_observation
 
 SelfHost = TypeVar("SelfHost", bound="AuxiliaryHostMixin")
 
 
-@contextmanager
-def frozen(module: nn.Module) -> Iterator[None]:
-    """Inside the block ``module``'s parameters take no gradient: a loss computed through it trains only what comes
-    before it (an actor through its critic). Kept out of compiled functions."""
-    module.requires_grad_(False)
-    try:
-        yield
-    finally:
-        module.requires_grad_(True)
-
-
-def saved_algorithm(path: str | pathlib.Path | io.BufferedIOBase) -> str | None:
-    """The class name of the algorithm that saved a model file, or ``None`` when the file does not record one."""
-    file = open_path(path, "r", verbose=0, suffix="zip")
-    position = file.tell()
-    try:
-        with zipfile.ZipFile(file) as archive:
-            data = json.loads(archive.read("data"))
-    except (zipfile.BadZipFile, KeyError, ValueError):
-        return None  # SB3's load reports what is wrong with the file
-    finally:
-        if isinstance(path, io.BufferedIOBase):
-            file.seek(position)
-        else:
-            file.close()
-    name = data.get("algorithm")
-    return name if isinstance(name, str) else None
-
-
-class AuxiliaryHostMixin:
+class AuxiliaryHostMixin(ActionOverrideMixin):
     """Mixed in first by every host algorithm (``class DrQv2(AuxiliaryHostMixin, OffPolicyAlgorithm)``).
 
     The host calls :meth:`_use_sequence_buffer` before ``super()._setup_model()``, and in its update
@@ -86,9 +43,7 @@ class AuxiliaryHostMixin:
     ``self.auxiliary(features, targets)`` to the loss that trains its encoder (or steps it on its own optimiser) and
     calls ``auxiliary.after_update(encoder)`` after its optimiser steps. A subclass supplies the auxiliary loss by
     overriding :meth:`_build_auxiliary` (and :meth:`_auxiliary_horizon` when the loss reads future steps); the host
-    says in :meth:`_optimise_auxiliary` which optimiser trains it. Babbling needs nothing from the host: with
-    ``babbling_steps > 0``, ``learn`` runs a :class:`MotorBabblingCallback` of those steps before the caller's
-    callbacks (its state is saved with the model).
+    says in :meth:`_optimise_auxiliary` which optimiser trains it.
     """
 
     policy: Any
@@ -105,9 +60,6 @@ class AuxiliaryHostMixin:
 
     #: The class name, saved with the model: ``load`` refuses a file saved by another algorithm.
     algorithm: str
-    babbling_steps: int = 0
-    babbling_mode: str = "sign"
-    babbling_in_eval: bool = False
     check_finite_losses: bool = False
     # Generator of the auxiliary loss's draws; created in ``_setup_model`` from the seed, saved with the model so
     # that a resumed run continues its stream.
@@ -161,12 +113,6 @@ class AuxiliaryHostMixin:
         return getattr(getattr(self, "policy", None), "auxiliary", None)
 
     @property
-    def ef(self) -> EgoForesight | None:
-        """The Ego-Foresight module when the auxiliary loss is EF's, else ``None``."""
-        auxiliary = self.auxiliary
-        return auxiliary.ef if isinstance(auxiliary, ForesightLoss) else None
-
-    @property
     def frame_shape(self) -> tuple[int, int, int]:
         """Shape ``(3, height, width)`` of one RGB frame of the stacked observations."""
         _, height, width = self.observation_space.shape  # type: ignore[misc]
@@ -199,13 +145,6 @@ class AuxiliaryHostMixin:
         for key in updates[0] if updates else ():
             values = th.stack([update[key].detach().reshape(()) for update in updates])
             self.logger.record(f"train/{key}", float(values.double().mean()))
-
-    def _init_callback(self, callback: MaybeCallback, progress_bar: bool = False) -> BaseCallback:
-        """SB3's, with the :class:`MotorBabblingCallback` of ``babbling_steps`` first when babbling is on."""
-        if self.babbling_steps > 0:
-            babbling = MotorBabblingCallback(self.babbling_steps, self.babbling_mode, self.babbling_in_eval)
-            callback = with_babbling(babbling, callback)
-        return super()._init_callback(callback, progress_bar)  # type: ignore[misc]
 
     def predict(
         self,
@@ -249,34 +188,21 @@ class AuxiliaryHostMixin:
         force_reset: bool = True,
         **kwargs: Any,
     ) -> SelfHost:
-        """SB3's ``load``; a missing or damaged file is named at once, and a file that another algorithm saved is
-        refused (a ``DrQv2EF`` file read as ``DrQv2`` would carry EF's weights the plain class does not have): by the
-        algorithm the file records, or, for a file that records none, by its policy class."""
-        from sb3_ef.ef.host import EFMixin  # the 0.1.0 upgrade differs for EF's hosts
-
-        zip_path = check_model_path(path)
-        saved = saved_algorithm(path)
-        if saved is not None and saved != cls.__name__:
-            raise ValueError(f"Cannot load {path} as {cls.__name__}: it was saved by {saved}, use {saved}.load")
-        if saved is None:
-            check_saved_algorithm(cls, zip_path)
+        """SB3's ``load``; a missing or damaged file is named at once, and a file this class cannot load is refused
+        with what to do instead (:func:`~sb3_ef.common.saved_models.check_saved_model`): one another algorithm saved
+        (a ``DrQv2EF`` file read as ``DrQv2`` would carry EF's weights the plain class does not have), or one of
+        sb3-ef 0.1.0 (converted once with ``sb3-ef upgrade``)."""
+        check_model_path(path)
+        data = saved_data(path)
+        check_saved_model(cls, path, data)
+        if data is not None and isinstance(kwargs.get("policy_kwargs"), dict):
+            kwargs["policy_kwargs"] = cls._completed_policy_kwargs(kwargs["policy_kwargs"], data)
         return super().load(  # type: ignore[misc]
-            upgraded_file(path, cls, issubclass(cls, EFMixin), custom_objects),  # as saved by this version
-            env,
-            device,
-            custom_objects,
-            print_system_info,
-            force_reset,
-            **kwargs,
+            path, env, device, custom_objects, print_system_info, force_reset, **kwargs
         )
 
-    def set_parameters(
-        self,
-        load_path_or_dict: str | pathlib.Path | io.BufferedIOBase | dict[str, Any],
-        exact_match: bool = True,
-        device: th.device | str = "auto",
-    ) -> None:
-        """SB3's ``set_parameters``; the weights and optimiser states of a model saved by sb3-ef 0.1.0 are first
-        moved to where this version keeps them (:mod:`sb3_ef.ef.legacy`)."""
-        params = upgraded_parameters(load_path_or_dict, self, device)
-        super().set_parameters(params, exact_match, device)  # type: ignore[misc]
+    @classmethod
+    def _completed_policy_kwargs(cls, policy_kwargs: dict[str, Any], data: dict[str, Any]) -> dict[str, Any]:
+        """The ``policy_kwargs`` a caller gives ``load`` (those given to the constructor), with the entries the
+        class adds to them itself, so that SB3's comparison with the saved ones holds; none by default."""
+        return policy_kwargs

@@ -21,9 +21,10 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, cast
 
 import torch as th
+from stable_baselines3.common.utils import get_device
 from torch import nn
 
 
@@ -43,9 +44,34 @@ class AuxiliaryLoss(nn.Module, ABC):
 
 
 class CarriesAuxiliary:
-    """For a policy that carries its algorithm's auxiliary module as ``policy.auxiliary``: loaded on its own
-    (``Policy.load``, to act), the policy has no such module, and the module's saved weights are set aside (only
-    training uses them)."""
+    """For a policy that carries its algorithm's auxiliary module as ``policy.auxiliary``: ``policy.save`` stores
+    the module with the policy's weights and ``Policy.load`` puts it back, so that the loaded policy's state dict is
+    the saved one. A policy file that holds no module loads without one (only training uses it)."""
+
+    auxiliary: AuxiliaryLoss | None
+
+    def save(self, path: str) -> None:
+        """SB3's policy file, with the auxiliary module (pickled whole, as SB3 pickles the policy's arguments)."""
+        model = cast(Any, self)
+        th.save(
+            {
+                "state_dict": model.state_dict(),
+                "data": model._get_constructor_parameters(),
+                "auxiliary": getattr(self, "auxiliary", None),
+            },
+            path,
+        )
+
+    @classmethod
+    def load(cls, path: str, device: th.device | str = "auto") -> Any:
+        """SB3's ``Policy.load``, with the auxiliary module the file holds."""
+        device = get_device(device)
+        saved = th.load(path, map_location=device, weights_only=False)  # SB3's policy files pickle gymnasium spaces
+        policy = cls(**saved["data"])
+        if saved.get("auxiliary") is not None:
+            policy.auxiliary = saved["auxiliary"]
+        policy.load_state_dict(saved["state_dict"])
+        return cast(Any, policy).to(device)
 
     def load_state_dict(self, state_dict: Mapping[str, Any], strict: bool = True, assign: bool = False) -> Any:
         if getattr(self, "auxiliary", None) is None:

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+
 import torch as th
 from torch import nn
 from torch.nn import functional as F
@@ -67,3 +70,14 @@ def orthogonal_init(module: nn.Module) -> None:
         nn.init.orthogonal_(module.weight, nn.init.calculate_gain("relu"))
         if module.bias is not None:
             nn.init.zeros_(module.bias)
+
+
+@contextmanager
+def frozen(module: nn.Module) -> Iterator[None]:
+    """Inside the block ``module``'s parameters take no gradient: a loss computed through it trains only what comes
+    before it (an actor through its critic). Kept out of compiled functions."""
+    module.requires_grad_(False)
+    try:
+        yield
+    finally:
+        module.requires_grad_(True)

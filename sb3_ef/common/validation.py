@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import difflib
 import inspect
-import json
 import math
 import numbers
 import os
@@ -98,8 +97,11 @@ def _learning_rate(name: str, value: Any) -> None:
 
 
 def _gradient_steps(name: str, value: Any) -> None:
-    if not _is_int(value) or (value < 1 and value != -1):
-        raise ValueError(f"{name} must be a positive integer or -1 (as many as env steps), got {_received(value)}")
+    if not _is_int(value) or value < -1:
+        raise ValueError(
+            f"{name} must be an integer >= 0 (0: collect without training) or -1 (as many as env steps), "
+            f"got {_received(value)}"
+        )
 
 
 def _train_freq(name: str, value: Any) -> None:
@@ -117,7 +119,6 @@ def _train_freq(name: str, value: Any) -> None:
 #: constructor's default is ``None`` (e.g. TD-MPC2's ``gamma``) and for EF's ``beta``/``ef_horizon`` (EF off).
 ARGUMENT_CHECKS: dict[str, Callable[[str, Any], None]] = {
     "learning_rate": _learning_rate,
-    "ef_learning_rate": _learning_rate,
     "buffer_size": _positive_int,
     "batch_size": _positive_int,
     "learning_starts": _non_negative_int,
@@ -127,7 +128,6 @@ ARGUMENT_CHECKS: dict[str, Callable[[str, Any], None]] = {
     "gradient_steps": _gradient_steps,
     "n_steps": _positive_int,
     "stats_window_size": _positive_int,
-    "beta": _number,  # its sign is checked with EF's arguments, whose message names the host without EF
     "ef_horizon": _positive_int,
     "horizon": _positive_int,
     "agent_dim": _positive_int,
@@ -271,33 +271,3 @@ def check_model_path(path: Any) -> Path | None:
             f"{found} is not a saved model: expected a zip archive written by save() (the file may be truncated)"
         )
     return found
-
-
-#: Module of a saved policy class -> the sb3-ef algorithms that save it.
-POLICY_OWNERS = {
-    "sb3_ef.drqv2.policies": "DrQv2EF or DrQv2",
-    "sb3_ef.tdmpc2.policies": "TDMPC2EF or TDMPC2",
-    "stable_baselines3.sac.policies": "SACEF",
-    "stable_baselines3.td3.policies": "TD3EF",
-    "sb3_contrib.tqc.policies": "TQCEF",
-}
-
-
-def check_saved_algorithm(algo_class: type, path: Path | None) -> None:
-    """Raise ``ValueError`` naming the algorithm to use when the model zip at ``path`` was saved by another one:
-    its policy is another sb3-ef algorithm's (SB3 would fail on an unexpected keyword), or it trained Ego-Foresight
-    and ``algo_class`` is a plain variant, without EF's ``beta`` (SB3 would load a "plain" model with EF inside)."""
-    if path is None:
-        return
-    plain_variant = "beta" not in inspect.signature(algo_class).parameters
-    with zipfile.ZipFile(path) as archive:
-        data = json.loads(archive.read("data"))
-    saved = (data.get("policy_class") or {}).get("__module__")
-    expected = {policy.__module__ for policy in getattr(algo_class, "policy_aliases", {}).values()}
-    name = algo_class.__name__
-    if saved in POLICY_OWNERS and expected and saved not in expected:  # a user's own policy class is let through
-        raise ValueError(f"{path} was saved by {POLICY_OWNERS[saved]}, not {name}: load it with {POLICY_OWNERS[saved]}")
-    if plain_variant and data.get("beta") is not None:
-        raise ValueError(
-            f"{path} was saved with Ego-Foresight (beta={data['beta']}): load it with {name}EF, not {name}"
-        )

@@ -15,13 +15,14 @@ from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import polyak_update
 from torch.nn import functional as F
 
-from sb3_ef.auxiliary.host import AuxiliaryHostMixin, frozen
+from sb3_ef.auxiliary.host import AuxiliaryHostMixin
 from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
 from sb3_ef.common.compile import CompileOption, compile_kwargs, maybe_compile
 from sb3_ef.common.env_checks import check_box_actions, check_stacked_frames, policy_observation_space
 from sb3_ef.common.exploration import OwnExplorationMixin
+from sb3_ef.common.layers import frozen
 from sb3_ef.common.schedules import StepSchedule, get_step_schedule
 from sb3_ef.common.validation import check_algorithm_arguments
 from sb3_ef.drqv2.policies import DrQv2Actor, DrQv2Critic, DrQv2EFPolicy, DrQv2Policy

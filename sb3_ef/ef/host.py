@@ -1,20 +1,24 @@
 """What makes a host an Ego-Foresight variant: :class:`EFMixin`, mixed in before a plain host
-(``class DrQv2EF(EFMixin, DrQv2)``), adds Ego-Foresight's arguments and its loss
-(:class:`~sb3_ef.ef.foresight.ForesightLoss`).
+(``class DrQv2EF(EFMixin, DrQv2)``), adds Ego-Foresight's arguments, its loss
+(:class:`~sb3_ef.ef.foresight.ForesightLoss`) and motor babbling (a
+:class:`~sb3_ef.ef.babbling.MotorBabblingCallback` of ``babbling_steps`` run before ``learn``'s callbacks).
 """
 
 from __future__ import annotations
 
+import numbers
 from typing import Any
 
 import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.type_aliases import MaybeCallback
 
 from sb3_ef.auxiliary.host import AuxiliaryHostMixin
 from sb3_ef.common.env_checks import episode_steps
 from sb3_ef.common.validation import check_algorithm_arguments
-from sb3_ef.ef.babbling import check_babbling
-from sb3_ef.ef.foresight import ForesightLoss
+from sb3_ef.ef.babbling import MotorBabblingCallback, check_babbling, with_babbling
+from sb3_ef.ef.foresight import EgoForesight, ForesightLoss
 
 
 def check_ef_arguments(
@@ -22,7 +26,7 @@ def check_ef_arguments(
 ) -> None:
     """Check EF's algorithm-level arguments; ``plain_variant`` names the class to use without EF."""
     check_babbling(babbling_steps, babbling_mode)
-    if beta is None or not beta > 0:
+    if isinstance(beta, bool) or not isinstance(beta, numbers.Real) or not beta > 0:
         raise ValueError(
             f"beta must be a positive number (use {plain_variant} to train without Ego-Foresight), got {beta!r}"
         )
@@ -44,6 +48,9 @@ class EFMixin(AuxiliaryHostMixin):
 
     ef_horizon: int
     _beta: float
+    babbling_steps: int = 0
+    babbling_mode: str = "sign"
+    babbling_in_eval: bool = False
 
     @property
     def beta(self) -> float:
@@ -61,9 +68,7 @@ class EFMixin(AuxiliaryHostMixin):
         self, beta: float, ef_horizon: int, babbling_steps: int, babbling_mode: str, babbling_in_eval: bool
     ) -> None:
         """Check and keep EF's algorithm-level arguments."""
-        check_algorithm_arguments(
-            type(self), {"beta": beta, "ef_horizon": ef_horizon, "babbling_steps": babbling_steps}
-        )
+        check_algorithm_arguments(type(self), {"ef_horizon": ef_horizon, "babbling_steps": babbling_steps})
         plain = next(c for c in type(self).__mro__ if issubclass(c, OffPolicyAlgorithm) and not issubclass(c, EFMixin))
         check_ef_arguments(beta, ef_horizon, babbling_steps, babbling_mode, plain.__name__)
         self.beta = beta
@@ -72,8 +77,22 @@ class EFMixin(AuxiliaryHostMixin):
         self.babbling_mode = babbling_mode
         self.babbling_in_eval = babbling_in_eval
 
+    @property
+    def ef(self) -> EgoForesight | None:
+        """The Ego-Foresight module (read by ``sb3_ef.analysis``); ``None`` before the model is set up."""
+        auxiliary = self.auxiliary
+        return auxiliary.ef if isinstance(auxiliary, ForesightLoss) else None
+
     def _auxiliary_horizon(self) -> int:
         return self.ef_horizon
+
+    def _init_callback(self, callback: MaybeCallback, progress_bar: bool = False) -> BaseCallback:
+        """SB3's, with the :class:`MotorBabblingCallback` of ``babbling_steps`` first when babbling is on."""
+        if self.babbling_steps > 0:
+            babbling = MotorBabblingCallback(self.babbling_steps, self.babbling_mode, self.babbling_in_eval)
+            babbling.warn_if_late = False
+            callback = with_babbling(babbling, callback)
+        return super()._init_callback(callback, progress_bar)  # type: ignore[misc]
 
     def _setup_model(self) -> None:
         """Check that EF's window fits in an episode (here, so that ``load`` checks the saved ``ef_horizon``), then

@@ -16,6 +16,13 @@ from sb3_ef.ef.foresight import ForesightLoss
 from sb3_ef.ef.host import EFMixin
 
 
+def with_use_sde(policy_kwargs: dict[str, Any], data: dict[str, Any]) -> dict[str, Any]:
+    """``policy_kwargs`` with the ``use_sde`` entry SAC and TQC add to their own (from the saved ``use_sde``)."""
+    if "use_sde" in policy_kwargs or not isinstance(data.get("use_sde"), bool):
+        return policy_kwargs
+    return {**policy_kwargs, "use_sde": data["use_sde"]}
+
+
 class EFStepMixin(EFMixin, AuxiliaryStepMixin):
     """Adds Ego-Foresight to an SB3 off-policy algorithm whose critic has a ``features_extractor`` (a CNN on stacked
     RGB frames): ``class SACEF(EFStepMixin, SAC)``.
@@ -48,6 +55,12 @@ class EFStepMixin(EFMixin, AuxiliaryStepMixin):
         _init_setup_model: bool = True,
         **kwargs: Any,
     ):
+        misplaced = sorted({"agent_dim", "ef_kwargs"} & set(kwargs.get("policy_kwargs") or {}))
+        if misplaced:
+            raise ValueError(
+                f"{type(self).__name__} takes {misplaced} as its own arguments ({type(self).__name__}(..., "
+                f"{misplaced[0]}=...)), not in policy_kwargs: its policy is the host's own, without EF"
+            )
         super().__init__(policy, env, _init_setup_model=False, **kwargs)
         self._init_ef(beta, ef_horizon, babbling_steps, babbling_mode, babbling_in_eval)
         self.agent_dim = agent_dim
@@ -66,6 +79,10 @@ class SACEF(EFStepMixin, SAC):
     """SAC (Haarnoja et al., 2018) from pixels with Ego-Foresight on the critic's encoder. Takes SAC's arguments
     and EF's (keyword-only, see :class:`EFStepMixin`); the env must give stacked uint8 RGB frames."""
 
+    @classmethod
+    def _completed_policy_kwargs(cls, policy_kwargs: dict[str, Any], data: dict[str, Any]) -> dict[str, Any]:
+        return with_use_sde(policy_kwargs, data)
+
 
 class TD3EF(EFStepMixin, TD3):
     """TD3 (Fujimoto et al., 2018) from pixels with Ego-Foresight on the critic's encoder. Takes TD3's arguments
@@ -75,3 +92,7 @@ class TD3EF(EFStepMixin, TD3):
 class TQCEF(EFStepMixin, TQC):
     """TQC (Kuznetsov et al., 2020, sb3-contrib) from pixels with Ego-Foresight on the critic's encoder. Takes TQC's
     arguments and EF's (keyword-only, see :class:`EFStepMixin`); the env must give stacked uint8 RGB frames."""
+
+    @classmethod
+    def _completed_policy_kwargs(cls, policy_kwargs: dict[str, Any], data: dict[str, Any]) -> dict[str, Any]:
+        return with_use_sde(policy_kwargs, data)

@@ -13,13 +13,14 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 
-from sb3_ef.auxiliary.host import AuxiliaryHostMixin, frozen
+from sb3_ef.auxiliary.host import AuxiliaryHostMixin
 from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
 from sb3_ef.common.compile import CompileOption, compile_kwargs, maybe_compile
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_box_actions, episode_steps, policy_observation_space
 from sb3_ef.common.exploration import OwnExplorationMixin
+from sb3_ef.common.layers import frozen
 from sb3_ef.common.policy_arguments import policy_built_with
 from sb3_ef.common.validation import check_algorithm_arguments
 from sb3_ef.ef.foresight import ForesightLoss

@@ -237,3 +237,24 @@ def test_algorithms_the_callback_cannot_drive_are_named():
         PPO("MlpPolicy", "Pendulum-v1", n_steps=16, batch_size=16).learn(16, callback=MotorBabblingCallback(5))
     with pytest.raises(TypeError, match=r"eval_env must be a single gymnasium\.Env"):
         MotorBabblingCallback("adaptive", max_steps=10, eval_env="toy/agent-v0")
+
+
+def test_a_callback_whose_steps_have_passed_says_it_will_not_babble():
+    model = SAC("MlpPolicy", "Pendulum-v1", learning_starts=100, buffer_size=200, seed=0).learn(30)
+    with pytest.warns(UserWarning, match=r"will not babble.*starts at step 30.*pass steps=50"):
+        model.learn(20, callback=MotorBabblingCallback(20), reset_num_timesteps=False)
+
+
+def test_hosts_are_taken_over_through_their_hook_not_patched():
+    env = ToyAgentEnv(size=32, max_episode_steps=20)
+    model = SACEF("CnnPolicy", env, policy_kwargs=SB3_POLICY, buffer_size=100, learning_starts=100, **EF_HOST)
+    seen = []
+
+    class Spy(BaseCallback):
+        def _on_step(self) -> bool:
+            seen.append((self.model.action_override, "_sample_action" in vars(self.model)))
+            return True
+
+    model.learn(5, callback=[MotorBabblingCallback(5), Spy()])
+    assert all(isinstance(override, MotorBabblingCallback) and not patched for override, patched in seen)
+    assert model.action_override is None  # released after learn

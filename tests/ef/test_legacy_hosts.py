@@ -1,5 +1,6 @@
-"""Models and checkpoints saved by sb3-ef 0.1.0 load in every host, with the same weights, optimiser states and
-actions, and training resumes from them as it did under 0.1.0.
+"""Models and checkpoints saved by sb3-ef 0.1.0, converted by ``sb3-ef upgrade`` (sb3_ef.upgrade), load in every
+host with the same weights, optimiser states and actions, and training resumes from them as it did under 0.1.0;
+``load`` refuses the unconverted files, naming the command.
 
 The files were written under sb3-ef 0.1.0 by tests/drqv2/data/make_drqv2_zips.py and
 tests/tdmpc2/data/make_tdmpc2_zips.py (imported here for their environments and observations).
@@ -7,6 +8,8 @@ tests/tdmpc2/data/make_tdmpc2_zips.py (imported here for their environments and 
 
 import importlib.util
 import io
+import shutil
+import tempfile
 from pathlib import Path
 from types import ModuleType
 
@@ -20,8 +23,10 @@ from sb3_ef.drqv2 import DrQv2, DrQv2EF
 from sb3_ef.drqv2.policies import DrQv2EFPolicy, DrQv2Policy
 from sb3_ef.tdmpc2 import TDMPC2, TDMPC2EF
 from sb3_ef.tdmpc2.policies import TDMPC2EFPolicy, TDMPC2Policy
+from sb3_ef.upgrade import upgrade
 
 TESTS = Path(__file__).parents[1]
+UPGRADED = Path(tempfile.mkdtemp(prefix="sb3_ef_upgraded_"))
 
 
 def maker(path: str) -> ModuleType:
@@ -52,8 +57,20 @@ class Host:
             return model.predict(self.maker.observations(self.maker.SIZES[self.algorithm]), deterministic=True)[0]
         return self.maker.deterministic_actions(model)
 
+    @property
+    def legacy_zip(self) -> Path:
+        return self.stem.with_name(f"{self.stem.name}_0.1.0.zip")
+
+    @property
+    def upgraded_zip(self) -> Path:
+        """The 0.1.0 file converted by ``upgrade`` (once per test session)."""
+        path = UPGRADED / self.legacy_zip.name
+        if not path.is_file():
+            assert upgrade(self.legacy_zip, path) is self.algorithm
+        return path
+
     def load(self, **kwargs):
-        return self.algorithm.load(self.stem.with_name(f"{self.stem.name}_0.1.0.zip"), device="cpu", **kwargs)
+        return self.algorithm.load(self.upgraded_zip, device="cpu", **kwargs)
 
     def expected(self):
         return np.load(self.stem.with_name(f"{self.stem.name}_0.1.0_expected.npz"))
@@ -88,8 +105,8 @@ def test_loads_with_the_saved_weights_and_optimiser_states(host):
     model = host.load()
     expected = host.expected()
     assert type(model.policy) is host.policy_class
-    assert (model.ef is not None) == (host in EF_HOSTS)
-    ef_state = model.ef.state_dict() if model.ef is not None else {}
+    assert (getattr(model, "ef", None) is not None) == (host in EF_HOSTS)
+    ef_state = model.ef.state_dict() if host in EF_HOSTS else {}
     host_state = {name: value for name, value in model.policy.state_dict().items() if not name.startswith("auxiliary.")}
     loaded = {**{f"host/{n}": v for n, v in host_state.items()}, **{f"ef/{n}": v for n, v in ef_state.items()}}
     assert sorted(loaded) == sorted(key for key in expected if key.startswith(("host/", "ef/")))
@@ -109,7 +126,7 @@ def test_loads_with_the_saved_weights_and_optimiser_states(host):
 @pytest.mark.parametrize("host", HOSTS, ids=repr)
 def test_random_generators_are_the_saved_ones(host):
     model = host.load()
-    saved, _, _ = load_from_zip_file(host.stem.with_name(f"{host.stem.name}_0.1.0.zip"), load_data=True)
+    saved, _, _ = load_from_zip_file(host.legacy_zip, load_data=True)
     assert th.equal(model._auxiliary_generator.get_state(), saved["_ef_generator"].get_state())
     for name in ("_babbling_rng", "_eval_babbling_rng"):
         assert getattr(model, name).bit_generator.state == saved[name].bit_generator.state
@@ -152,7 +169,12 @@ def test_training_continues_and_saves_in_the_current_format(host):
 @pytest.mark.parametrize("host", EF_HOSTS, ids=repr)
 def test_a_0_1_0_checkpoint_resumes_as_it_did_under_0_1_0(host):
     # The fixture maker resumed the same checkpoint under 0.1.0 for 6 steps (updates, EF steps, babbling over).
-    model = load_checkpoint(host.algorithm, latest_checkpoint(f"{host.stem}_checkpoint"), host.env())
+    folder = UPGRADED / f"{host.stem.name}_checkpoint"
+    shutil.copytree(f"{host.stem}_checkpoint", folder, dirs_exist_ok=True)
+    old = latest_checkpoint(folder)
+    upgrade(old.model_path, folder / "upgraded.zip")
+    (folder / "upgraded.zip").replace(old.model_path)  # the upgraded file takes the checkpoint's place
+    model = load_checkpoint(host.algorithm, latest_checkpoint(folder), host.env())
     assert model.replay_buffer.size() == model.num_timesteps == 10
     model.learn(6, reset_num_timesteps=False)
     resumed = np.load(f"{host.stem}_checkpoint_resumed.npz")["actions"]
@@ -160,21 +182,28 @@ def test_a_0_1_0_checkpoint_resumes_as_it_did_under_0_1_0(host):
     np.testing.assert_allclose(host.actions(model), resumed, rtol=0, atol=1e-5)
 
 
-@pytest.mark.parametrize(("saved", "loader"), [(HOSTS[0], DrQv2), (HOSTS[1], DrQv2EF), (HOSTS[2], TDMPC2)], ids=repr)
-def test_loading_with_the_other_variant_says_which_one_saved_it(saved, loader):
-    with pytest.raises(ValueError, match=r"saved (it )?with(out)? Ego-Foresight"):
-        loader.load(saved.stem.with_name(f"{saved.stem.name}_0.1.0.zip"))
+@pytest.mark.parametrize("loader", [DrQv2, DrQv2EF, TDMPC2, TDMPC2EF], ids=repr)
+def test_load_refuses_a_0_1_0_file_naming_the_upgrade_command(loader):
+    for host in HOSTS:
+        with pytest.raises(ValueError, match=r"saved by sb3-ef 0\.1\.0.*`sb3-ef upgrade .*_0\.1\.0\.zip NEW\.zip`"):
+            loader.load(host.legacy_zip)
+
+
+def test_upgrade_refuses_a_file_of_this_version(tmp_path):
+    with pytest.raises(ValueError, match=r"DrQv2EF of this version saved it.*nothing to upgrade"):
+        upgrade(HOSTS[0].upgraded_zip, tmp_path / "again.zip")
+    assert not (tmp_path / "again.zip").exists()
 
 
 @pytest.mark.parametrize("host", EF_HOSTS, ids=repr)
-def test_set_parameters_reads_a_0_1_0_file_into_a_model_of_the_same_sizes(host):
+def test_set_parameters_reads_an_upgraded_file_into_a_model_of_the_same_sizes(host):
     policy, arguments = (
         (DRQV2.EF_POLICY, DRQV2.ARGUMENTS | DRQV2.EF_ARGUMENTS)
         if host.maker is DRQV2
         else (TDMPC2_MAKER.EF_POLICY, TDMPC2_MAKER.ARGUMENTS | TDMPC2_MAKER.EF_ARGUMENTS)
     )
     model = host.algorithm("CnnPolicy", host.env(), policy_kwargs=policy, **arguments)
-    model.set_parameters(str(host.stem.with_name(f"{host.stem.name}_0.1.0.zip")), device="cpu")
+    model.set_parameters(str(host.upgraded_zip), device="cpu")
     expected = host.expected()
     for name, value in model.ef.state_dict().items():
         np.testing.assert_array_equal(value.numpy(), expected[f"ef/{name}"], err_msg=name)

@@ -15,6 +15,7 @@ from torch import nn
 from sb3_ef import SACEF, TD3EF, TQCEF
 from sb3_ef.drqv2.policies import DrQv2Encoder
 from sb3_ef.envs.toy import ToyAgentEnv
+from sb3_ef.upgrade import upgrade
 
 HOSTS = {SACEF: SAC, TD3EF: TD3, TQCEF: TQC}
 EF = {"ef_horizon": 3, "agent_dim": 8, "ef_kwargs": {"rollout_hidden_dims": [16], "decoder_channels": 8}}
@@ -134,11 +135,14 @@ def test_channels_last_frames_are_transposed_as_sb3_does(frame_stack):
     assert action.shape == (2,)
 
 
-def test_a_model_saved_by_sb3_ef_0_1_0_loads(tmp_path):
+def test_a_model_saved_by_sb3_ef_0_1_0_loads_once_upgraded(tmp_path):
     # Written by data/make_sacef_zip.py under sb3-ef 0.1.0, which saved EF's weights inside the policy's.
     data = Path(__file__).parent / "data"
     expected = np.load(data / "sacef_0.1.0_expected.npz")
-    model = SACEF.load(data / "sacef_0.1.0.zip", env=toy_env(), device="cpu")
+    with pytest.raises(ValueError, match="sb3-ef upgrade"):
+        SACEF.load(data / "sacef_0.1.0.zip")
+    upgrade(data / "sacef_0.1.0.zip", tmp_path / "upgraded.zip")
+    model = SACEF.load(tmp_path / "upgraded.zip", env=toy_env(), device="cpu")
     assert not any(name.startswith("ef.") for name in model.policy.state_dict())
     for name, value in model.ef.state_dict().items():
         np.testing.assert_array_equal(value.numpy(), expected[f"ef/{name}"])
@@ -147,3 +151,33 @@ def test_a_model_saved_by_sb3_ef_0_1_0_loads(tmp_path):
     model.learn(2, reset_num_timesteps=False)  # EF's optimiser state came back with it and steps on
     model.save(tmp_path / "model.zip")
     assert SACEF.load(tmp_path / "model.zip", env=toy_env()).ef is not None
+
+
+@pytest.mark.parametrize("algorithm", HOSTS)
+def test_load_accepts_the_policy_kwargs_given_to_the_constructor(algorithm, tmp_path):
+    """SAC and TQC add ``use_sde`` to the stored kwargs: the caller's own dict still loads the model."""
+    algorithm("CnnPolicy", toy_env(), policy_kwargs=policy_kwargs(), **EF, **SMALL).save(tmp_path / "model.zip")
+    loaded = algorithm.load(tmp_path / "model.zip", env=toy_env(), policy_kwargs=policy_kwargs())
+    assert loaded.ef is not None
+
+
+@pytest.mark.parametrize("algorithm", HOSTS)
+def test_gradient_steps_0_collects_without_training(algorithm):
+    model = algorithm("CnnPolicy", toy_env(), policy_kwargs=policy_kwargs(), gradient_steps=0, **EF, **SMALL)
+    before = {name: value.clone() for name, value in model.auxiliary.state_dict().items()}
+    model.learn(20)
+    assert model.replay_buffer.size() > 0 and model._n_updates == 0
+    assert all(th.equal(value, before[name]) for name, value in model.auxiliary.state_dict().items())
+
+
+def test_ef_sizes_in_policy_kwargs_are_refused_naming_the_argument():
+    with pytest.raises(ValueError, match=r"SACEF takes \['agent_dim'\] as its own arguments"):
+        SACEF("CnnPolicy", toy_env(), policy_kwargs={**policy_kwargs(), "agent_dim": 8}, **SMALL)
+
+
+@pytest.mark.parametrize("algorithm", HOSTS)
+def test_the_host_algorithms_zip_is_refused_naming_its_class(algorithm, tmp_path):
+    HOSTS[algorithm]("CnnPolicy", toy_env(), policy_kwargs=policy_kwargs(), buffer_size=10).save(tmp_path / "m.zip")
+    plain = HOSTS[algorithm].__name__
+    with pytest.raises(ValueError, match=rf"saved by .*own {plain}, without {algorithm.__name__}.*{plain}\.load"):
+        algorithm.load(tmp_path / "m.zip")

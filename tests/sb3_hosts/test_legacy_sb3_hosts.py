@@ -1,5 +1,6 @@
 """A SAC-EF model saved by sb3-ef 0.1.0 (written by data/make_sacef_zip.py; weights and actions are checked in
-test_contract_sb3_hosts.py) keeps its attributes and EF optimiser under this version's names."""
+test_contract_sb3_hosts.py), converted by ``sb3-ef upgrade``, keeps its attributes and EF optimiser under this
+version's names."""
 
 from pathlib import Path
 
@@ -7,12 +8,14 @@ import torch as th
 from stable_baselines3.common.save_util import load_from_zip_file
 
 from sb3_ef import SACEF
+from sb3_ef.upgrade import upgrade
 
 ZIP = Path(__file__).parent / "data" / "sacef_0.1.0.zip"
 
 
-def test_attributes_and_ef_optimiser_come_back_under_their_names():
-    model = SACEF.load(ZIP, device="cpu")
+def test_attributes_and_ef_optimiser_come_back_under_their_names(tmp_path):
+    assert upgrade(ZIP, tmp_path / "sacef.zip") is SACEF
+    model = SACEF.load(tmp_path / "sacef.zip", device="cpu")
     saved, params, _ = load_from_zip_file(ZIP, device="cpu")
     assert {"_ef_generator", "beta", "ef_learning_rate", "ef_optimizer"}.isdisjoint(vars(model))
     assert model.auxiliary_learning_rate == saved["ef_learning_rate"]

@@ -48,7 +48,7 @@ def test_exposes_the_ef_contract_and_the_paper_defaults():
     h = model.encode(th.zeros(2, 9, 64, 64, dtype=th.uint8))
     assert h.shape == (2, 128)
     plain = make(TDMPC2)
-    assert plain.ef is None and plain.replay_buffer.horizon == 3
+    assert not hasattr(plain, "ef") and plain.replay_buffer.horizon == 3
     defaults = TDMPC2EF("CnnPolicy", toy_env(), buffer_size=300, _init_setup_model=False)
     assert (defaults.horizon, defaults.ef_horizon, defaults.babbling_steps, defaults.learning_starts) == (
         3,

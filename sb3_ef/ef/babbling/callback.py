@@ -2,24 +2,24 @@
 
 :class:`MotorBabblingCallback` babbles for a fixed number of steps or, with ``steps="adaptive"``, until EF's
 prediction of held-out babbling episodes stops improving. It works on any SB3 off-policy algorithm with a ``Box``
-action space. SB3 gives callbacks no hook before an action is chosen, so while training runs the callback shadows
-the model's ``_sample_action`` (and, with ``in_eval``, ``predict``) on the instance: every off-policy algorithm
-chooses its rollout actions in ``_sample_action``, which returns the action the env executes and the ``[-1, 1]``
-action stored in the replay buffer; the shadow returns a babbling action as both (the stored one, and its
-unscaled form for the env). The callback's state (generators, end, plateau) lives on the model and is saved with
-it (docs/ef.md, "Motor babbling").
+action space. sb3-ef's hosts take its actions through their ``action_override`` hook
+(:class:`~sb3_ef.common.exploration.ActionOverrideMixin`). SB3 gives its own algorithms no hook before an action is
+chosen, so there, while training runs, the callback shadows the model's ``_sample_action`` (and, with ``in_eval``,
+``predict``) on the instance: every off-policy algorithm chooses its rollout actions in ``_sample_action``, which
+returns the action the env executes and the ``[-1, 1]`` action stored in the replay buffer; the shadow returns a
+babbling action as both (the stored one, and its unscaled form for the env). The callback's state (generators, end,
+plateau) lives on the model and is saved with it (docs/ef.md, "Motor babbling").
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
-import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, ConvertCallback
@@ -30,176 +30,10 @@ from stable_baselines3.common.type_aliases import MaybeCallback
 from stable_baselines3.common.utils import is_vectorized_observation
 from stable_baselines3.common.vec_env import VecEnv
 
-BABBLING_MODES = ("sign", "clamped_uniform")
-#: The model attribute holding the babbling state (saved with the model, so that a resumed run continues it).
-STATE_ATTRIBUTE = "_motor_babbling"
-#: Frame channels of the stacked observations (RGB).
-_CHANNELS = 3
-
-
-def check_babbling(babbling_steps: int, mode: str) -> None:
-    """Check the hosts' ``babbling_steps`` and ``babbling_mode`` (and the offline collector's mode)."""
-    if babbling_steps < 0:
-        raise ValueError(f"babbling_steps must be >= 0, got {babbling_steps}")
-    if mode not in BABBLING_MODES:
-        raise ValueError(f"babbling_mode must be one of {BABBLING_MODES}, got {mode!r}")
-
-
-def babble(rng: np.random.Generator, shape: tuple[int, ...], mode: str = "sign") -> np.ndarray:
-    """Babbling actions of ``shape`` in [-1, 1], float32.
-
-    ``"sign"`` draws each component as -1 or +1 (the paper); ``"clamped_uniform"`` draws uniform(-4, 4) clamped to
-    [-1, 1] (the authors' code: about 75% of the components at +-1).
-    """
-    if mode == "sign":
-        return np.where(rng.random(shape) < 0.5, -1.0, 1.0).astype(np.float32)
-    return np.clip(rng.uniform(-4.0, 4.0, shape), -1.0, 1.0).astype(np.float32)
-
-
-@dataclass
-class Plateau:
-    """The plateau rule of adaptive babbling: a score (an error, lower is better) improves when it falls below
-    ``best * (1 - min_delta)``; the scores have plateaued once ``patience`` evaluations in a row did not improve."""
-
-    patience: int
-    min_delta: float
-    best: float = math.inf
-    stale: int = 0
-
-    def update(self, score: float) -> bool:
-        """Take one evaluation's score; return whether the scores have plateaued."""
-        if score < self.best * (1.0 - self.min_delta):
-            self.best, self.stale = score, 0
-        else:
-            self.stale += 1
-        return self.plateaued
-
-    @property
-    def plateaued(self) -> bool:
-        return self.stale >= self.patience
-
-
-@dataclass
-class BabblingState:
-    """What a resumed run needs to continue babbling exactly; kept on the model as ``_motor_babbling``.
-
-    ``rng`` draws the rollout's babbling actions, ``eval_rng`` those of ``predict`` (``in_eval``), ``holdout_seed``
-    seeds the held-out episodes of adaptive babbling. ``end_step`` / ``end_reason`` are set when babbling ends
-    (``"steps"``, ``"plateau"`` or ``"max_steps"``); ``scores`` holds adaptive babbling's ``(step, score)``
-    evaluations, ``next_evaluation`` the step of the next one.
-    """
-
-    rng: np.random.Generator
-    eval_rng: np.random.Generator
-    holdout_seed: int
-    end_step: int | None = None
-    end_reason: str | None = None
-    plateau: Plateau | None = None
-    scores: list[tuple[int, float]] = field(default_factory=list)
-    next_evaluation: int = 0
-
-    @classmethod
-    def seeded(cls, seed: int | None) -> BabblingState:
-        """Generators spawned from ``seed`` (fresh entropy when ``None``): the same seed babbles the same."""
-        children = np.random.SeedSequence(None if seed is None else seed % 2**32).spawn(3)
-        return cls(
-            np.random.default_rng(children[0]),
-            np.random.default_rng(children[1]),
-            int(children[2].generate_state(1)[0]),
-        )
-
-    def restart(self) -> None:
-        """A run that starts again from step 0 babbles again (its generators continue)."""
-        self.end_step, self.end_reason, self.plateau, self.scores, self.next_evaluation = None, None, None, [], 0
-
-
-@dataclass
-class HeldOutWindows:
-    """Babbling windows recorded in an env that training never sees: context observation at t, the H buffer
-    actions from t, the H frames t+1..t+H and, when the env provides them, the agent masks of the newest context
-    frame and of the H frames (index 0 = newest context frame)."""
-
-    observations: np.ndarray  # (N, 3 * stack, h, w) uint8
-    actions: np.ndarray  # (N, H, action_dim) float32 in [-1, 1]
-    targets: np.ndarray  # (N, H, 3, h, w) uint8
-    masks: np.ndarray | None  # (N, H + 1, h, w) bool
-
-
-def record_held_out_windows(
-    env: gym.Env, horizon: int, steps: int, windows: int, rng: np.random.Generator, mode: str
-) -> HeldOutWindows:
-    """Babble ``steps`` steps in ``env`` (a new episode, reset with a seed from ``rng``, whenever one ends) and keep
-    ``windows`` windows of ``horizon`` steps spread evenly over them."""
-    box = env.action_space
-    assert isinstance(box, spaces.Box)
-    agent_mask = getattr(env.unwrapped, "agent_mask", None)
-    episodes: list[tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]] = []
-    done = True
-    for _ in range(steps):
-        if done:
-            observation, _ = env.reset(seed=int(rng.integers(2**31)))
-            episodes.append(([observation], [], [] if agent_mask is None else [agent_mask()]))
-        observations, actions, masks = episodes[-1]
-        action = babble(rng, box.shape, mode)
-        observation, _, terminated, truncated, _ = env.step(box.low + (action + 1.0) * (box.high - box.low) / 2.0)
-        observations.append(observation)
-        actions.append(action)
-        if agent_mask is not None:
-            masks.append(agent_mask())
-        done = terminated or truncated
-    starts = [(e, t) for e, (_, actions, _) in enumerate(episodes) for t in range(len(actions) - horizon + 1)]
-    if not starts:
-        raise ValueError(
-            f"Adaptive babbling needs held-out episodes longer than the EF horizon {horizon}: holdout_steps={steps} "
-            f"gave episodes of at most {max(len(actions) for _, actions, _ in episodes)} steps"
-        )
-    picks = [starts[i] for i in np.linspace(0, len(starts) - 1, min(windows, len(starts))).round().astype(int)]
-    return HeldOutWindows(
-        observations=np.stack([episodes[e][0][t] for e, t in picks]),
-        actions=np.stack([np.stack(episodes[e][1][t : t + horizon]) for e, t in picks]),
-        targets=np.stack(
-            [np.stack([frames[-_CHANNELS:] for frames in episodes[e][0][t + 1 : t + horizon + 1]]) for e, t in picks]
-        ),
-        masks=None
-        if agent_mask is None
-        else np.stack([np.stack(episodes[e][2][t : t + horizon + 1]) for e, t in picks]),
-    )
-
-
-def foresight_error_ratio(
-    model: Any, windows: HeldOutWindows, agent_pixels: bool = True, batch_size: int = 16
-) -> float:
-    """EF's open-loop prediction error on ``windows`` over the error of copying the newest context frame: squared
-    error per pixel, over the agent's pixels (where the agent is in the newest context frame or in frame t+k) when
-    ``agent_pixels`` and the windows have masks, else over all pixels; averaged over k = 1..H for the model and the
-    copy, then divided."""
-    horizon = windows.actions.shape[1]
-    sums = np.zeros((3, horizon))  # model error, copy error, pixels, per k
-    policy = model.policy
-    training = policy.training
-    policy.set_training_mode(False)
-    try:
-        with th.no_grad():
-            for start in range(0, len(windows.actions), batch_size):
-                rows = slice(start, start + batch_size)
-                observations = th.as_tensor(windows.observations[rows], device=model.device)
-                predicted = model.ef.predict(
-                    model.encode(observations), th.as_tensor(windows.actions[rows], device=model.device)
-                ).float()
-                truth = th.as_tensor(windows.targets[rows], device=model.device).float() / 255.0
-                last = observations[:, None, -_CHANNELS:].float() / 255.0
-                errors = [(frames - truth).pow(2).mean(dim=2) for frames in (predicted, last)]
-                if windows.masks is None or not agent_pixels:
-                    weight = th.ones_like(errors[0])
-                else:
-                    masks = th.as_tensor(windows.masks[rows], device=model.device)
-                    weight = (masks[:, 1:] | masks[:, :1]).float()
-                for row, value in enumerate((*(error * weight for error in errors), weight)):
-                    sums[row] += value.sum(dim=(0, 2, 3)).cpu().numpy()
-    finally:
-        policy.set_training_mode(training)
-    pixels = np.maximum(sums[2], 1.0)
-    return float((sums[0] / pixels).mean() / max((sums[1] / pixels).mean(), 1e-12))
+from sb3_ef.common.exploration import ActionOverrideMixin
+from sb3_ef.ef.babbling.actions import BABBLING_MODES, babble
+from sb3_ef.ef.babbling.held_out import HeldOutWindows, foresight_error_ratio, record_held_out_windows
+from sb3_ef.ef.babbling.state import STATE_ATTRIBUTE, BabblingState, Plateau
 
 
 class MotorBabblingCallback(BaseCallback):
@@ -291,6 +125,9 @@ class MotorBabblingCallback(BaseCallback):
         self.holdout_steps = holdout_steps or 200
         self.holdout_windows = holdout_windows or 64
         self.held_out: HeldOutWindows | None = None
+        #: Warn when a fresh babbling state starts past ``steps`` (a caller's callback that will never babble); the
+        #: hosts' own callback of their first ``babbling_steps`` does not.
+        self.warn_if_late = True
         self._shadowed: dict[str, Any] = {}
         self._instance_attributes: dict[str, Any] = {}
         self._learn_start: float | None = None
@@ -382,6 +219,13 @@ class MotorBabblingCallback(BaseCallback):
         if state is None:
             state = BabblingState.seeded(model.seed if self.seed is None else self.seed)
             setattr(model, STATE_ATTRIBUTE, state)
+            if self.warn_if_late and not self.adaptive and 0 < self.max_steps <= model.num_timesteps:  # type: ignore[operator]
+                warnings.warn(
+                    f"MotorBabblingCallback(steps={self.steps}) will not babble: it babbles while num_timesteps < "
+                    f"{self.steps}, and this learn starts at step {model.num_timesteps} (reset_num_timesteps=False); "
+                    f"pass steps={model.num_timesteps + int(self.steps)} to babble {self.steps} more steps",
+                    stacklevel=2,
+                )
         elif model.num_timesteps == 0:
             state.restart()
         if self.adaptive and state.plateau is None:
@@ -446,28 +290,21 @@ class MotorBabblingCallback(BaseCallback):
             self._end("plateau")
         return state.end_step is None
 
-    # ------------------------------------------------------- model shadows
-    def _sample_action(
-        self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """The model's ``_sample_action`` while training: babbling actions while active, else the model's own."""
+    # ------------------------------------------------------ action override
+    def rollout_action(self, n_envs: int) -> np.ndarray | None:
+        """Babbling buffer actions while active, else ``None`` (the model's own choice)."""
         active = self._update_end()
         self.logger.record("rollout/babbling", float(active))
         if not active:
-            return self._shadowed["_sample_action"](learning_starts, action_noise, n_envs)
-        buffer_action = babble(self.state.rng, (n_envs, *self.model.action_space.shape), self.mode)  # type: ignore[misc]
-        return self.model.policy.unscale_action(buffer_action), buffer_action
+            return None
+        return babble(self.state.rng, (n_envs, *self.model.action_space.shape), self.mode)  # type: ignore[misc]
 
-    def _predict(
-        self,
-        observation: np.ndarray | dict[str, np.ndarray],
-        state: tuple[np.ndarray, ...] | None = None,
-        episode_start: np.ndarray | None = None,
-        deterministic: bool = False,
-    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
-        """The model's ``predict`` while training with ``in_eval``: babbling actions while active."""
-        if not self.active:
-            return self._shadowed["predict"](observation, state, episode_start, deterministic)
+    def evaluation_action(
+        self, observation: np.ndarray | dict[str, np.ndarray], state: tuple[np.ndarray, ...] | None
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None] | None:
+        """With ``in_eval``, babbling env actions for ``predict`` while active, else ``None``."""
+        if not (self.in_eval and self.active):
+            return None
         assert isinstance(observation, np.ndarray)  # image Boxes
         # Transposed first, as SB3's predict does (an env of channels-last frames gives channels-last observations).
         vectorized = is_vectorized_observation(
@@ -478,15 +315,16 @@ class MotorBabblingCallback(BaseCallback):
         actions = self.model.policy.unscale_action(buffer_action)
         return (actions if vectorized else actions[0]), state
 
-    def _excluded_save_params(self) -> list[str]:
-        """The model's, plus the shadows (a save during training stores the model, not this callback)."""
-        return [*self._shadowed["_excluded_save_params"](), *self._shadowed]
-
     def _install(self) -> None:
-        """Shadow the model's methods on the instance, for this ``learn``; a shadow left by a ``learn`` that
-        raised is removed first, a second babbling callback in the same ``learn`` is refused."""
+        """Take the model's actions over for this ``learn``: through its ``action_override`` hook (sb3-ef's hosts),
+        or, on SB3's own algorithms, by shadowing ``_sample_action`` (and ``predict``) on the instance. A takeover
+        left by a ``learn`` that raised is removed first; a second babbling callback in the same ``learn`` is
+        refused."""
         model = self.model
-        owner = getattr(vars(model).get("_sample_action"), "__self__", None)
+        if isinstance(model, ActionOverrideMixin):
+            owner = model.action_override
+        else:
+            owner = getattr(vars(model).get("_sample_action"), "__self__", None)
         if isinstance(owner, MotorBabblingCallback):
             if owner._learn_start == model.start_time:
                 raise ValueError(
@@ -494,20 +332,52 @@ class MotorBabblingCallback(BaseCallback):
                     "itself (build it with babbling_steps=0 to pass your own)"
                 )
             owner._uninstall()
-        methods = {"_sample_action": self._sample_action, "_excluded_save_params": self._excluded_save_params}
+        self._learn_start = model.start_time
+        if isinstance(model, ActionOverrideMixin):
+            model.action_override = self
+            return
+        methods = {"_sample_action": self._shadow_sample_action, "_excluded_save_params": self._excluded_save_params}
         if self.in_eval:
-            methods["predict"] = self._predict
+            methods["predict"] = self._shadow_predict
         self._shadowed = {name: getattr(model, name) for name in methods}
         self._instance_attributes = {name: vars(model)[name] for name in methods if name in vars(model)}
         vars(model).update(methods)
-        self._learn_start = model.start_time
 
     def _uninstall(self) -> None:
         model = self.model
-        for name in self._shadowed:
-            vars(model).pop(name, None)
-        vars(model).update(self._instance_attributes)
+        if isinstance(model, ActionOverrideMixin):
+            if model.action_override is self:
+                model.action_override = None
+        else:
+            for name in self._shadowed:
+                vars(model).pop(name, None)
+            vars(model).update(self._instance_attributes)
         self._shadowed, self._instance_attributes, self._learn_start = {}, {}, None
+
+    # ------------------------------------------- shadows (SB3's own algorithms)
+    def _shadow_sample_action(
+        self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
+    ) -> tuple[np.ndarray, np.ndarray]:
+        buffer_action = self.rollout_action(n_envs)
+        if buffer_action is None:
+            return self._shadowed["_sample_action"](learning_starts, action_noise, n_envs)
+        return self.model.policy.unscale_action(buffer_action), buffer_action
+
+    def _shadow_predict(
+        self,
+        observation: np.ndarray | dict[str, np.ndarray],
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = False,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
+        answer = self.evaluation_action(observation, state)
+        if answer is None:
+            return self._shadowed["predict"](observation, state, episode_start, deterministic)
+        return answer
+
+    def _excluded_save_params(self) -> list[str]:
+        """The model's, plus the shadows (a save during training stores the model, not this callback)."""
+        return [*self._shadowed["_excluded_save_params"](), *self._shadowed]
 
 
 def with_babbling(babbling: MotorBabblingCallback, callback: MaybeCallback) -> list[BaseCallback]:

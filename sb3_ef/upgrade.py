@@ -1,4 +1,6 @@
-"""Model files saved by sb3-ef 0.1.0, read by the hosts of this version: nothing a user saved is lost.
+"""``sb3-ef upgrade OLD.zip NEW.zip``: a model file saved by sb3-ef 0.1.0, converted once into this version's
+format (nothing a user saved is lost; ``load`` itself reads only this version's files and names this command when
+given an old one).
 
 sb3-ef 0.1.0 kept Ego-Foresight inside the host. Its EF module was the policy's ``ef`` (state-dict keys ``ef.*``)
 and was trained by the optimiser of the weights it shapes: in the critic optimiser's one parameter group (DrQv2-EF),
@@ -6,23 +8,27 @@ in a group named ``ef`` of the world-model optimiser (TDMPC2-EF), or by an ``ef_
 TQC-EF). An EF variant saved the plain host's policy class, DrQ-v2 and TD-MPC2 put EF's horizon (and TD-MPC2 its
 planning horizon and discount) into the saved ``policy_kwargs``, and three attributes had other names.
 
-:func:`upgraded_file` rewrites the pickled attributes of such a file in memory before SB3 reads it, and
-:func:`upgraded_parameters` moves its weights and optimiser states to where the model keeps them: the auxiliary
-module (``policy.auxiliary``, or ``auxiliary_module`` for the SB3 hosts), whose Ego-Foresight module is its ``ef``,
-in a parameter group of its own. A file saved by 0.1.0 is told by its data, which lacks the ``algorithm`` entry that
-later versions save.
+:func:`upgrade` finds the algorithm that saved such a file, rewrites the file's pickled attributes in memory
+(:func:`upgraded_file`), loads it while moving its weights and optimiser states to where the model keeps them
+(:func:`upgraded_parameters`: the auxiliary module, ``policy.auxiliary`` or ``auxiliary_module`` for the SB3 hosts,
+whose Ego-Foresight module is its ``ef``, in a parameter group of its own), and saves the model. A file saved by
+0.1.0 is told by its data, which lacks the ``algorithm`` entry that later versions save.
 """
 
 from __future__ import annotations
 
 import io
 import json
+import os
 import pathlib
 import zipfile
 from typing import Any
 
 import torch as th
 from stable_baselines3.common.save_util import data_to_json, json_to_data, load_from_zip_file, open_path
+
+from sb3_ef.common.files import write_atomically
+from sb3_ef.common.saved_models import is_legacy, saved_algorithm, saved_data
 
 #: Attributes 0.1.0 saved under another name.
 RENAMED_ATTRIBUTES = {
@@ -173,3 +179,52 @@ def _regrouped(state: dict[str, Any], optimizer: th.optim.Optimizer, name: str) 
             f"{sizes}: the file was saved with other network sizes"
         )
     return {**state, "param_groups": regrouped}
+
+
+def legacy_algorithm(data: dict[str, Any]) -> type:
+    """The class of this version that loads the model whose 0.1.0 ``data`` is given: by its policy class, and for
+    DrQ-v2 and TD-MPC2 by whether it trained Ego-Foresight."""
+    from sb3_ef import SACEF, TD3EF, TDMPC2, TDMPC2EF, TQCEF, DrQv2, DrQv2EF
+
+    with_ef = data.get("ef_horizon") is not None
+    by_module = {
+        "sb3_ef.drqv2.policies": DrQv2EF if with_ef else DrQv2,
+        "sb3_ef.tdmpc2.policies": TDMPC2EF if with_ef else TDMPC2,
+        "stable_baselines3.sac.policies": SACEF,
+        "stable_baselines3.td3.policies": TD3EF,
+        "sb3_contrib.tqc.policies": TQCEF,
+    }
+    module = (data.get("policy_class") or {}).get("__module__")
+    if module not in by_module:
+        raise ValueError(f"A file of sb3-ef 0.1.0 holds one of the policies of {sorted(by_module)}, got {module!r}")
+    return by_module[module]
+
+
+def upgrade(source: str | os.PathLike, destination: str | os.PathLike, device: str = "cpu") -> type:
+    """Convert the model file ``source`` saved by sb3-ef 0.1.0 into ``destination`` (written whole or not at all;
+    ``source`` is never changed, and may be ``destination`` only by name of another file). Returns the class that
+    loads the new file. Raises ``ValueError`` when ``source`` is not a file of sb3-ef 0.1.0."""
+    data = saved_data(source)
+    if data is None:
+        raise ValueError(f"{source} is not a saved model: expected a zip archive written by save()")
+    if not is_legacy(data):
+        saved = saved_algorithm(data)
+        who = f"{saved} of this version saved it" if saved else "no sb3-ef algorithm saved it"
+        raise ValueError(f"{source} is not a file of sb3-ef 0.1.0 ({who}): nothing to upgrade")
+    if os.path.abspath(source) == os.path.abspath(destination):
+        raise ValueError(f"The upgraded file must go to another path than {source} (the original is kept)")
+    algorithm = legacy_algorithm(data)
+    file = upgraded_file(source, algorithm, algorithm.__name__.endswith("EF"))
+
+    class Upgrading(algorithm):  # type: ignore[misc, valid-type]
+        """The algorithm, reading the 0.1.0 weights and optimiser states into this version's places."""
+
+        def set_parameters(self, load_path_or_dict: Any, exact_match: bool = True, device: Any = "auto") -> None:
+            params = upgraded_parameters(load_path_or_dict, self, device)
+            super().set_parameters(params, exact_match, device)
+
+    Upgrading.__name__ = Upgrading.__qualname__ = algorithm.__name__  # the name the upgraded data records
+    model = Upgrading.load(file, device=device)
+    model.__class__ = algorithm
+    write_atomically(destination, model.save)
+    return algorithm

@@ -1,0 +1,90 @@
+"""What a saved model file says about itself, read once before SB3 loads it: which algorithm saved it, and whether
+this class can load it. Imports no torch, so that the command line can use it before the heavy imports."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import zipfile
+from pathlib import Path
+from typing import IO, Any
+
+#: Module of a saved policy class -> the sb3-ef algorithms that save it.
+POLICY_OWNERS = {
+    "sb3_ef.drqv2.policies": "DrQv2EF or DrQv2",
+    "sb3_ef.tdmpc2.policies": "TDMPC2EF or TDMPC2",
+    "stable_baselines3.sac.policies": "SACEF",
+    "stable_baselines3.td3.policies": "TD3EF",
+    "sb3_contrib.tqc.policies": "TQCEF",
+}
+#: Attributes that only the model files of sb3-ef 0.1.0's Ego-Foresight variants hold without an ``algorithm`` entry.
+LEGACY_EF_ATTRIBUTES = ("ef_horizon", "_ef_generator", "ef_learning_rate")
+
+
+def saved_data(path: str | os.PathLike | IO[bytes]) -> dict[str, Any] | None:
+    """The JSON ``data`` of a model zip (a path, with or without ``.zip``, or a file object, left at its position),
+    or ``None`` when it cannot be read (SB3's load then reports what is wrong)."""
+    if isinstance(path, (str, os.PathLike)):
+        given = Path(path)
+        path = given if given.suffix == ".zip" or given.is_file() else given.with_name(f"{given.name}.zip")
+        opened: IO[bytes] | None = None
+    else:
+        opened = path
+    position = opened.tell() if opened is not None else 0
+    try:
+        with zipfile.ZipFile(opened if opened is not None else path) as archive:
+            data = json.loads(archive.read("data"))
+    except (zipfile.BadZipFile, KeyError, ValueError, OSError):
+        return None
+    finally:
+        if opened is not None:
+            opened.seek(position)
+    return data if isinstance(data, dict) else None
+
+
+def saved_algorithm(data: dict[str, Any] | None) -> str | None:
+    """The class name of the algorithm that saved ``data`` (``None`` when the file records none)."""
+    name = (data or {}).get("algorithm")
+    return name if isinstance(name, str) else None
+
+
+def is_legacy(data: dict[str, Any]) -> bool:
+    """Whether ``data`` is that of a file saved by sb3-ef 0.1.0: no ``algorithm`` entry, and an sb3-ef policy class
+    or Ego-Foresight's attributes."""
+    if "algorithm" in data:
+        return False
+    module = (data.get("policy_class") or {}).get("__module__", "")
+    return module.startswith("sb3_ef.") or any(data.get(name) is not None for name in LEGACY_EF_ATTRIBUTES)
+
+
+def check_saved_model(algo_class: type, where: Any, data: dict[str, Any] | None) -> None:
+    """Raise ``ValueError`` naming what to do when ``algo_class`` cannot load the model whose ``data`` was read
+    from ``where``: another algorithm saved it (by the class name the file records, or, for a file of SB3's own
+    algorithms, by its policy class), or sb3-ef 0.1.0 did (it is converted once with ``sb3-ef upgrade``)."""
+    if data is None:
+        return
+    name = algo_class.__name__
+    if isinstance(where, io.IOBase):
+        where = "the file"
+    saved = saved_algorithm(data)
+    if saved is not None:
+        if saved != name:
+            raise ValueError(f"Cannot load {where} as {name}: it was saved by {saved}, use {saved}.load")
+        return
+    if is_legacy(data):
+        raise ValueError(
+            f"{where} was saved by sb3-ef 0.1.0, whose files this version reads after a one-time conversion: run "
+            f"`sb3-ef upgrade {where} NEW.zip`, then load NEW.zip with {name}.load"
+        )
+    module = (data.get("policy_class") or {}).get("__module__")
+    expected = {policy.__module__ for policy in getattr(algo_class, "policy_aliases", {}).values()}
+    if module in POLICY_OWNERS and expected and module not in expected:  # a user's own policy class is let through
+        owner = POLICY_OWNERS[module]
+        raise ValueError(f"{where} was saved by {owner}, not {name}: load it with {owner}")
+    if module in POLICY_OWNERS and module.startswith(("stable_baselines3.", "sb3_contrib.")):
+        plain = module.split(".")[1].upper()
+        raise ValueError(
+            f"{where} was saved by {'sb3-contrib' if module.startswith('sb3_contrib') else 'SB3'}'s own {plain}, "
+            f"without {name}'s auxiliary loss: load it with {plain}.load"
+        )
