@@ -1,5 +1,6 @@
 """The ``sb3-ef`` console script: ``train``, ``enjoy``, ``optimize`` (rl-zoo3), ``analyze`` (sb3_ef.analysis),
-``benchmark`` (sb3_ef.grid) and ``collect``, ``pretrain``, ``predict`` (sb3_ef.offline).
+``benchmark`` (sb3_ef.grid), ``collect``, ``pretrain``, ``predict`` (sb3_ef.offline) and ``upgrade``
+(sb3_ef.upgrade).
 
 Each subcommand forwards the rest of the command line untouched, so ``sb3-ef train --help`` shows rl-zoo3's
 training options with sb3-ef's and ``sb3-ef analyze --help`` the analysis ones. The arguments are checked before
@@ -74,6 +75,7 @@ COMMANDS: dict[str, Command] = {
         "sb3_ef.offline.cli:predict_main",
         "open-loop predictions of a pretrained model as PNG and GIF/MP4 (sb3_ef.offline)",
     ),
+    "upgrade": Command("sb3_ef.upgrade:main", "convert a model file saved by sb3-ef 0.1.0 to this version's format"),
 }
 
 

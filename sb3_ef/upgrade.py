@@ -17,6 +17,7 @@ whose Ego-Foresight module is its ``ef``, in a parameter group of its own), and 
 
 from __future__ import annotations
 
+import argparse
 import io
 import json
 import os
@@ -228,3 +229,20 @@ def upgrade(source: str | os.PathLike, destination: str | os.PathLike, device: s
     model.__class__ = algorithm
     write_atomically(destination, model.save)
     return algorithm
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``sb3-ef upgrade OLD.zip NEW.zip``: convert, refusing to write over an existing file."""
+    parser = argparse.ArgumentParser(
+        prog="sb3-ef upgrade", description="Convert a model file saved by sb3-ef 0.1.0 into this version's format."
+    )
+    parser.add_argument("source", help="the model zip saved by sb3-ef 0.1.0 (kept unchanged)")
+    parser.add_argument("destination", help="where to write the converted model zip (must not exist)")
+    args = parser.parse_args(argv)
+    if not os.path.isfile(args.source):
+        parser.error(f"no model file at {args.source}")
+    if os.path.exists(args.destination):
+        parser.error(f"{args.destination} exists: name a new file (nothing is written over)")
+    algorithm = upgrade(args.source, args.destination)
+    print(f"Wrote {args.destination}: load it with {algorithm.__name__}.load")
+    return 0
