@@ -3,7 +3,7 @@ loading them, with the TD-MPC2 of the sb3-ef it runs under.
 
 The committed files were written by sb3-ef 0.1.0 (EF's weights inside the policy's, EF's parameter group of the
 world-model optimiser named ``ef``, the planner's horizon and discount in the saved ``policy_kwargs``) so that
-tests/tdmpc2/test_legacy_tdmpc2.py checks that files users saved with it still load:
+tests/ef/test_legacy_hosts.py checks that files users saved with it still load (after `sb3-ef upgrade`):
 
     cd <an sb3-ef 0.1.0 checkout> && PYTHONPATH=. python <this file> <output folder>
 
