@@ -2,7 +2,8 @@
 loading them, with the DrQ-v2 of the sb3-ef it runs under.
 
 The committed files were written by sb3-ef 0.1.0 (EF's weights inside the policy's, in the critic optimiser's only
-parameter group) so that tests/ef/test_legacy_hosts.py checks that files users saved with it still load (after `sb3-ef upgrade`):
+parameter group) so that tests/ef/test_legacy_hosts.py checks that files users saved with it still load (after
+`sb3-ef upgrade`):
 
     cd <an sb3-ef 0.1.0 checkout> && PYTHONPATH=. python <this file> <output folder>
 
