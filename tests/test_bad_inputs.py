@@ -73,7 +73,12 @@ def truncated_copy(saved: Path, folder: Path) -> Path:
 
 
 API_CASES = [
-    Case("beta as a string", lambda: drqv2_ef(beta="1"), ValueError, r"beta must be a number, got str '1'"),
+    Case(
+        "beta as a string",
+        lambda: drqv2_ef(beta="1"),
+        ValueError,
+        r"beta must be a positive number \(use DrQv2 .*\), got str '1'",
+    ),
     Case(
         "learning_rate as a string",
         lambda: drqv2_ef(learning_rate="0.001"),
@@ -110,10 +115,10 @@ API_CASES = [
         "train_freq 0", lambda: drqv2_ef(train_freq=0), ValueError, r"train_freq must be a positive integer or a pair"
     ),
     Case(
-        "gradient_steps 0",
-        lambda: drqv2_ef(gradient_steps=0),
+        "gradient_steps -2",
+        lambda: drqv2_ef(gradient_steps=-2),
         ValueError,
-        r"gradient_steps must be a positive integer or -1",
+        r"gradient_steps must be an integer >= 0 \(0: collect without training\) or -1",
     ),
     Case(
         "n_steps as a string",
@@ -124,7 +129,12 @@ API_CASES = [
     Case(
         "device typo", lambda: drqv2_ef(device="cdua"), ValueError, r"device must be 'auto', 'cpu', 'cuda'.*got 'cdua'"
     ),
-    Case("SAC-EF beta as a string", lambda: sac_ef(beta="1"), ValueError, r"SACEF: beta must be a number"),
+    Case(
+        "SAC-EF beta as a string",
+        lambda: sac_ef(beta="1"),
+        ValueError,
+        r"beta must be a positive number \(use SAC .*\), got str '1'",
+    ),
     Case(
         "SAC-EF host argument as a string",
         lambda: sac_ef(learning_rate="3e-4"),
@@ -351,7 +361,7 @@ CLI_CASES = [
         "beta as a string in the config",
         lambda tmp_path: small_train("-f", str(tmp_path), "--hyperparams", "beta:'1'"),
         SystemExit,
-        r"DrQv2EF: beta must be a number, got str '1'",
+        r"beta must be a positive number \(use DrQv2 .*\), got str '1'",
     ),
     Case("enjoy unknown option", lambda: ["enjoy", "--bad-arg"], SystemExit, r"unrecognized arguments: --bad-arg"),
     Case(

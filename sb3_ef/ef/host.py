@@ -27,8 +27,13 @@ def check_ef_arguments(
     """Check EF's algorithm-level arguments; ``plain_variant`` names the class to use without EF."""
     check_babbling(babbling_steps, babbling_mode)
     if isinstance(beta, bool) or not isinstance(beta, numbers.Real) or not beta > 0:
+        received = (
+            repr(beta)
+            if isinstance(beta, numbers.Real) and not isinstance(beta, bool)
+            else f"{type(beta).__name__} {beta!r}"
+        )
         raise ValueError(
-            f"beta must be a positive number (use {plain_variant} to train without Ego-Foresight), got {beta!r}"
+            f"beta must be a positive number (use {plain_variant} to train without Ego-Foresight), got {received}"
         )
     if not isinstance(ef_horizon, int) or ef_horizon < 1:
         raise ValueError(f"ef_horizon must be a positive integer, got {ef_horizon!r}")
