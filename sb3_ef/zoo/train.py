@@ -223,6 +223,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     options, _ = _sb3_ef_parser().parse_known_args(argv)
     if options.resume is not None:
         argv = resume_argv(options.resume, _without_options(argv, {"--resume": True}))
+        options, _ = _sb3_ef_parser().parse_known_args(argv)  # the run's recorded sb3-ef options, and the new ones
     _check_trained_agent(argv)
     zoo_argv = prepare(_without_options(argv, {"--checkpoint-buffer": False, "--keep-checkpoints": True}))
     manager = functools.partial(

@@ -107,6 +107,8 @@ def test_resume_appends_evaluations_and_logs(resumed):
     argv = json.loads((run / LOG_NAME / "train_argv.json").read_text())
     assert argv[argv.index("-i") + 1] == str(first["checkpoint"].model_path)
     assert [checkpoint.step for checkpoint in list_checkpoints(run)] == [40, 80]
+    # The resumed run keeps the recorded --checkpoint-buffer: its own checkpoint carries the replay buffer too.
+    assert all(checkpoint.replay_buffer_path is not None for checkpoint in list_checkpoints(run))
 
 
 @pytest.mark.slow
