@@ -36,7 +36,7 @@ def random_shift(*images: th.Tensor, pad: int = 4, generator: th.Generator | Non
                 f"got shape {tuple(image.shape)}"
             )
     device = images[0].device
-    offsets = th.randint(0, 2 * pad + 1, (batch, 2), device=device, generator=generator) - pad
+    offsets = _draw(0, 2 * pad + 1, (batch, 2), device, generator) - pad
     rows = (th.arange(height, device=device)[None, :] + offsets[:, :1]).clamp_(0, height - 1)
     cols = (th.arange(width, device=device)[None, :] + offsets[:, 1:]).clamp_(0, width - 1)
     batch_index = th.arange(batch, device=device)[:, None, None]
@@ -46,6 +46,13 @@ def random_shift(*images: th.Tensor, pad: int = 4, generator: th.Generator | Non
         moved = image.permute(0, 2, 3, 1)[batch_index, rows[:, :, None], cols[:, None, :]]
         shifted.append(moved.permute(0, 3, 1, 2).contiguous())
     return tuple(shifted)
+
+
+def _draw(low: int, high: int, shape: tuple[int, ...], device: th.device, generator: th.Generator | None) -> th.Tensor:
+    """Integers in ``[low, high)`` on ``device``, drawn on the generator's own device (the models keep theirs on the
+    CPU, so that a saved model loads anywhere) and moved: a CPU generator cannot draw on a GPU."""
+    draw_device = device if generator is None else generator.device
+    return th.randint(low, high, shape, device=draw_device, generator=generator).to(device)
 
 
 def _check_batch(images: tuple[th.Tensor, ...], name: str) -> tuple[int, int, int]:
@@ -84,8 +91,8 @@ def random_crop(*images: th.Tensor, size: int, generator: th.Generator | None = 
     batch, height, width = _check_batch(images, "random_crop")
     _check_crop(size, height, width, "random_crop")
     device = images[0].device
-    top = th.randint(0, height - size + 1, (batch, 1), device=device, generator=generator)
-    left = th.randint(0, width - size + 1, (batch, 1), device=device, generator=generator)
+    top = _draw(0, height - size + 1, (batch, 1), device, generator)
+    left = _draw(0, width - size + 1, (batch, 1), device, generator)
     window = th.arange(size, device=device)[None, :]
     rows, cols = top + window, left + window
     batch_index = th.arange(batch, device=device)[:, None, None]
