@@ -2,9 +2,9 @@
 renders) at the paper's settings.
 
 For each algorithm, eager and compiled (the torch.compile mode given by ``--compile-mode``: ``default``, or e.g.
-``reduce-overhead`` for CUDA graphs; CURL, SB3's SAC, has no compiled mode), on ``dmc/cartpole-swingup`` with real
-rendering (``fast_render``; SEAR's env also renders agent masks), batch 256 and a 1M-frame replay buffer with
-``storage_device="auto"`` (in device memory where it fits):
+``reduce-overhead`` for CUDA graphs; CURL, whose update is its authors' eager one, has no compiled mode), on
+``dmc/cartpole-swingup`` with real rendering (``fast_render``; SEAR's env also renders agent masks), batch 256 and a
+1M-frame replay buffer with ``storage_device="auto"`` (in device memory where it fits):
 
 - ``sample ms``: median of ``SequenceReplayBuffer.sample(256)`` calls, synchronised;
 - ``updates/s``: ``train()`` alone, one gradient step at a time;

@@ -140,10 +140,11 @@ class AuxiliaryHostMixin(ActionOverrideMixin):
                 raise ValueError(f"{name} is {loss.item()} at update {self._n_updates}")
 
     def _record_updates(self, updates: list[dict[str, th.Tensor]]) -> None:
-        """Log each scalar of the updates (``train/<key>``), averaged over the gradient steps."""
+        """Log each scalar of the updates (``train/<key>``), averaged over the updates that computed it (a loss
+        stepped every few updates is averaged over those)."""
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
-        for key in updates[0] if updates else ():
-            values = th.stack([update[key].detach().reshape(()) for update in updates])
+        for key in dict.fromkeys(key for update in updates for key in update):
+            values = th.stack([update[key].detach().reshape(()) for update in updates if key in update])
             self.logger.record(f"train/{key}", float(values.double().mean()))
 
     def predict(

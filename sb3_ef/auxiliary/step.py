@@ -1,9 +1,9 @@
 """An auxiliary representation loss on an SB3 off-policy algorithm from pixels, as a step of its own.
 
 SB3's ``train()`` has no hook for an extra loss, so the auxiliary loss runs as its own step after each of the host's
-updates, as CURL's reference trains its contrastive loss: sample a batch, augment it (the loss's ``prepare``), encode
-with the critic's features extractor and take one step of a separate Adam on that extractor and the auxiliary
-module. The host's updates, losses and optimisers are SB3's own.
+updates: sample a batch, augment it (the loss's ``prepare``), encode with the critic's features extractor and take
+one step of a separate Adam on that extractor and the auxiliary module. The host's updates, losses and optimisers
+are SB3's own. (CURL, which follows its authors' update, owns its ``train()`` and uses only this mixin's set-up.)
 """
 
 from __future__ import annotations

@@ -14,6 +14,7 @@ from typing import IO, Any
 POLICY_OWNERS = {
     "sb3_ef.drqv2.policies": "DrQv2EF or DrQv2",
     "sb3_ef.tdmpc2.policies": "TDMPC2EF or TDMPC2",
+    "sb3_ef.curl.policies": "CURL",
     "stable_baselines3.sac.policies": "SACEF",
     "stable_baselines3.td3.policies": "TD3EF",
     "sb3_contrib.tqc.policies": "TQCEF",

@@ -1,109 +1,280 @@
-"""CURL: SB3's SAC from pixels with CURL's contrastive loss on the critic's encoder (Laskin et al., 2020)."""
+"""CURL (Laskin, Srinivas and Abbeel, ICML 2020): the authors' SAC from pixels with CURL's contrastive loss on the
+critic's encoder, as MishaLaskin/curl's ``curl_sac.py`` updates it, with SB3's interface."""
 
 from __future__ import annotations
 
-from typing import Any
+import itertools
+from typing import Any, ClassVar, NamedTuple
 
 import torch as th
 from stable_baselines3 import SAC
-from stable_baselines3.common.type_aliases import GymEnv
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import GymEnv, Schedule
+from stable_baselines3.common.utils import polyak_update
+from torch.nn import functional as F
 
 from sb3_ef.auxiliary.step import AuxiliaryStepMixin
-from sb3_ef.curl.buffer import CroppedSequenceReplayBuffer
-from sb3_ef.curl.encoder import CURLEncoder
+from sb3_ef.common.buffers import SequenceReplayBufferSamples
+from sb3_ef.common.layers import frozen
+from sb3_ef.curl.crop import check_crop_size, random_crops
 from sb3_ef.curl.loss import CURLLoss
+from sb3_ef.curl.policies import CURLActor, CURLPolicy
 
 
-class CroppedHostUpdates:
-    """Mixed in between :class:`AuxiliaryStepMixin` and the host: the host's own updates sample random crops from
-    the :class:`CroppedSequenceReplayBuffer` (its ``cropping`` block), the auxiliary steps after them whole frames."""
+class CURLBatch(NamedTuple):
+    """One update's batch, cropped as the authors' ``sample_cpc`` crops it."""
 
-    replay_buffer: CroppedSequenceReplayBuffer
+    observations: th.Tensor  # crop of obs t: the critic's, the actor's and CURL's anchor
+    actions: th.Tensor
+    rewards: th.Tensor
+    next_observations: th.Tensor  # a crop of its own of obs t + n
+    dones: th.Tensor
+    discounts: th.Tensor
+    positives: th.Tensor  # a second crop of obs t, through the key encoder
 
-    def train(self, gradient_steps: int, batch_size: int = 64) -> None:
-        with self.replay_buffer.cropping():
-            super().train(gradient_steps, batch_size)  # type: ignore[misc]
+
+def _curl_policy_kwargs(policy_kwargs: dict[str, Any] | None, crop_size: int, features_dim: int) -> dict[str, Any]:
+    """``policy_kwargs`` with CURL's encoder sizes in ``features_extractor_kwargs`` (``features_dim`` unless given
+    there, and ``crop_size``): what the constructor passes on and what the saved model records."""
+    policy_kwargs = dict(policy_kwargs or {})
+    policy_kwargs["features_extractor_kwargs"] = {
+        "features_dim": features_dim,
+        **(policy_kwargs.get("features_extractor_kwargs") or {}),
+        "crop_size": crop_size,
+    }
+    return policy_kwargs
 
 
-class CURL(AuxiliaryStepMixin, CroppedHostUpdates, SAC):
+class CURL(AuxiliaryStepMixin, SAC):
     """CURL (Laskin, Srinivas and Abbeel, "CURL: Contrastive Unsupervised Representations for Reinforcement
-    Learning", ICML 2020): SB3's SAC whose critic and actor encode random ``crop_size`` crops of the rendered frames
-    with :class:`CURLEncoder` (acting on the centre crop), and whose critic's encoder is also trained by CURL's
-    contrastive loss (:class:`CURLLoss`: InfoNCE between two crops, a bilinear W and a momentum key encoder), as a
-    step of its own after each SAC update (:class:`AuxiliaryStepMixin`).
+    Learning", ICML 2020), updated as the authors' ``CurlSacAgent.update`` (MishaLaskin/curl) on each batch:
 
-    CURL's arguments are keyword-only, as :class:`AuxiliaryStepMixin`'s (``auxiliary_learning_rate``: W's and the
-    encoder's rate in the CURL step, the host's ``learning_rate`` by default; ``check_finite_losses``; its
-    ``shift_pad`` is not used, CURL's augmentation is the crop); every other argument is SAC's. The key encoder
-    moves every ``target_update_interval`` CURL steps, as the authors move it with the critic target.
+    1. the critic, on the random crop of obs t (the anchor) and a crop of obs t + n: ``MSE(Q1, y) + MSE(Q2, y)``
+       with ``y = r + (1 - done) * gamma^n * (min(Q1', Q2')(s', a') - alpha * log pi(a'|s'))``;
+    2. every ``actor_update_interval``-th update the actor (its convolutions the critic's, detached) and then the
+       temperature, ``alpha * (-log pi - target_entropy)`` with ``log pi`` detached;
+    3. every ``target_update_interval``-th update the critic target: Q heads by ``tau``, the encoder (CURL's key
+       encoder) by ``encoder_tau``;
+    4. CURL's step: InfoNCE between the critic encoder's features of the anchor and the key encoder's of a second
+       crop of obs t, stepping the critic's encoder with two Adams (``encoder_optimizer``, and
+       ``auxiliary_optimizer`` over W and the encoder) as the authors' ``encoder_optimizer`` and ``cpc_optimizer``.
 
-    :param crop_size: side of the random crops the encoders see (84 of the paper's 100x100 renders), at most the
-        frame size.
-    :param encoder_tau: momentum of the key encoder, ``key <- (1 - tau) key + tau online`` (0.05).
+    Updates are counted over the whole run (``_n_updates``), the first being 0 (the authors' ``step % 2`` from their
+    even ``init_steps``). The defaults are the authors' (``train.py``, the paper's DMC table); acting takes the
+    centre crop. CURL's own arguments are keyword-only; the others are SAC's (``auxiliary_learning_rate``: the
+    encoder's and W's rate, ``learning_rate`` by default; ``check_finite_losses``).
+
+    :param crop_size: side of the random crops (84 of the paper's 100x100 renders), at most the frame size.
+    :param encoder_tau: the critic target's encoder (the key encoder) ``<- (1 - tau) target + tau online`` (0.05).
     :param features_dim: size of :class:`CURLEncoder`'s features (50); ``policy_kwargs["features_extractor_kwargs"]``
         sets its other options (``n_layers``, ``n_filters``).
+    :param actor_update_interval: the actor and temperature learn every this many updates (2).
+    :param alpha_learning_rate: the temperature's Adam learning rate (1e-4).
+    :param alpha_beta: the temperature's Adam beta1 (0.5; beta2 0.999).
     """
 
-    replay_buffer: CroppedSequenceReplayBuffer
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"CnnPolicy": CURLPolicy}
+    policy: CURLPolicy
+    actor: CURLActor
+    auxiliary_module: CURLLoss | None
+    encoder_optimizer: th.optim.Optimizer
 
     def __init__(
         self,
-        policy: Any,
+        policy: str | type[CURLPolicy],
         env: GymEnv | str | None,
         *,
+        learning_rate: float | Schedule = 1e-3,
+        buffer_size: int = 100_000,
+        learning_starts: int = 1000,
+        batch_size: int = 128,
+        tau: float = 0.01,
+        ent_coef: str | float = "auto_0.1",
+        target_update_interval: int = 2,
         crop_size: int = 84,
         encoder_tau: float = 0.05,
         features_dim: int = 50,
+        actor_update_interval: int = 2,
+        alpha_learning_rate: float = 1e-4,
+        alpha_beta: float = 0.5,
         _init_setup_model: bool = True,
         **kwargs: Any,
     ):
-        policy_kwargs = dict(kwargs.pop("policy_kwargs", None) or {})
-        extractor = policy_kwargs.setdefault("features_extractor_class", CURLEncoder)
-        if not (isinstance(extractor, type) and issubclass(extractor, CURLEncoder)):
-            raise ValueError(f"CURL's features extractor must be a CURLEncoder (sub)class, got {extractor!r}")
-        if policy_kwargs.setdefault("normalize_images", False):
-            raise ValueError("CURLEncoder scales the images itself: CURL needs policy_kwargs normalize_images=False")
-        policy_kwargs["features_extractor_kwargs"] = {
-            "features_dim": features_dim,
-            **policy_kwargs.get("features_extractor_kwargs", {}),
-            "crop_size": crop_size,
-        }
-        super().__init__(policy, env, policy_kwargs=policy_kwargs, _init_setup_model=False, **kwargs)
+        if "shift_pad" in kwargs:
+            raise ValueError("CURL's augmentation is the random crop (crop_size): shift_pad is not a CURL argument")
+        if kwargs.get("use_sde"):
+            raise ValueError("CURL's actor is the authors' Gaussian: use_sde (gSDE) is not supported")
+        if isinstance(policy, type) and not issubclass(policy, CURLPolicy):
+            raise ValueError(f"CURL's policy must be 'CnnPolicy' or a CURLPolicy (sub)class, got {policy.__name__}")
+        super().__init__(
+            policy,
+            env,
+            learning_rate=learning_rate,
+            buffer_size=buffer_size,
+            learning_starts=learning_starts,
+            batch_size=batch_size,
+            tau=tau,
+            ent_coef=ent_coef,
+            target_update_interval=target_update_interval,
+            policy_kwargs=_curl_policy_kwargs(kwargs.pop("policy_kwargs", None), crop_size, features_dim),
+            _init_setup_model=False,
+            **kwargs,
+        )
         self.crop_size = crop_size
         self.encoder_tau = encoder_tau
         self.features_dim = features_dim
+        self.actor_update_interval = actor_update_interval
+        self.alpha_learning_rate = alpha_learning_rate
+        self.alpha_beta = alpha_beta
         if _init_setup_model:
             self._setup_model()
 
-    def _setup_model(self) -> None:
-        """Check the crop against the frames (here, so that ``load`` checks the saved values), then a
-        :class:`CroppedSequenceReplayBuffer` of ``crop_size`` crops and the host's setup."""
+    def _check_curl_arguments(self) -> None:
+        """CURL's arguments against each other and the frames (in ``_setup_model``: ``load`` checks the saved ones)."""
         _, height, width = self.observation_space.shape  # type: ignore[misc]
-        crop_size = self.crop_size
-        if isinstance(crop_size, bool) or not isinstance(crop_size, int) or not 1 <= crop_size <= min(height, width):
-            raise ValueError(
-                f"CURL's crop_size must be an int in [1, {min(height, width)}] (at most the {height}x{width} frames: "
-                f"render larger frames, e.g. make_env(..., size=100) for crops of 84), got {crop_size!r}"
-            )
-        if not 0.0 < self.encoder_tau <= 1.0:
-            raise ValueError(f"encoder_tau must be in (0, 1], got {self.encoder_tau!r}")
-        if self.replay_buffer_class is None:
-            self.replay_buffer_class = CroppedSequenceReplayBuffer
-        elif not issubclass(self.replay_buffer_class, CroppedSequenceReplayBuffer):
-            raise ValueError(
-                "CURL's SAC updates sample random crops: replay_buffer_class must be a CroppedSequenceReplayBuffer "
-                f"(or None), got {self.replay_buffer_class.__name__}"
-            )
-        self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, "crop_size": self.crop_size}
+        check_crop_size(self.crop_size, height, width, "CURL")
+        for name in ("actor_update_interval", "target_update_interval"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"CURL's {name} must be a positive int, got {value!r}")
+        ranges = {
+            "encoder_tau": (lambda value: 0.0 < value <= 1.0, "in (0, 1]"),
+            "alpha_learning_rate": (lambda value: value > 0.0, "> 0"),
+            "alpha_beta": (lambda value: 0.0 <= value < 1.0, "(the temperature's Adam beta1) in [0, 1)"),
+        }
+        for name, (valid, expected) in ranges.items():
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not valid(value):
+                raise ValueError(f"CURL's {name} must be a number {expected}, got {value!r}")
+
+    def _setup_model(self) -> None:
+        """Check CURL's arguments, then SAC's setup with CURL's policy and loss, and the authors' temperature Adam."""
+        self._check_curl_arguments()
         super()._setup_model()
+        if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
+            self.ent_coef_optimizer = th.optim.Adam(
+                [self.log_ent_coef], lr=self.alpha_learning_rate, betas=(self.alpha_beta, 0.999)
+            )
 
     def _build_auxiliary(self) -> CURLLoss:
-        """CURL's loss on the critic's encoder, built from a fork of the global generator (W's initial draw) so that
-        SAC's own random draws are those it has without CURL."""
+        """CURL's loss on the critic's encoder, its key encoder the critic target's; W drawn from a fork of the
+        global generator, so that SAC's own random draws stay those it has without it."""
         with th.random.fork_rng(devices=[]):
             return CURLLoss(
-                self.critic.features_extractor,
-                self.crop_size,
-                self.encoder_tau,
-                key_update_interval=self.target_update_interval,
+                self.critic.features_extractor, self.crop_size, key_encoder=self.critic_target.features_extractor
             )
+
+    def _optimise_auxiliary(self, auxiliary: CURLLoss) -> None:  # type: ignore[override]
+        """The authors' two Adams of CURL's step: one over the critic's encoder, one over W and that encoder."""
+        learning_rate = self.auxiliary_learning_rate or self.lr_schedule(1)
+        encoder = list(self.critic.features_extractor.parameters())
+        self.encoder_optimizer = th.optim.Adam(encoder, lr=learning_rate)
+        self.auxiliary_optimizer = th.optim.Adam([*auxiliary.parameters(), *encoder], lr=learning_rate)
+
+    def train(self, gradient_steps: int, batch_size: int = 64) -> None:
+        """``gradient_steps`` updates (:meth:`_update`), each on a batch of its own cropped by :meth:`_crop`."""
+        self.policy.set_training_mode(True)
+        optimizers = [self.actor.optimizer, self.critic.optimizer]
+        if self.auxiliary_learning_rate is None:
+            optimizers += [self.encoder_optimizer, self.auxiliary_optimizer]
+        self._update_learning_rate(optimizers)
+        updates = []
+        for gradient_step in range(gradient_steps):
+            batch = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
+            updates.append(self._update(self._crop(batch), step=self._n_updates + gradient_step))  # type: ignore[arg-type]
+        self._n_updates += gradient_steps
+        self._record_updates(updates)
+
+    def _crop(self, batch: SequenceReplayBufferSamples) -> CURLBatch:
+        """The authors' ``sample_cpc`` crops, drawn from the model's generator: the anchor and the positive
+        (``CURLLoss.prepare``), and a crop of the next observations."""
+        assert self.auxiliary is not None
+        anchors, positives = self.auxiliary.prepare(batch, 0, self._auxiliary_generator)
+        next_observations = random_crops(batch.next_observations, self.crop_size, self._auxiliary_generator)
+        return CURLBatch(
+            anchors, batch.actions, batch.rewards, next_observations, batch.dones, batch.discounts, positives
+        )
+
+    def _temperature(self) -> th.Tensor:
+        """alpha, detached: ``exp(log_ent_coef)`` when it is learned, else the fixed ``ent_coef``."""
+        if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
+            return self.log_ent_coef.detach().exp()
+        return self.ent_coef_tensor
+
+    def _update(self, batch: CURLBatch, step: int) -> dict[str, th.Tensor]:
+        """One update of the authors' ``CurlSacAgent.update`` (``step``: the update's index over the run)."""
+        alpha = self._temperature()
+        logs = {"critic_loss": self._critic_step(batch, alpha), "ent_coef": alpha.reshape(())}
+        if step % self.actor_update_interval == 0:
+            logs.update(self._actor_and_temperature_step(batch.observations, alpha))
+        if step % self.target_update_interval == 0:
+            heads = [q_network.parameters() for q_network in self.critic.q_networks]
+            target_heads = [q_network.parameters() for q_network in self.critic_target.q_networks]
+            polyak_update(itertools.chain(*heads), itertools.chain(*target_heads), self.tau)
+            encoder, target_encoder = self.critic.features_extractor, self.critic_target.features_extractor
+            polyak_update(encoder.parameters(), target_encoder.parameters(), self.encoder_tau)
+        logs.update(self._curl_step(batch))
+        return logs
+
+    def _critic_step(self, batch: CURLBatch, alpha: th.Tensor) -> th.Tensor:
+        """The critic's TD step (the authors' ``update_critic``); returns the detached loss."""
+        with th.no_grad():
+            next_actions, next_log_prob = self.actor.action_log_prob(batch.next_observations)
+            next_q = th.cat(self.critic_target(batch.next_observations, next_actions), dim=1)
+            next_value = next_q.min(dim=1, keepdim=True).values - alpha * next_log_prob
+            target = batch.rewards + (1 - batch.dones) * batch.discounts * next_value
+        q_values = self.critic(batch.observations, batch.actions)
+        loss = sum(F.mse_loss(q_value, target) for q_value in q_values)
+        assert isinstance(loss, th.Tensor)
+        self._check_finite(critic_loss=loss)
+        self.critic.optimizer.zero_grad()
+        loss.backward()
+        self.critic.optimizer.step()
+        return loss.detach()
+
+    def _actor_and_temperature_step(self, observations: th.Tensor, alpha: th.Tensor) -> dict[str, th.Tensor]:
+        """The authors' ``update_actor_and_alpha``: the actor through the (frozen) critic, then the temperature."""
+        actions, log_prob = self.actor.action_log_prob(observations)
+        with frozen(self.critic):
+            q_values = th.cat(self.critic(observations, actions), dim=1)
+        actor_loss = (alpha * log_prob - q_values.min(dim=1, keepdim=True).values).mean()
+        self._check_finite(actor_loss=actor_loss)
+        self.actor.optimizer.zero_grad()
+        actor_loss.backward()
+        self.actor.optimizer.step()
+        logs = {"actor_loss": actor_loss.detach()}
+        if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
+            assert isinstance(self.target_entropy, float)
+            ent_coef_loss = (self.log_ent_coef.exp() * (-log_prob - self.target_entropy).detach()).mean()
+            self._check_finite(ent_coef_loss=ent_coef_loss)
+            self.ent_coef_optimizer.zero_grad()
+            ent_coef_loss.backward()
+            self.ent_coef_optimizer.step()
+            logs["ent_coef_loss"] = ent_coef_loss.detach()
+        return logs
+
+    def _curl_step(self, batch: CURLBatch) -> dict[str, th.Tensor]:
+        """The authors' ``update_cpc`` on the critic's anchor crop: both Adams step the encoder on one gradient."""
+        assert self.auxiliary is not None
+        features = self.critic.extract_features(batch.observations, self.critic.features_extractor)
+        loss, logs = self.auxiliary(features, batch.positives)
+        self._check_finite(**logs)
+        self.encoder_optimizer.zero_grad()
+        self.auxiliary_optimizer.zero_grad()
+        loss.backward()
+        self.encoder_optimizer.step()
+        self.auxiliary_optimizer.step()
+        self.auxiliary.after_update(self.critic.features_extractor)
+        return logs
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        state_dicts, variables = super()._get_torch_save_params()
+        return [*state_dicts, "encoder_optimizer"], variables
+
+    @classmethod
+    def _completed_policy_kwargs(cls, policy_kwargs: dict[str, Any], data: dict[str, Any]) -> dict[str, Any]:
+        """The constructor's ``policy_kwargs`` as the saved model records them: with CURL's encoder sizes and SB3's
+        ``use_sde``."""
+        completed = _curl_policy_kwargs(policy_kwargs, data.get("crop_size", 84), data.get("features_dim", 50))
+        completed.setdefault("use_sde", False)
+        return super()._completed_policy_kwargs(completed, data)

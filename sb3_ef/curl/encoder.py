@@ -16,9 +16,9 @@ def _conv_output_size(size: int, n_layers: int) -> int:
     return (size - 3) // 2 + 1 - 2 * (n_layers - 1)
 
 
-def _weight_init(module: nn.Module) -> None:
-    """CURL's initialisation: orthogonal linear weights; delta-orthogonal convolutions (zero kernels except an
-    orthogonal centre tap, ReLU gain); zero biases."""
+def weight_init(module: nn.Module) -> None:
+    """CURL's initialisation (the authors' ``weight_init``, applied with ``module.apply``): orthogonal linear weights;
+    delta-orthogonal convolutions (zero kernels except an orthogonal centre tap, ReLU gain); zero biases."""
     if isinstance(module, nn.Linear):
         nn.init.orthogonal_(module.weight)
         nn.init.zeros_(module.bias)
@@ -77,9 +77,22 @@ class CURLEncoder(BaseFeaturesExtractor):
             layers.append(nn.ReLU())
         self.convnet = nn.Sequential(*layers, nn.Flatten())
         self.projection = nn.Sequential(nn.Linear(n_filters * conv_size**2, features_dim), nn.LayerNorm(features_dim))
-        self.apply(_weight_init)
+        self.apply(weight_init)
+        self.detach_convolutions = False
+
+    def share_convolutions(self, source: CURLEncoder) -> None:
+        """Use ``source``'s convolutions (the same parameters) and let no gradient reach them through this encoder:
+        the authors' actor encoder, whose convolutions are tied to the critic's (``copy_conv_weights_from``) and
+        detached from the actor's loss (``detach_encoder=True``); its linear layer and LayerNorm stay its own."""
+        if not isinstance(source, CURLEncoder) or source.crop_size != self.crop_size:
+            raise ValueError(f"CURLEncoder shares the convolutions of a CURLEncoder of the same crop, got {source!r}")
+        if [p.shape for p in source.convnet.parameters()] != [p.shape for p in self.convnet.parameters()]:
+            raise ValueError("CURLEncoder shares the convolutions of an encoder with the same layers and filters")
+        self.convnet = source.convnet
+        self.detach_convolutions = True
 
     def forward(self, observations: th.Tensor) -> th.Tensor:
         if observations.shape[-2:] != (self.crop_size, self.crop_size):
             observations = center_crop(observations, self.crop_size)
-        return self.projection(self.convnet(observations.float() / 255.0))
+        hidden = self.convnet(observations.float() / 255.0)
+        return self.projection(hidden.detach() if self.detach_convolutions else hidden)

@@ -54,5 +54,5 @@ def test_whole_smoke_run(tmp_path):
     assert len(results) == 12
     assert sum(r["compiled"] for r in results) == 6
     skipped = [(r["algorithm"], r["compiled"]) for r in results if r["status"] != "ok"]
-    assert skipped == [("CURL", True)]  # SB3's SAC updates have no compiled mode
+    assert skipped == [("CURL", True)]  # CURL's update has no compiled mode
     assert results[-1]["status"] == "skipped (no compiled mode)"

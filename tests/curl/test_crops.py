@@ -1,4 +1,5 @@
-"""random_crop and center_crop (sb3_ef.common.augmentation): CURL's training and acting crops."""
+"""CURL's random crop (sb3_ef.curl.crop, the authors' offsets) and random_crop / center_crop
+(sb3_ef.common.augmentation: every window that fits, and CURL's acting crop)."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ import pytest
 import torch as th
 
 from sb3_ef.common.augmentation import center_crop, random_crop
+from sb3_ef.curl.crop import random_crops
 
 
 def test_tensors_cropped_together_share_each_samples_window_and_every_window_occurs():
@@ -19,6 +21,22 @@ def test_tensors_cropped_together_share_each_samples_window_and_every_window_occ
     assert th.equal(cropped_cols, lefts.view(-1, 1, 1, 1) + th.arange(7).view(1, 1, 1, 7).expand(400, 2, 7, 7))
     # Corners are drawn over every position that fits, 0 .. 10 - 7 inclusive.
     assert set(tops.tolist()) == set(lefts.tolist()) == {0, 1, 2, 3}
+
+
+def test_curls_crop_draws_the_authors_offsets_0_to_frame_minus_crop_minus_1():
+    rows = th.arange(100).view(1, 1, 100, 1).expand(2000, 1, 100, 100)
+    cols = th.arange(100).view(1, 1, 1, 100).expand(2000, 1, 100, 100)
+    images = th.cat([rows, cols], dim=1).to(th.uint8)
+    cropped = random_crops(images, 84, generator=th.Generator().manual_seed(0))
+    tops, lefts = cropped[:, 0, 0, 0], cropped[:, 1, 0, 0]
+    assert th.equal(cropped[:, 0], (tops.view(-1, 1, 1) + th.arange(84).view(1, 84, 1)).expand(-1, 84, 84))
+    assert th.equal(cropped[:, 1], (lefts.view(-1, 1, 1) + th.arange(84).view(1, 1, 84)).expand(-1, 84, 84))
+    # np.random.randint(0, 100 - 84): 0 .. 15, never 16.
+    assert set(tops.tolist()) == set(lefts.tolist()) == set(range(16))
+    whole = th.zeros(2, 3, 84, 84, dtype=th.uint8)
+    assert random_crops(whole, 84) is whole  # frames the size of the crop (the authors' draw is undefined there)
+    with pytest.raises(ValueError, match=r"crop_size must be an int in \[1, 84\].*got 85"):
+        random_crops(whole, 85)
 
 
 def test_center_crop_takes_the_middle_window():

@@ -18,7 +18,7 @@ def toy_env() -> ToyAgentEnv:
 @pytest.mark.slow
 def test_curl_learns_to_bring_the_agent_to_the_centre():
     """Reward: minus the agent's distance to the frame centre; 32x32 crops of 38x38 frames (the paper's 84 of 100).
-    Random actions earn about -6 per 20-step episode (about 17 min on 2 cores shared with other jobs)."""
+    Random actions earn about -6 per 20-step episode (about 90 s on 2 cores shared with other jobs)."""
     model = CURL(
         "CnnPolicy", toy_env(), crop_size=32, features_dim=32, buffer_size=5000, learning_starts=100, batch_size=32,
         learning_rate=1e-3, ent_coef=0.01, target_update_interval=2, policy_kwargs={"net_arch": [64, 64]}, seed=0,

@@ -10,6 +10,7 @@ import pytest
 import torch as th
 from gymnasium import spaces
 from torch import nn
+from torch.nn import functional as F
 
 from sb3_ef.curl import CURLEncoder, CURLLoss
 
@@ -94,6 +95,8 @@ def test_crops_are_two_independent_windows_of_each_observation():
 
     corners = [(corner(q, f), corner(k, f)) for q, k, f in zip(queries, keys, frames, strict=True)]
     assert any(query != key for query, key in corners)
+    # The authors' offsets: randint(0, FRAME - CROP), never the last window that fits.
+    assert all(max(offset) < FRAME - CROP for pair in corners for offset in pair)
 
 
 def test_encoder_has_the_authors_layers_and_centre_crops_larger_frames():
@@ -115,6 +118,45 @@ def test_encoder_has_the_authors_layers_and_centre_crops_larger_frames():
     th.testing.assert_close(online.convnet[:2](centre.float() / 255.0), th.relu(first))
 
 
+def test_a_hosts_key_encoder_is_used_as_it_is_neither_saved_nor_moved_here():
+    online, target = encoder(), encoder()
+    loss_fn = CURLLoss(online, CROP, key_encoder=target)
+    assert loss_fn.key_encoder is target and not loss_fn.owns_key_encoder
+    assert set(loss_fn.state_dict()) == {"W", "updates"}
+    assert [name for name, _ in loss_fn.named_parameters()] == ["W"]
+    queries, keys = loss_fn.prepare(Batch(observations()), pad=0)
+    loss, _ = loss_fn(online(queries), keys)
+    logits = loss_fn.logits(online(queries), target(keys))
+    th.testing.assert_close(loss, F.cross_entropy(logits, th.arange(B)))
+    before = [parameter.clone() for parameter in target.parameters()]
+    for _ in range(2):
+        loss_fn.after_update(online)
+    assert all(th.equal(old, new) for old, new in zip(before, target.parameters(), strict=True))
+    assert int(loss_fn.updates) == 2
+    with pytest.raises(ValueError, match=r"a given key_encoder is moved by its host, got encoder_tau=0\.1"):
+        CURLLoss(online, CROP, key_encoder=target, encoder_tau=0.1)
+
+
+def test_state_dict_holds_tensors_only():
+    loss_fn = CURLLoss(encoder(), CROP)
+    loss_fn.after_update(encoder())
+    state = loss_fn.state_dict()
+    assert all(isinstance(value, th.Tensor) for value in state.values())
+    assert state["updates"].dtype == th.long and int(state["updates"]) == 1
+
+
+def test_an_encoder_sharing_anothers_convolutions_trains_only_its_linear_layer_and_layer_norm():
+    critic, actor = encoder(), encoder()
+    actor.share_convolutions(critic)  # the authors' copy_conv_weights_from, with detach_encoder=True
+    assert actor.convnet is critic.convnet and actor.projection is not critic.projection
+    actor(observations(frame=CROP)).sum().backward()
+    assert all(parameter.grad is None for parameter in critic.convnet.parameters())
+    assert all(parameter.grad is not None for parameter in actor.projection.parameters())
+    with pytest.raises(ValueError, match="same layers and filters"):
+        space = spaces.Box(0, 255, (9, FRAME, FRAME), np.uint8)
+        encoder().share_convolutions(CURLEncoder(space, features_dim=FEATURES, crop_size=CROP, n_filters=8))
+
+
 def test_state_dict_round_trip_keeps_w_the_key_encoder_and_the_update_phase():
     online = encoder()
     loss_fn = CURLLoss(online, CROP, key_update_interval=2)
@@ -132,6 +174,7 @@ def test_state_dict_round_trip_keeps_w_the_key_encoder_and_the_update_phase():
     [
         (lambda: CURLLoss(encoder(), FRAME + 1), r"crop_size must be an int in \[1, 24\].*24x24.*got 25"),
         (lambda: CURLLoss(nn.Linear(3, 3), CROP), r"features extractor"),
+        (lambda: CURLLoss(encoder(), CROP, key_encoder=nn.Linear(3, 3)), r"key_encoder must be a features extractor"),
         (lambda: CURLLoss(encoder(), CROP, encoder_tau=0.0), r"encoder_tau must be in \(0, 1\]"),
         (lambda: CURLLoss(encoder(), CROP, key_update_interval=0), r"key_update_interval must be a positive int"),
         (lambda: encoder(crop=FRAME + 1), r"crop_size must be an int in \[1, 24\].*got 25"),
