@@ -1,9 +1,14 @@
 """``sb3-ef analyze``: tables and plots from evaluation CSVs, or predictions and saliency of a saved model.
 
 sb3-ef analyze results DIR [--out DIR] [--return-scale 1000] [--reps 2000] [--at STEP ...] [--finished-only]
-                        [--reference drqv2|tdmpc2]
-sb3-ef analyze model PATH --env NAME [--algo drqv2_ef|tdmpc2_ef] [--steps T] [--actions policy|figure8]
-                                     [--action-repeat 2] [--env-kwargs key:value ...] [--seed 0] [--out DIR]
+                        [--reference drqv2|tdmpc2|dreamerv3|curl]
+sb3-ef analyze model PATH --env NAME [--algo drqv2_ef|tdmpc2_ef|sac_ef|td3_ef|tqc_ef] [--steps T]
+                                     [--actions policy|figure8] [--action-repeat 2] [--env-kwargs key:value ...]
+                                     [--seed 0] [--out DIR]
+
+``analyze results`` reads the evaluation CSVs under DIR and the ``evaluations.npz`` of rl-zoo3 run folders
+(``sb3-ef train``'s ``logs/``). ``analyze model`` loads the model as the algorithm its file records (``--algo`` is
+needed only for files that record none).
 
 ``analyze model`` builds the env the model was trained on: rendering settings such as ``fast_render`` change the
 frames, so they come from ``--env-kwargs`` or, for a model inside an rl-zoo3 run folder, from the run's
@@ -17,13 +22,27 @@ import ast
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
 
-#: Algorithms ``analyze model`` can load, by the keys of the rl-zoo plug-in, and their public class names.
-EF_ALGORITHMS = {"drqv2_ef": "DrQv2EF", "tdmpc2_ef": "TDMPC2EF"}
+from sb3_ef.common.files import write_text_atomically
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.base_class import BaseAlgorithm
+
+#: The Ego-Foresight algorithms ``analyze model`` shows, by the keys of the rl-zoo plug-in, and their class names.
+EF_ALGORITHMS = {
+    "drqv2_ef": "DrQv2EF",
+    "tdmpc2_ef": "TDMPC2EF",
+    "sac_ef": "SACEF",
+    "td3_ef": "TD3EF",
+    "tqc_ef": "TQCEF",
+}
+#: The published references of ``analyze results --reference`` (``sb3_ef.analysis.reference.REFERENCES``, named here
+#: so that the parser imports nothing heavy).
+REFERENCE_NAMES = ("drqv2", "tdmpc2", "dreamerv3", "curl")
 #: Replay-buffer capacity (frames) given to a model loaded for analysis: it never trains.
 ANALYSIS_BUFFER_SIZE = 256
 
@@ -47,14 +66,19 @@ def build_parser() -> argparse.ArgumentParser:
     )
     results.add_argument(
         "--reference",
-        choices=("drqv2", "tdmpc2"),
-        help="put the runs beside published curves: DrQ-v2's official DMC curves or TD-MPC2's DMC pixel results",
+        choices=REFERENCE_NAMES,
+        help="put the runs beside published DMC curves: DrQ-v2's (frames), TD-MPC2's pixel results (agent steps), "
+        "Dreamer-v3's or CURL's from danijar/dreamerv3 (frames)",
     )
 
     model = commands.add_parser("model", help="open-loop prediction, saliency and mask scores of a saved model")
     model.add_argument("path", help="saved model (.zip)")
     model.add_argument("--env", required=True, help="env name, e.g. dmc/reacher-easy, metaworld/hammer, toy/agent-v0")
-    model.add_argument("--algo", choices=sorted(EF_ALGORITHMS), help="algorithm (default: tried in turn)")
+    model.add_argument(
+        "--algo",
+        choices=sorted(EF_ALGORITHMS),
+        help="algorithm (default: the one the file records, else each tried in turn)",
+    )
     model.add_argument("--steps", type=int, help="prediction length T (default: the EF horizon)")
     model.add_argument("--actions", choices=("policy", "figure8"), default="policy", help="actions played")
     model.add_argument("--action-repeat", type=int, default=2, help="action repeat of dmc/ and metaworld/ envs")
@@ -86,116 +110,11 @@ def parse_env_kwargs(pairs: list[str]) -> dict[str, Any]:
 
 
 def run_env_kwargs(model_path: str | os.PathLike) -> dict[str, Any]:
-    """The env options of the rl-zoo3 run whose folder holds ``model_path`` (``{}`` elsewhere). As in rl-zoo3's
-    train and enjoy, the command line's ``--env-kwargs`` (``<env>/args.yml``) replace the config entry's
-    (``<env>/config.yml``)."""
-    import yaml
+    """The env options of the rl-zoo3 run whose folder holds ``model_path`` (``{}`` elsewhere): the command line's
+    ``--env-kwargs`` (``<env>/args.yml``), else the config entry's (``<env>/config.yml``), as rl-zoo3 uses them."""
+    from sb3_ef.analysis.zoo_logs import recorded_env_kwargs
 
-    folder = Path(model_path).resolve().parent
-    args_files = sorted(folder.glob("*/args.yml"))
-    if len(args_files) != 1:
-        return {}
-    with open(args_files[0]) as file:
-        args = yaml.load(file, Loader=yaml.UnsafeLoader)  # an OrderedDict (Python tags)
-    if args.get("env_kwargs"):
-        return dict(args["env_kwargs"])
-    config_path = args_files[0].with_name("config.yml")
-    if not config_path.is_file():
-        return {}
-    with open(config_path) as file:
-        entry = dict(yaml.load(file, Loader=yaml.UnsafeLoader) or [])  # rl-zoo3 writes a list of pairs
-    recorded = entry.get("env_kwargs") or {}
-    if isinstance(recorded, str):  # rl-zoo3 evaluates strings such as "dict(size=64)"
-        recorded = eval(recorded, {"__builtins__": {}, "dict": dict})
-    return dict(recorded)
-
-
-def analyze_results(
-    directory: str,
-    out: str,
-    return_scale: float = 1000.0,
-    reps: int = 2000,
-    at: tuple[int, ...] = (),
-    finished_only: bool = False,
-    reference: str | None = None,
-) -> dict[str, Any]:
-    """Write ``scores.csv``, ``ens.csv``, ``ens_details.csv``, ``rliable.csv`` and the plots to ``out`` (created
-    only once the records have been read), and ``returns_at.csv`` for the steps ``at``; ``finished_only`` reads
-    only the finished runs of an ``sb3-ef benchmark`` folder. With ``reference`` (``drqv2`` or ``tdmpc2``), also the
-    published curves beside the runs (``reference_<name>_<task>.png``) and ``reference_<name>.csv``: your mean at
-    each step of ``at`` (default: the last step all seeds reached) against the official mean and min-max.
-
-    A grid part-way through is analysed as far as it allows: ENS over the tasks that every algorithm has results
-    on, rliable metrics only when each algorithm has as many seeds on every task; what is left out is printed.
-    """
-    from sb3_ef.analysis.metrics import (
-        efficiency_normalized_score,
-        ens_table,
-        load_records,
-        records_to_scores,
-        returns_at,
-        rliable_metrics,
-        tasks_with_every_algorithm,
-        uneven_seed_counts,
-    )
-    from sb3_ef.analysis.plots import plot_ens, plot_intervals, plot_learning_curves
-
-    if not os.path.isdir(directory):
-        what = "is a file, not a folder" if os.path.exists(directory) else "does not exist"
-        raise FileNotFoundError(f"The results folder {directory!r} {what}: pass the folder holding the evaluation CSVs")
-    records = load_records(directory, finished_only)
-    scores = records_to_scores(records, return_scale=return_scale)
-    at_steps = returns_at(records, tuple(at)) if at else None
-    os.makedirs(out, exist_ok=True)
-    scores.to_csv(os.path.join(out, "scores.csv"), index=False)
-    written: dict[str, Any] = {"curves": plot_learning_curves(scores, out)}
-    print(f"Scores of {scores['algo'].nunique()} algorithm(s) on {scores['task'].nunique()} task(s) -> {out}")
-    shared = tasks_with_every_algorithm(scores)
-    if scores["algo"].nunique() < 2:
-        print("ENS compares algorithms: skipped with a single algorithm")
-    elif not shared:
-        print("ENS skipped: no task has results of every algorithm")
-    else:
-        left_out = sorted(set(scores["task"]) - set(shared))
-        if left_out:
-            print(f"ENS over {shared} only; left out, without results of every algorithm: {left_out}")
-        ens_scores = scores[scores["task"].isin(shared)]
-        ens_table(ens_scores).to_csv(os.path.join(out, "ens_details.csv"), index=False)
-        ens = efficiency_normalized_score(ens_scores)
-        ens.to_csv(os.path.join(out, "ens.csv"))
-        written["ens"] = plot_ens(ens, os.path.join(out, "ens.png"))
-        print(ens.to_string())
-    uneven = uneven_seed_counts(scores)
-    if uneven:
-        print(f"rliable metrics skipped: they need as many seeds on every task, seeds per task: {uneven}")
-    else:
-        table = rliable_metrics(scores, reps=reps)
-        table.to_csv(os.path.join(out, "rliable.csv"), index=False)
-        written["rliable"] = plot_intervals(table, os.path.join(out, "rliable.png"))
-        print(table.to_string(index=False))
-    if at_steps is not None:
-        at_steps.to_csv(os.path.join(out, "returns_at.csv"), index=False)
-        print(at_steps.to_string(index=False, float_format="%.1f"))
-    if reference is not None:
-        written.update(compare_with_reference(records, reference, out, tuple(at)))
-    return written
-
-
-def compare_with_reference(records: Any, name: str, out: str, at: tuple[int, ...]) -> dict[str, Any]:
-    """Write and print the table and curves of your runs beside a published reference."""
-    from sb3_ef.analysis.plots import plot_reference_curves
-    from sb3_ef.analysis.reference import get_reference, missing_tasks, reference_table
-
-    reference = get_reference(name)
-    missing = missing_tasks(records, name)
-    if missing:
-        print(f"No {reference.label} curves for {missing}: left out of the comparison")
-    table = reference_table(records, name, at)
-    path = os.path.join(out, f"reference_{name}.csv")
-    table.to_csv(path, index=False)
-    print(f"Against {reference.label} ({reference.source}), x in {reference.unit}:")
-    print(table.to_string(index=False, float_format="%.1f") if not table.empty else "no task in common")
-    return {"reference_table": path, "reference_curves": plot_reference_curves(records, name, out)}
+    return recorded_env_kwargs(Path(model_path).resolve().parent)
 
 
 def make_analysis_env(
@@ -223,18 +142,58 @@ def make_analysis_env(
     return gym.make(name, size=size, frame_stack=frame_stack, **kwargs)
 
 
-def load_ef_model(path: str, algo: str | None) -> Any:
-    """Load a saved DrQv2EF / TDMPC2EF (``algo`` given, or each tried in turn) with a tiny replay buffer."""
-    import sb3_ef
+def saved_algorithm_classes(path: str, algo: str | None) -> list[type[BaseAlgorithm]]:
+    """The classes to load ``path`` with: the sb3-ef algorithm its file records, else ``algo``'s or every EF
+    algorithm in turn. A ``ValueError`` says what to do when that cannot give an Ego-Foresight model: another
+    ``--algo`` than the file's, an algorithm without EF (e.g. ``SEAR``, ``CURL``), a file of sb3-ef 0.1.0."""
+    from stable_baselines3.common.base_class import BaseAlgorithm
 
+    import sb3_ef
+    from sb3_ef.common.saved_models import is_legacy, saved_algorithm, saved_data
+    from sb3_ef.common.validation import check_model_path
+    from sb3_ef.ef.host import EFMixin
+
+    data = saved_data(check_model_path(path) or path)
+    recorded = saved_algorithm(data)
+    with_ef = ", ".join(EF_ALGORITHMS.values())
+    if recorded is None:
+        if data is not None and is_legacy(data):
+            raise ValueError(
+                f"{path} was saved by sb3-ef 0.1.0: convert it once with `sb3-ef upgrade {path} NEW.zip`, then "
+                "analyze NEW.zip"
+            )
+        return [getattr(sb3_ef, EF_ALGORITHMS[key]) for key in ([algo] if algo else EF_ALGORITHMS)]
+    algo_class = getattr(sb3_ef, recorded, None) if recorded in sb3_ef.__all__ else None
+    if not (isinstance(algo_class, type) and issubclass(algo_class, BaseAlgorithm)):
+        raise ValueError(f"{path} was saved by {recorded}, not by an sb3-ef algorithm: `analyze model` reads {with_ef}")
+    if algo is not None and EF_ALGORITHMS[algo] != recorded:
+        raise ValueError(
+            f"--algo {algo} ({EF_ALGORITHMS[algo]}) does not match {path}, which {recorded} saved: leave --algo out "
+            "and the file is loaded as the algorithm it records"
+        )
+    has_ef = issubclass(algo_class, EFMixin)
+    if not has_ef:
+        raise ValueError(
+            f"{path} holds a {recorded} model, which has no Ego-Foresight module: `sb3-ef analyze model` shows EF's "
+            f"open-loop predictions and saliency, of models of {with_ef}; compare {recorded}'s evaluations with "
+            "`sb3-ef analyze results`"
+        )
+    return [algo_class]
+
+
+def load_ef_model(path: str, algo: str | None) -> Any:
+    """Load a saved Ego-Foresight model (:func:`saved_algorithm_classes`) with a tiny replay buffer."""
+    candidates = saved_algorithm_classes(path, algo)
+    if len(candidates) == 1:
+        return candidates[0].load(path, buffer_size=ANALYSIS_BUFFER_SIZE, device="auto")
     errors = []
-    for key in [algo] if algo else list(EF_ALGORITHMS):
-        algo_class = getattr(sb3_ef, EF_ALGORITHMS[key])
+    for algo_class in candidates:
         try:
             return algo_class.load(path, buffer_size=ANALYSIS_BUFFER_SIZE, device="auto")
         except Exception as error:  # report why every candidate failed, not just the last
-            errors.append(f"{key}: {type(error).__name__}: {error}")
-    raise ValueError(f"Could not load {path} as {' or '.join(EF_ALGORITHMS)}:\n" + "\n".join(errors))
+            errors.append(f"{algo_class.__name__}: {type(error).__name__}: {error}")
+    names = " or ".join(algo_class.__name__ for algo_class in candidates)
+    raise ValueError(f"Could not load {path} as {names}:\n" + "\n".join(errors))
 
 
 def analyze_model(
@@ -255,6 +214,11 @@ def analyze_model(
     from sb3_ef.analysis.prediction import figure_eight_actions, save_video
     from sb3_ef.analysis.report import foresight_report, record_rollout
 
+    for name, value in (("steps (--steps)", steps), ("action_repeat (--action-repeat)", action_repeat)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+            raise ValueError(f"{name} must be a positive whole number, got {value!r}")
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise ValueError(f"The output folder {out!r} is a file: pass a folder (--out)")
     model = load_ef_model(path, algo)
     if getattr(model, "ef", None) is None:
         raise ValueError(f"{path} is a {type(model).__name__} without Ego-Foresight: nothing to analyze")
@@ -287,12 +251,8 @@ def analyze_model(
         **report.scalars(),
     }
     written["scores"] = os.path.join(out, "scores.json")
-    with open(written["scores"], "w") as file:
-        json.dump(
-            {key: None if isinstance(value, float) and np.isnan(value) else value for key, value in scores.items()},
-            file,
-            indent=2,
-        )
+    recorded = {key: None if isinstance(value, float) and np.isnan(value) else value for key, value in scores.items()}
+    write_text_atomically(written["scores"], json.dumps(recorded, indent=2))
     print(json.dumps(scores, indent=2))
     print(f"Wrote {', '.join(os.path.basename(path) for path in written.values())} to {out}")
     return written
@@ -302,6 +262,8 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of ``sb3-ef analyze``; returns the exit status."""
     args = build_parser().parse_args(argv)
     if args.command == "results":
+        from sb3_ef.analysis.results import analyze_results
+
         analyze_results(
             args.directory,
             args.out or os.path.join(args.directory, "analysis"),

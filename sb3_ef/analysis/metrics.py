@@ -45,24 +45,108 @@ def check_columns(df: pd.DataFrame, columns: tuple[str, ...]) -> None:
 
 def load_records(directory: str | os.PathLike, finished_only: bool = False) -> pd.DataFrame:
     """Concatenate every evaluation CSV (header ``algo, task, seed, step, frame, return, success``) under a
-    directory, recursively; other CSV files are skipped.
+    directory, recursively, and the ``evaluations.npz`` of every rl-zoo3 run folder without such a CSV
+    (:mod:`sb3_ef.analysis.zoo_logs`); other CSV files, and ``evaluations.npz`` files in folders that rl-zoo3 did not
+    lay out (``<logs>/<algo>/<env>_<n>/``), are skipped. Values are checked (:func:`check_record_values`).
 
-    :param finished_only: only the CSVs of finished runs, those with a ``<name>/result.json`` beside ``<name>.csv``
-        (``sb3-ef benchmark``'s results folder), so a grid part-way through is read without its runs in progress.
+    :param finished_only: only finished runs: CSVs with a ``<name>/result.json`` beside ``<name>.csv``
+        (``sb3-ef benchmark``'s results folder) and rl-zoo3 runs that saved their final model, so a grid part-way
+        through is read without its runs in progress.
     """
+    from sb3_ef.analysis.zoo_logs import EVALUATIONS_FILE, is_zoo_run_folder, zoo_run_finished, zoo_run_records
+
     pandas = require("pandas")
-    frames = []
-    for path in sorted(glob.glob(os.path.join(os.fspath(directory), "**", "*.csv"), recursive=True)):
+    root = os.fspath(directory)
+    frames, record_folders, without_rows = [], set(), []
+    for path in sorted(glob.glob(os.path.join(root, "**", "*.csv"), recursive=True)):
+        with open(path, errors="replace") as file:
+            header = tuple(file.readline().strip().split(","))
+        if header != RECORD_COLUMNS:
+            continue
+        record_folders.add(os.path.dirname(os.path.abspath(path)))
         if finished_only and not os.path.isfile(os.path.join(path[: -len(".csv")], RUN_RESULT_FILE)):
             continue
-        with open(path) as file:
-            header = tuple(file.readline().strip().split(","))
-        if header == RECORD_COLUMNS:
-            frames.append(pandas.read_csv(path, keep_default_na=True))
+        table = pandas.read_csv(path, dtype=str, keep_default_na=False)
+        if table.empty:  # a header alone: a run without an evaluation yet
+            without_rows.append(path)
+        else:
+            frames.append(check_record_values(table, path))
+    for path in sorted(glob.glob(os.path.join(root, "**", EVALUATIONS_FILE), recursive=True)):
+        run_folder = os.path.dirname(os.path.abspath(path))
+        if not is_zoo_run_folder(run_folder) or os.path.isfile(run_folder + ".csv"):
+            continue  # not laid out by rl-zoo3, or a benchmark run (<run>.csv beside <run>/)
+        if any(folder == run_folder or folder.startswith(run_folder + os.sep) for folder in record_folders):
+            continue  # the run's own evaluation CSV is read instead
+        if finished_only and not zoo_run_finished(run_folder):
+            continue
+        frames.append(check_record_values(zoo_run_records(run_folder), path))
+    if not frames and without_rows:
+        raise ValueError(f"The evaluation CSVs under {directory} hold no evaluation yet: {without_rows}")
     if not frames:
         which = f" of a finished run ({RUN_RESULT_FILE} beside it)" if finished_only else ""
-        raise FileNotFoundError(f"No evaluation CSV{which} with header {','.join(RECORD_COLUMNS)} under {directory}")
+        raise FileNotFoundError(
+            f"No evaluation CSV{which} with header {','.join(RECORD_COLUMNS)}, nor an rl-zoo3 run folder with "
+            f"{EVALUATIONS_FILE}, under {directory}"
+        )
     return pandas.concat(frames, ignore_index=True)
+
+
+def _bad_values(table: pd.DataFrame, column: str, valid: Callable[[pd.Series], pd.Series]) -> pd.Series:
+    """Rows of ``table`` whose ``column`` is not a number meeting ``valid`` (empty counts as not a number)."""
+    pandas = require("pandas")
+    numbers = pandas.to_numeric(table[column], errors="coerce")
+    return ~(numbers.notna() & valid(numbers))
+
+
+#: Per numeric column of the records: what a value must be, and the test.
+RECORD_VALUE_RULES: dict[str, tuple[str, Callable[[pd.Series], pd.Series]]] = {
+    "step": ("a whole number of agent steps >= 0", lambda values: (values >= 0) & (values % 1 == 0)),
+    "frame": ("a whole number of frames >= 0", lambda values: (values >= 0) & (values % 1 == 0)),
+    "return": ("a finite number (the mean episode return)", lambda values: np.isfinite(values)),
+}
+
+
+def check_record_values(records: pd.DataFrame, source: str | os.PathLike) -> pd.DataFrame:
+    """``records`` with numeric ``step``, ``frame``, ``return`` and ``success`` (empty: NaN), or a ``ValueError``
+    naming the file, line, column and value of the first bad entry of each wrong column (an empty ``algo`` or
+    ``task``; a step, frame or return that is not such a number; a success outside [0, 1])."""
+    pandas = require("pandas")
+    check_columns(records, RECORD_COLUMNS)
+    problems = []
+
+    def describe(column: str, bad: pd.Series, expected: str) -> None:
+        if bad.any():
+            first = int(np.flatnonzero(bad.to_numpy())[0])
+            count = f" (and {int(bad.sum()) - 1} more)" if bad.sum() > 1 else ""
+            problems.append(f"line {first + 2}: {column} {records[column].iloc[first]!r}, expected {expected}{count}")
+
+    for column in ("algo", "task"):
+        describe(column, records[column].isna() | (records[column].astype(str).str.strip() == ""), "a name")
+    for column, (expected, valid) in RECORD_VALUE_RULES.items():
+        describe(column, _bad_values(records, column, valid), expected)
+    filled = records["success"].notna() & ~records["success"].astype(str).str.strip().isin(["", "nan", "NaN"])
+    describe("success", filled & _bad_values(records, "success", lambda values: values.between(0, 1)),
+             "empty or a success rate in [0, 1]")  # fmt: skip
+    if problems:
+        raise ValueError(f"{source} holds values that are not evaluation records: " + "; ".join(problems))
+    checked = records.copy()
+    for column in ("step", "frame"):
+        checked[column] = pandas.to_numeric(checked[column]).astype(int)
+    checked["return"] = pandas.to_numeric(checked["return"]).astype(float)
+    checked["success"] = pandas.to_numeric(checked["success"].where(filled), errors="coerce").astype(float)
+    checked["seed"] = _seed_column(checked["seed"])
+    return checked
+
+
+def _seed_column(seeds: pd.Series) -> pd.Series:
+    """Seeds as whole numbers where every given one is (an empty one: NaN), else as names."""
+    pandas = require("pandas")
+    names = seeds.astype(str).str.strip()
+    given = names != ""
+    numbers = pandas.to_numeric(names.where(given), errors="coerce")
+    if not (numbers.notna() == given).all() or not (numbers.dropna() % 1 == 0).all():
+        return names.where(given)
+    return numbers.astype(int) if given.all() else numbers
 
 
 def records_to_scores(records: pd.DataFrame, return_scale: float = 1000.0) -> pd.DataFrame:

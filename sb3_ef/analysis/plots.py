@@ -12,6 +12,7 @@ import numpy as np
 from sb3_ef.analysis._optional import pyplot
 from sb3_ef.analysis.metrics import SCORE_COLUMNS, check_columns
 from sb3_ef.analysis.records import RECORD_COLUMNS
+from sb3_ef.common.files import atomic_path
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -24,10 +25,14 @@ def _safe_name(name: str) -> str:
 
 
 def _save(figure, path: str | os.PathLike) -> str:
+    """Write ``figure`` to ``path`` whole or not at all (its format from the suffix), and close it."""
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     figure.tight_layout()
-    figure.savefig(path, dpi=100)
-    pyplot().close(figure)
+    try:
+        with atomic_path(path) as temporary:
+            figure.savefig(temporary, dpi=100)
+    finally:
+        pyplot().close(figure)
     return os.fspath(path)
 
 
@@ -59,7 +64,7 @@ def plot_reference_curves(records: pd.DataFrame, name: str, out_dir: str | os.Pa
 
     :return: the written paths, ``<out_dir>/reference_<name>_<task>.png``.
     """
-    from sb3_ef.analysis.reference import get_reference, load_reference, reference_task
+    from sb3_ef.analysis.reference import get_reference, load_reference, official_band, reference_task
 
     check_columns(records, RECORD_COLUMNS)
     plt = pyplot()
@@ -76,10 +81,10 @@ def plot_reference_curves(records: pd.DataFrame, name: str, out_dir: str | os.Pa
             axis.plot(stats.index, stats["mean"], label=str(algo))
             axis.fill_between(stats.index, stats["min"], stats["max"], alpha=0.2)
         end = 1.1 * float(group[reference.x_column].max())
-        stats = curves[curves["x"] <= end].groupby("x")["return"].agg(["mean", "min", "max"]).sort_index()
-        axis.plot(stats.index, stats["mean"], color="black", linestyle="--", label=reference.label)
-        axis.fill_between(stats.index, stats["min"], stats["max"], color="black", alpha=0.1)
-        axis.set(title=str(task), xlabel=reference.unit, ylabel="episode return")
+        band = official_band(curves, np.unique(curves.loc[curves["x"] <= end, "x"]))
+        axis.plot(band["x"], band["mean"], color="black", linestyle="--", label=reference.label)
+        axis.fill_between(band["x"], band["min"], band["max"], color="black", alpha=0.1)
+        axis.set(title=str(task), xlabel=reference.axis, ylabel="episode return")
         axis.legend()
         paths.append(_save(figure, os.path.join(os.fspath(out_dir), f"reference_{name}_{_safe_name(str(task))}.png")))
     return paths

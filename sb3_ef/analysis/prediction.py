@@ -13,6 +13,7 @@ import torch as th
 from torch import nn
 
 from sb3_ef.common.env_checks import FRAME_CHANNELS
+from sb3_ef.common.files import atomic_path
 from sb3_ef.ef import EgoForesight
 
 
@@ -169,7 +170,8 @@ def save_image(path: str | os.PathLike, image: np.ndarray) -> str:
     from PIL import Image
 
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    Image.fromarray(image).save(path)
+    with atomic_path(path) as temporary:
+        Image.fromarray(image).save(temporary)
     return os.fspath(path)
 
 
@@ -191,14 +193,14 @@ def save_video(path: str | os.PathLike, predicted: np.ndarray, true: np.ndarray 
 
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     suffix = os.path.splitext(os.fspath(path))[1].lower()
-    if suffix == ".gif":
-        imageio.mimsave(os.fspath(path), list(frames), duration=1000 / fps, loop=0)
-    elif suffix == ".mp4":
+    if suffix not in (".gif", ".mp4"):
+        raise ValueError(f"Expected a .gif or .mp4 path, got {os.fspath(path)!r}")
+    if suffix == ".mp4":
         try:
             import imageio_ffmpeg  # noqa: F401
         except ImportError as error:
             raise ImportError("Writing MP4 needs imageio-ffmpeg: pip install imageio-ffmpeg (or use a .gif)") from error
-        imageio.mimsave(os.fspath(path), list(frames), fps=fps, macro_block_size=1)
-    else:
-        raise ValueError(f"Expected a .gif or .mp4 path, got {os.fspath(path)!r}")
+    options = {"duration": 1000 / fps, "loop": 0} if suffix == ".gif" else {"fps": fps, "macro_block_size": 1}
+    with atomic_path(path) as temporary:
+        imageio.mimsave(os.fspath(temporary), list(frames), **options)
     return os.fspath(path)

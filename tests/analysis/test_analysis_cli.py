@@ -213,3 +213,65 @@ def test_analysis_renders_like_the_run_on_every_zoo_task(tmp_path):
     for name in names:
         trained = _first_frame(make_env(name, size=32, fast_render=True, seed=0))
         assert np.array_equal(_analysis_frame_of_a_fast_render_run(tmp_path, name), trained), name
+
+
+def _sac_ef():
+    from sb3_ef import SACEF
+    from sb3_ef.drqv2.policies import DrQv2Encoder
+
+    policy = {"net_arch": [16], "normalize_images": False, "features_extractor_class": DrQv2Encoder,
+              "features_extractor_kwargs": {"features_dim": 32}}  # fmt: skip
+    ef_kwargs = {"rollout_hidden_dims": (8,), "decoder_channels": 4}
+    return SACEF("CnnPolicy", ToyAgentEnv(size=32), buffer_size=100, ef_horizon=3, agent_dim=8, ef_kwargs=ef_kwargs,
+                 policy_kwargs=policy, device="cpu")  # fmt: skip
+
+
+def test_model_command_loads_the_algorithm_the_file_records(tmp_path, capsys):
+    """A SACEF file: loaded as SACEF (no --algo, which once tried DrQv2EF and TDMPC2EF only) and analysed."""
+    _sac_ef().save(tmp_path / "sac_ef.zip")
+    out = tmp_path / "analysis"
+    argv = ["model", str(tmp_path / "sac_ef.zip"), "--env", "toy/agent-v0", "--steps", "3", "--out", str(out)]
+    assert main(argv) == 0
+    assert f"Wrote prediction.png, prediction.gif, saliency.png, scores.json to {out}" in capsys.readouterr().out
+    scores = json.loads((out / "scores.json").read_text())
+    assert scores["steps"] == 3 and "prediction_mse" in scores
+    assert sorted(path.name for path in out.iterdir()) == ["prediction.gif", "prediction.png", "saliency.png",
+                                                           "scores.json"]  # fmt: skip
+
+
+def _without_ef(name):
+    from sb3_ef import CURL
+    from tests.helpers.sear import make_sear
+
+    if name == "SEAR":
+        return make_sear()
+    return CURL("CnnPolicy", ToyAgentEnv(size=40), crop_size=32, features_dim=16, buffer_size=100,
+                policy_kwargs={"net_arch": [16]}, device="cpu")  # fmt: skip
+
+
+@pytest.mark.parametrize("name", ["SEAR", "CURL"])
+def test_model_command_on_an_algorithm_without_ef_says_what_to_do(name, tmp_path, capsys, monkeypatch):
+    from sb3_ef import cli
+
+    _without_ef(name).save(tmp_path / "model.zip")
+    monkeypatch.delenv("SB3_EF_TRACEBACK", raising=False)
+    status = cli.main(["analyze", "model", str(tmp_path / "model.zip"), "--env", "toy/agent-v0"])
+    err = capsys.readouterr().err
+    assert status == 2 and "Traceback" not in err and f"{name}.load" not in err
+    [line] = err.strip().splitlines()
+    assert f"holds a {name} model, which has no Ego-Foresight module" in line
+    assert "DrQv2EF, TDMPC2EF, SACEF, TD3EF, TQCEF" in line and "sb3-ef analyze results" in line
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["model.zip"]
+
+
+def test_model_command_refuses_an_algo_that_contradicts_the_file(tmp_path):
+    model = DrQv2EF("CnnPolicy", ToyAgentEnv(size=32), buffer_size=100, ef_horizon=3, babbling_steps=0,
+                    policy_kwargs=TINY_DRQV2, device="cpu")  # fmt: skip
+    model.save(tmp_path / "model.zip")
+    with pytest.raises(ValueError, match=r"--algo sac_ef \(SACEF\) does not match .*model.zip, which DrQv2EF saved"):
+        main(["model", str(tmp_path / "model.zip"), "--env", "toy/agent-v0", "--algo", "sac_ef"])
+    with pytest.raises(ValueError, match=r"steps \(--steps\) must be a positive whole number, got 0"):
+        main(["model", str(tmp_path / "model.zip"), "--env", "toy/agent-v0", "--steps", "0"])
+    with pytest.raises(FileNotFoundError, match="No saved model at"):
+        main(["model", str(tmp_path / "missing.zip"), "--env", "toy/agent-v0"])
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["model.zip"]

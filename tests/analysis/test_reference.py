@@ -8,6 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from sb3_ef.analysis.cli import REFERENCE_NAMES
 from sb3_ef.analysis.cli import main as analyze_main
 from sb3_ef.analysis.records import RECORD_COLUMNS
 from sb3_ef.analysis.reference import (
@@ -15,14 +16,18 @@ from sb3_ef.analysis.reference import (
     get_reference,
     load_reference,
     missing_tasks,
+    official_at,
+    official_band,
     reference_table,
     reference_task,
+    unit_warnings,
 )
 from sb3_ef.grid import load_grid
 from sb3_ef.grid.run import execute_run
 
 REPO = Path(__file__).resolve().parents[2]
-CPU_GRID_RESULTS = REPO / "experiments" / "2026-cpu-grid" / "results" / "cpu"
+#: A finished benchmark grid's results (tests/analysis/data/README.md): DrQ-v2 and DrQv2-EF on two cartpole tasks.
+CPU_GRID_RESULTS = Path(__file__).resolve().parent / "data" / "cpu_grid"
 TINY_GRID = REPO / "tests" / "grid" / "tiny_grid.yml"
 
 
@@ -44,6 +49,11 @@ def _records(algo: str, task: str, returns: dict[int, list[float]], action_repea
         ("drqv2", "walker-walk", 100_000, 170, 160, 10),
         ("tdmpc2", "reacher-easy", 100_000, 360, 58, 3),
         ("tdmpc2", "walker-walk", 1_000_000, 940, 10, 3),
+        # danijar/dreamerv3 scores/dmc_vision-*.json.gz, read from the source files: CURL at 500k and 100k frames,
+        # Dreamer-v3 at the 993,984-frame point that 9 of its 10 walker-walk seeds share.
+        ("curl", "walker-walk", 500_000, 794.0, 256.3, 10),
+        ("curl", "cheetah-run", 100_000, 259.6, 66.4, 10),
+        ("dreamerv3", "walker-walk", 993_984, 957.1, 29.1, 9),
     ],
 )
 def test_shipped_curves_hold_the_published_numbers(name, task, x, mean, std, seeds):
@@ -56,9 +66,40 @@ def test_shipped_curves_hold_the_published_numbers(name, task, x, mean, std, see
 def test_every_reference_names_its_unit_and_source():
     for name, reference in REFERENCES.items():
         assert reference.x_column in ("frame", "step") and "MIT" in reference.source
+        assert reference.unit.startswith(reference.axis)
         assert set(load_reference(name)["task"]) >= {"cartpole-swingup-sparse", "walker-walk", "reacher-easy"}
-    with pytest.raises(ValueError, match=r"Unknown reference 'dreamer': expected one of \['drqv2', 'tdmpc2'\]"):
+    assert sorted(REFERENCE_NAMES) == sorted(REFERENCES)  # the command line offers every reference
+    expected = r"Unknown reference 'dreamer': expected one of \['curl', 'dreamerv3', 'drqv2', 'tdmpc2'\]"
+    with pytest.raises(ValueError, match=expected):
         get_reference("dreamer")
+
+
+def test_dreamerv3_and_curl_are_on_the_frame_axis():
+    # Dreamer-v3's logger counts frames: within a burst of episodes the points are one agent step (2 frames) apart.
+    dreamer = load_reference("dreamerv3")
+    seed = dreamer[(dreamer["task"] == "walker-walk") & (dreamer["seed"] == 0)].sort_values("x")
+    assert seed["x"].iloc[:3].tolist() == [8002, 8004, 8006] and seed["x"].max() < 1_000_000
+    curl = load_reference("curl")
+    assert sorted(set(np.diff(curl[(curl["task"] == "walker-walk") & (curl["seed"] == 0)]["x"]))) == [20_000]
+    for name in ("dreamerv3", "curl"):
+        assert get_reference(name).x_column == "frame" and len(set(load_reference(name)["task"])) == 20
+
+
+def test_ball_in_cup_catch_has_sb3_efs_name_in_every_reference():
+    records = _records("mine", "dmc/ball-in-cup-catch-v0", {0: [0.0, 10.0]})
+    for name in ("drqv2", "dreamerv3", "curl"):
+        assert missing_tasks(records, name) == []
+        assert reference_table(records, name, at=(10_000,))["official_seeds"].iloc[0] > 0
+
+
+def test_official_band_averages_seeds_on_their_own_grids():
+    official = pd.DataFrame({"task": "t", "seed": [0, 0, 1, 1], "x": [0, 10, 5, 15], "return": [0.0, 10.0, 20.0, 30.0]})
+    band = official_band(official, np.array([0.0, 5.0, 10.0, 20.0]))
+    # x=0: seed 0 only; x=5: 5 (seed 0) and 20 (seed 1); x=10: 10 and 25; x=20: no seed reaches it.
+    assert band["x"].tolist() == [0.0, 5.0, 10.0]
+    assert band["mean"].tolist() == [0.0, 12.5, 17.5] and band["min"].tolist() == [0.0, 5.0, 10.0]
+    assert band["max"].tolist() == [0.0, 20.0, 25.0]
+    assert official_at(official, 12.5).tolist() == [27.5]
 
 
 def test_task_names_map_onto_the_references():
@@ -110,6 +151,49 @@ def test_results_command_puts_the_committed_cpu_grid_beside_drqv2(tmp_path, caps
         "reference_drqv2_dmc_cartpole-swingup-v0.png",
     ]
     assert "Against DrQ-v2 (official)" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("name", ["dreamerv3", "curl"])
+def test_results_command_puts_the_committed_cpu_grid_beside_dreamerv3_and_curl(name, tmp_path, capsys):
+    out = tmp_path / "analysis"
+    argv = ["results", str(CPU_GRID_RESULTS), "--finished-only", "--at", "20000", "--reference", name]
+    assert analyze_main([*argv, "--out", str(out), "--reps", "50"]) == 0
+    table = pd.read_csv(out / f"reference_{name}.csv")
+    assert len(table) == 4 and set(table["x"]) == {40000} and set(table["unit"]) == {"frame"}
+    # The official side, interpolated here from the shipped file at 40k frames (20k agent steps at action repeat 2).
+    curves = load_reference(name)
+    for task, reference_name in (("dmc/cartpole-balance-v0", "cartpole-balance"),
+                                 ("dmc/cartpole-swingup-v0", "cartpole-swingup")):  # fmt: skip
+        runs = curves[curves["task"] == reference_name].groupby("seed")
+        expected = [np.interp(40000, run["x"], run["return"]) for _, run in runs]
+        row = table[(table["algo"] == "DrQv2") & (table["task"] == task)].iloc[0]
+        assert row["official_seeds"] == 10 and row["official_mean"] == pytest.approx(np.mean(expected))
+    # Known values from the source files (danijar/dreamerv3 scores/), independent of the conversion.
+    balance = table[(table["algo"] == "DrQv2") & (table["task"] == "dmc/cartpole-balance-v0")].iloc[0]
+    assert balance["official_mean"] == pytest.approx({"dreamerv3": 579.3, "curl": 809.5}[name], abs=0.1)
+    printed = capsys.readouterr().out
+    assert f"Against {get_reference(name).label}" in printed and "x in frames (agent steps x action repeat" in printed
+    assert "Warning" not in printed  # episode returns, 2 frames per step: nothing to doubt
+    assert len(list(out.glob(f"reference_{name}_*.png"))) == 2
+
+
+def test_units_that_look_wrong_are_warned_about(tmp_path, capsys):
+    # Success rates in [0, 1], with frame = step: neither DMC returns nor action repeat 2.
+    records = _records("mine", "dmc/walker-walk-v0", {0: [0.0, 0.5, 1.0], 1: [0.1, 0.2, 0.3]}, action_repeat=1)
+    warnings = unit_warnings(records, "drqv2")
+    assert len(warnings) == 2
+    assert "every return lies in [0, 1]" in warnings[0] and "success rates" in warnings[0]
+    assert "action repeat 1" in warnings[1] and "action repeat 2" in warnings[1] and "frame column" in warnings[1]
+    assert unit_warnings(_records("mine", "dmc/walker-walk-v0", {0: [0.0, 350.0]}), "tdmpc2") == []
+    # Tasks the reference lacks are not judged.
+    assert unit_warnings(_records("mine", "metaworld/hammer-v3", {0: [0.0, 1.0]}, action_repeat=1), "drqv2") == []
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    records.to_csv(runs / "records.csv", index=False)
+    assert analyze_main(["results", str(runs), "--out", str(tmp_path / "out"), "--reps", "10", "--reference",
+                         "dreamerv3"]) == 0  # fmt: skip
+    printed = capsys.readouterr().out
+    assert printed.count("Warning: ") == 2 and "Dreamer-v3 (official) holds DMC episode returns" in printed
 
 
 def test_results_command_on_a_fresh_run_beside_the_references(tmp_path, capsys):

@@ -1,0 +1,153 @@
+"""``sb3-ef analyze results``: every table and plot of a results folder, computed in full before a file is written,
+so that bad input (a wrong argument, a malformed record) leaves nothing behind."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from sb3_ef.analysis._optional import pyplot
+from sb3_ef.common.files import write_text_atomically
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+
+def check_results_arguments(
+    directory: str, out: str, return_scale: float, reps: int, at: tuple[int, ...], reference: str | None
+) -> None:
+    """Raise a ``ValueError`` / ``FileNotFoundError`` naming the first argument that cannot work, before any read."""
+    from sb3_ef.analysis.reference import get_reference
+
+    if not os.path.isdir(directory):
+        what = "is a file, not a folder" if os.path.exists(directory) else "does not exist"
+        raise FileNotFoundError(f"The results folder {directory!r} {what}: pass the folder holding the evaluation CSVs")
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise ValueError(f"The output folder {out!r} is a file: pass a folder (--out)")
+    if isinstance(reps, bool) or not isinstance(reps, int) or reps < 1:
+        raise ValueError(f"reps (--reps) must be a positive number of bootstrap resamples, got {reps!r}")
+    if not return_scale > 0:
+        raise ValueError(f"return_scale (--return-scale) must be positive, got {return_scale!r}")
+    if any(step < 0 for step in at):
+        raise ValueError(f"Steps (--at) must be non-negative agent steps, got {list(at)}")
+    if reference is not None:
+        get_reference(reference)
+
+
+@dataclass
+class ResultTables:
+    """What ``analyze results`` writes, computed first: tables by file name, and the lines to print."""
+
+    scores: pd.DataFrame
+    tables: dict[str, tuple[pd.DataFrame, bool]] = field(default_factory=dict)  # name -> (table, with index)
+    ens: pd.Series | None = None
+    rliable: pd.DataFrame | None = None
+    lines: list[str] = field(default_factory=list)
+    unit_warnings: list[str] = field(default_factory=list)
+
+
+def _aggregate(records: pd.DataFrame, return_scale: float, reps: int, at: tuple[int, ...]) -> ResultTables:
+    """Scores, ENS (over the tasks every algorithm has), rliable metrics (with even seed counts) and ``returns_at``."""
+    from sb3_ef.analysis.metrics import (
+        efficiency_normalized_score,
+        ens_table,
+        records_to_scores,
+        returns_at,
+        rliable_metrics,
+        tasks_with_every_algorithm,
+        uneven_seed_counts,
+    )
+
+    scores = records_to_scores(records, return_scale=return_scale)
+    result = ResultTables(scores, {"scores.csv": (scores, False)})
+    shared = tasks_with_every_algorithm(scores)
+    if scores["algo"].nunique() < 2:
+        result.lines.append("ENS compares algorithms: skipped with a single algorithm")
+    elif not shared:
+        result.lines.append("ENS skipped: no task has results of every algorithm")
+    else:
+        left_out = sorted(set(scores["task"]) - set(shared))
+        if left_out:
+            result.lines.append(f"ENS over {shared} only; left out, without results of every algorithm: {left_out}")
+        ens_scores = scores[scores["task"].isin(shared)]
+        result.tables["ens_details.csv"] = (ens_table(ens_scores), False)
+        result.ens = efficiency_normalized_score(ens_scores)
+        result.tables["ens.csv"] = (result.ens, True)
+        result.lines.append(result.ens.to_string())
+    uneven = uneven_seed_counts(scores)
+    if uneven:
+        result.lines.append(f"rliable metrics skipped: they need as many seeds on every task, seeds per task: {uneven}")
+    else:
+        result.rliable = rliable_metrics(scores, reps=reps)
+        result.tables["rliable.csv"] = (result.rliable, False)
+        result.lines.append(result.rliable.to_string(index=False))
+    if at:
+        at_steps = returns_at(records, at)
+        result.tables["returns_at.csv"] = (at_steps, False)
+        result.lines.append(at_steps.to_string(index=False, float_format="%.1f"))
+    return result
+
+
+def _against_reference(records: pd.DataFrame, name: str, at: tuple[int, ...], result: ResultTables) -> None:
+    """Add the table of your runs beside a published reference, its unit warnings and its lines."""
+    from sb3_ef.analysis.reference import get_reference, missing_tasks, reference_table, unit_warnings
+
+    reference = get_reference(name)
+    missing = missing_tasks(records, name)
+    if missing:
+        result.lines.append(f"No {reference.label} curves for {missing}: left out of the comparison")
+    result.unit_warnings = unit_warnings(records, name)
+    result.lines += [f"Warning: {warning}" for warning in result.unit_warnings]
+    table = reference_table(records, name, at)
+    result.tables[f"reference_{name}.csv"] = (table, False)
+    result.lines.append(f"Against {reference.label} ({reference.source}), x in {reference.unit}:")
+    result.lines.append(table.to_string(index=False, float_format="%.1f") if not table.empty else "no task in common")
+
+
+def analyze_results(
+    directory: str,
+    out: str,
+    return_scale: float = 1000.0,
+    reps: int = 2000,
+    at: tuple[int, ...] = (),
+    finished_only: bool = False,
+    reference: str | None = None,
+) -> dict[str, Any]:
+    """Write ``scores.csv``, ``ens.csv``, ``ens_details.csv``, ``rliable.csv`` and the plots to ``out``, and
+    ``returns_at.csv`` for the steps ``at``; ``finished_only`` reads only finished runs. With ``reference``
+    (``drqv2``, ``tdmpc2``, ``dreamerv3`` or ``curl``), also the published curves beside the runs
+    (``reference_<name>_<task>.png``) and ``reference_<name>.csv``: your mean at each step of ``at`` (default: the
+    last step all seeds reached) against the official mean and min-max, with warnings where the units look wrong.
+
+    The arguments are checked, the records read and checked and every table computed before ``out`` is created,
+    so bad input writes nothing. A grid part-way through is analysed as far as it allows: ENS over the tasks that
+    every algorithm has results on, rliable metrics only when each algorithm has as many seeds on every task; what
+    is left out is printed.
+    """
+    from sb3_ef.analysis.metrics import load_records
+    from sb3_ef.analysis.plots import plot_ens, plot_intervals, plot_learning_curves, plot_reference_curves
+
+    at = tuple(at)
+    check_results_arguments(directory, out, return_scale, reps, at, reference)
+    pyplot()  # matplotlib missing is reported before anything is written
+    records = load_records(directory, finished_only)
+    result = _aggregate(records, return_scale, reps, at)
+    if reference is not None:
+        _against_reference(records, reference, at, result)
+    os.makedirs(out, exist_ok=True)
+    for name, (table, index) in result.tables.items():
+        write_text_atomically(os.path.join(out, name), table.to_csv(index=index))
+    written: dict[str, Any] = {"curves": plot_learning_curves(result.scores, out)}
+    if result.ens is not None:
+        written["ens"] = plot_ens(result.ens, os.path.join(out, "ens.png"))
+    if result.rliable is not None:
+        written["rliable"] = plot_intervals(result.rliable, os.path.join(out, "rliable.png"))
+    if reference is not None:
+        written["reference_table"] = os.path.join(out, f"reference_{reference}.csv")
+        written["reference_curves"] = plot_reference_curves(records, reference, out)
+        written["unit_warnings"] = result.unit_warnings
+    scores = result.scores
+    print(f"Scores of {scores['algo'].nunique()} algorithm(s) on {scores['task'].nunique()} task(s) -> {out}")
+    print("\n".join(result.lines))
+    return written

@@ -1,0 +1,154 @@
+"""rl-zoo3's log folders read as evaluation records, so ``sb3-ef analyze results logs`` works after ``sb3-ef train``.
+
+rl-zoo3 writes each run to ``<logs>/<algo>/<env>_<n>/`` (``<env>`` is the env id with ``/`` written as ``-``):
+its ``EvalCallback`` saves ``evaluations.npz`` there (``timesteps``: agent steps; ``results``: one row of episode
+returns per evaluation; ``successes`` when the env reports them), the final model is ``<env>.zip`` and
+``<env>/args.yml`` records the command line (env id, seed, ``env_kwargs``), ``<env>/config.yml`` the config entry.
+A run becomes rows ``algo, task, seed, step, frame, return, success`` as
+:class:`~sb3_ef.analysis.records.EvalRecorderCallback` writes them: the algorithm's class name (``drqv2_ef`` ->
+``DrQv2EF``), the env id and seed of ``args.yml`` (without it: the env id whose folder name matches, and the run
+number ``<n>`` in place of the seed), the mean return and success rate of each evaluation, and
+``frame = step * action repeat`` with the run's recorded ``action_repeat`` (else the env's registered default).
+"""
+
+from __future__ import annotations
+
+import inspect
+import os
+import re
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import gymnasium as gym
+import numpy as np
+
+from sb3_ef.analysis._optional import require
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+#: The file rl-zoo3's EvalCallback writes into a run folder.
+EVALUATIONS_FILE = "evaluations.npz"
+#: ``<env>_<n>``, with the ``_<uuid>`` that rl-zoo3's ``--uuid`` appends.
+RUN_FOLDER = re.compile(r"^(?P<env>.+)_(?P<run>\d+)(?:_[0-9a-f]{8}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{12})?$")
+MAKE_ENV = "sb3_ef.envs.factory:make_env"
+
+
+def _load_yaml(path: Path) -> Any:
+    import yaml  # rl-zoo3 writes OrderedDicts with Python tags, hence the unsafe loader (files of the user's own run)
+
+    with open(path) as file:
+        return yaml.load(file, Loader=yaml.UnsafeLoader)
+
+
+def recorded_args(run_folder: str | os.PathLike) -> dict[str, Any]:
+    """The command line rl-zoo3 recorded for the run (``<env>/args.yml``), or ``{}`` without exactly one."""
+    args_files = sorted(Path(run_folder).glob("*/args.yml"))
+    return dict(_load_yaml(args_files[0]) or {}) if len(args_files) == 1 else {}
+
+
+def recorded_env_kwargs(run_folder: str | os.PathLike) -> dict[str, Any]:
+    """The env options of an rl-zoo3 run (``{}`` if none are recorded). As in rl-zoo3's train and enjoy, the command
+    line's ``--env-kwargs`` (``<env>/args.yml``) replace the config entry's (``<env>/config.yml``)."""
+    args_files = sorted(Path(run_folder).glob("*/args.yml"))
+    if len(args_files) != 1:
+        return {}
+    args = _load_yaml(args_files[0]) or {}
+    if args.get("env_kwargs"):
+        return dict(args["env_kwargs"])
+    config_path = args_files[0].with_name("config.yml")
+    if not config_path.is_file():
+        return {}
+    entry = dict(_load_yaml(config_path) or [])  # rl-zoo3 writes a list of pairs
+    recorded = entry.get("env_kwargs") or {}
+    if isinstance(recorded, str):  # rl-zoo3 evaluates strings such as "dict(size=64)"
+        recorded = eval(recorded, {"__builtins__": {}, "dict": dict})
+    return dict(recorded)
+
+
+def env_id_of_folder(env_name: str) -> str:
+    """The registered env id whose rl-zoo3 folder name is ``env_name`` (``dmc-cheetah-run-v0`` ->
+    ``dmc/cheetah-run-v0``), or ``env_name`` itself when none is."""
+    import sb3_ef  # noqa: F401  (registers the pixel envs)
+
+    matches = [env_id for env_id in gym.registry if env_id.replace("/", "-") == env_name]
+    return matches[0] if len(matches) == 1 else env_name
+
+
+def action_repeat_of(env_id: str, env_kwargs: dict[str, Any]) -> int:
+    """The action repeat a run's env had: its recorded ``action_repeat``, else the registered env's (``make_env``'s
+    default for sb3-ef's pixel envs), else 1."""
+    if "action_repeat" in env_kwargs:
+        return int(env_kwargs["action_repeat"])
+    spec = gym.registry.get(env_id)
+    if spec is None or spec.entry_point != MAKE_ENV:
+        return 1
+    from sb3_ef.envs.factory import make_env
+
+    return int(spec.kwargs.get("action_repeat", inspect.signature(make_env).parameters["action_repeat"].default))
+
+
+def algorithm_name(zoo_key: str) -> str:
+    """The class name rl-zoo3's key stands for (``drqv2_ef`` -> ``DrQv2EF``); the key itself without rl-zoo3."""
+    try:
+        from sb3_ef.zoo.records import algorithm_name as zoo_algorithm_name
+    except ImportError:
+        return zoo_key
+    return zoo_algorithm_name(zoo_key)
+
+
+def _evaluations(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """``timesteps``, per-evaluation returns and successes of an ``evaluations.npz``, checked."""
+    try:
+        with np.load(path) as file:
+            arrays = {name: file[name] for name in file.files}
+    except (OSError, ValueError, EOFError) as error:
+        raise ValueError(f"{path} is not a readable evaluations.npz ({type(error).__name__}: {error})") from error
+    missing = [name for name in ("timesteps", "results") if name not in arrays]
+    if missing:
+        raise ValueError(f"{path}: expected rl-zoo3's EvalCallback arrays timesteps and results, missing {missing}")
+    timesteps, results = arrays["timesteps"], arrays["results"]
+    successes = arrays.get("successes")
+    if results.ndim != 2 or len(results) != len(timesteps) or not np.issubdtype(results.dtype, np.number):
+        raise ValueError(
+            f"{path}: expected results of shape (evaluations, episodes) = ({len(timesteps)}, n), numbers, got "
+            f"shape {results.shape} of {results.dtype}"
+        )
+    if successes is not None and (successes.size == 0 or len(successes) != len(timesteps)):
+        successes = None  # rl-zoo3 saves an empty array for envs that report no success
+    return timesteps, results, successes
+
+
+def zoo_run_records(run_folder: str | os.PathLike) -> pd.DataFrame:
+    """The evaluation records of one rl-zoo3 run folder ``<logs>/<algo>/<env>_<n>/`` (see the module docstring)."""
+    pandas = require("pandas")
+    from sb3_ef.analysis.records import RECORD_COLUMNS, record_row
+
+    run_folder = Path(run_folder)
+    timesteps, results, successes = _evaluations(run_folder / EVALUATIONS_FILE)
+    match = RUN_FOLDER.match(run_folder.name)
+    if match is None:
+        raise ValueError(f"{run_folder}: expected an rl-zoo3 run folder named <env>_<n>, got {run_folder.name!r}")
+    args = recorded_args(run_folder)
+    task = str(args.get("env") or env_id_of_folder(match["env"]))
+    seed = args.get("seed", int(match["run"]))
+    repeat = action_repeat_of(task, recorded_env_kwargs(run_folder))
+    algo = algorithm_name(run_folder.parent.name)
+    rows = [
+        record_row(algo, task, seed, int(step), repeat, float(np.mean(returns)),
+                   None if successes is None else float(np.mean(successes[index])))
+        for index, (step, returns) in enumerate(zip(timesteps, results, strict=True))
+    ]  # fmt: skip
+    return pandas.DataFrame(rows, columns=list(RECORD_COLUMNS))
+
+
+def is_zoo_run_folder(run_folder: str | os.PathLike) -> bool:
+    """Whether ``run_folder`` is laid out as rl-zoo3 writes a run: named ``<env>_<n>``, with ``evaluations.npz``."""
+    folder = Path(run_folder)
+    return RUN_FOLDER.match(folder.name) is not None and (folder / EVALUATIONS_FILE).is_file()
+
+
+def zoo_run_finished(run_folder: str | os.PathLike) -> bool:
+    """Whether the rl-zoo3 run saved its final model (``<env>.zip`` in the run folder, written when training ends)."""
+    match = RUN_FOLDER.match(Path(run_folder).name)
+    return match is not None and (Path(run_folder) / f"{match['env']}.zip").is_file()
