@@ -215,7 +215,7 @@ def upgrade(source: str | os.PathLike, destination: str | os.PathLike, device: s
     if os.path.abspath(source) == os.path.abspath(destination):
         raise ValueError(f"The upgraded file must go to another path than {source} (the original is kept)")
     algorithm = legacy_algorithm(data)
-    file = upgraded_file(source, algorithm, algorithm.__name__.endswith("EF"))
+    file = upgraded_file(pathlib.Path(source), algorithm, algorithm.__name__.endswith("EF"))
 
     class Upgrading(algorithm):  # type: ignore[misc, valid-type]
         """The algorithm, reading the 0.1.0 weights and optimiser states into this version's places."""

@@ -156,7 +156,7 @@ class AuxiliaryHostMixin(ActionOverrideMixin):
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
         """SB3's ``predict``, refusing an observation that is not the env's uint8 frames with a clear error."""
         check_observation(observation, self.observation_space)
-        return super().predict(observation, state, episode_start, deterministic)  # type: ignore[misc]
+        return super().predict(observation, state, episode_start, deterministic)
 
     def learn(
         self: SelfHost,

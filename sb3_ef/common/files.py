@@ -7,7 +7,7 @@ import os
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 #: Suffix of the temporary files; a leftover one (from a killed process) is never read as a result.
 TEMPORARY_SUFFIX = ".tmp"
@@ -40,7 +40,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         raise
 
 
-def write_atomically(path: str | os.PathLike, write: Callable[[IO[bytes]], Any]) -> None:
+def write_atomically(path: str | os.PathLike, write: Callable[[Any], Any]) -> None:
     """``write(file)`` into a binary file that replaces ``path`` only once it is complete (:func:`atomic_path`)."""
     with atomic_path(path) as temporary, open(temporary, "wb") as file:
         write(file)

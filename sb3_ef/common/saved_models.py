@@ -23,13 +23,13 @@ POLICY_OWNERS = {
 LEGACY_EF_ATTRIBUTES = ("ef_horizon", "_ef_generator", "ef_learning_rate")
 
 
-def saved_data(path: str | os.PathLike | IO[bytes]) -> dict[str, Any] | None:
+def saved_data(path: str | os.PathLike | IO[bytes] | io.BufferedIOBase) -> dict[str, Any] | None:
     """The JSON ``data`` of a model zip (a path, with or without ``.zip``, or a file object, left at its position),
     or ``None`` when it cannot be read (SB3's load then reports what is wrong)."""
     if isinstance(path, (str, os.PathLike)):
         given = Path(path)
         path = given if given.suffix == ".zip" or given.is_file() else given.with_name(f"{given.name}.zip")
-        opened: IO[bytes] | None = None
+        opened: IO[bytes] | io.BufferedIOBase | None = None
     else:
         opened = path
     position = opened.tell() if opened is not None else 0
