@@ -135,7 +135,7 @@ def make_analysis_env(
         value = kwargs.pop(key, expected)
         if value != expected:
             raise ValueError(f"env_kwargs {key}={value!r} does not match the model's {key} {expected}")
-    if name.startswith(("dmc/", "metaworld/")):
+    if name.startswith(("dmc/", "metaworld/", "dmc-distracting/")):
         from sb3_ef.envs import make_env
 
         return make_env(name, size=size, frame_stack=frame_stack, **{"action_repeat": action_repeat, **kwargs})

@@ -14,6 +14,7 @@ from sb3_ef.envs.backend import ensure_gl_backend
 from sb3_ef.envs.tasks import parse_env_name
 
 if TYPE_CHECKING:  # imported when an env is made (each needs its simulator)
+    from sb3_ef.envs.distracting.env import DistractingDMCPixelEnv
     from sb3_ef.envs.dmc import DMCPixelEnv
     from sb3_ef.envs.meta_world import MetaWorldPixelEnv
 
@@ -24,6 +25,15 @@ MIN_SIZE, MAX_SIZE = 32, 512
 SUITE_OPTIONS = {
     "dmc": ("episode_length", "render_mode"),
     "metaworld": ("episode_length", "resample_task", "repeat_discount", "render_mode"),
+    "dmc-distracting": (
+        "episode_length",
+        "render_mode",
+        "distraction",
+        "difficulty",
+        "dynamic",
+        "background_dir",
+        "background_videos",
+    ),
 }
 
 
@@ -40,8 +50,8 @@ def make_env(
 ):
     """Build a pixel environment: ``uint8`` observations ``(3 * frame_stack, size, size)``, actions in [-1, 1].
 
-    :param name: ``dmc/<domain>-<task>`` or ``metaworld/<task>``, optional ``-v0`` suffix
-        (all names: :data:`sb3_ef.envs.ENV_NAMES`).
+    :param name: ``dmc/<domain>-<task>``, ``metaworld/<task>`` or ``dmc-distracting/<domain>-<task>`` (the
+        Distracting Control Suite), optional ``-v0`` suffix (all names: :data:`sb3_ef.envs.ENV_NAMES`).
     :param size: frame height and width, in [MIN_SIZE, MAX_SIZE].
     :param frame_stack: frames stacked along channels, oldest first.
     :param action_repeat: simulator steps per agent step (rewards summed, success OR-ed).
@@ -56,7 +66,10 @@ def make_env(
     :param kwargs: suite options: ``episode_length`` (simulator steps; 1000 DMC, 500 Meta-World),
         ``render_mode`` (``"rgb_array"``), ``resample_task`` (Meta-World), ``repeat_discount`` (Meta-World: the
         reward of an agent step is ``r1 + repeat_discount * r2``; 0.99 with ``gamma=authors_gamma()`` is the EF
-        authors' protocol, see :mod:`sb3_ef.envs.meta_world`).
+        authors' protocol, see :mod:`sb3_ef.envs.meta_world`); Distracting Control: ``distraction``
+        (``"background"``, ``"camera"``, ``"color"`` or a list; default all three), ``difficulty`` (``"easy"``,
+        ``"medium"``, ``"hard"``), ``dynamic``, ``background_dir`` (DAVIS 2017's ``JPEGImages/480p`` folder),
+        ``background_videos`` (``"train"``, ``"val"`` or a list; see :mod:`sb3_ef.envs.distracting.env`).
     :return: a :class:`~sb3_ef.envs.pixel_env.PixelEnv`; ``env.agent_mask()`` gives the agent's pixels.
     """
     task = parse_env_name(name)
@@ -75,9 +88,11 @@ def make_env(
             f"{', '.join(accepted[1:])}"
         )
     ensure_gl_backend()
-    env_class: type[DMCPixelEnv | MetaWorldPixelEnv]
+    env_class: type[DMCPixelEnv | MetaWorldPixelEnv | DistractingDMCPixelEnv]
     if task.suite == "dmc":
         from sb3_ef.envs.dmc import DMCPixelEnv as env_class
+    elif task.suite == "dmc-distracting":
+        from sb3_ef.envs.distracting.env import DistractingDMCPixelEnv as env_class
     else:
         from sb3_ef.envs.meta_world import MetaWorldPixelEnv as env_class
     options = dict(

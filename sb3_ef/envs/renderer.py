@@ -68,6 +68,7 @@ class FrameRenderer:
     ) -> None:
         self.camera = camera_id(model, camera)
         self.flip = flip
+        self._model = model
         model.vis.global_.offwidth = max(model.vis.global_.offwidth, size)
         model.vis.global_.offheight = max(model.vis.global_.offheight, size)
         if fast:
@@ -109,6 +110,14 @@ class FrameRenderer:
     def agent_mask(self, data: mujoco.MjData) -> np.ndarray:
         """The ``(size, size)`` bool mask of pixels showing agent geoms in the current state."""
         return self._agent_lookup[self.geom_ids(data) + 1]
+
+    def upload_texture(self, texture: int) -> None:
+        """Send the model's texture ``texture`` (its data changed) to this renderer's OpenGL context.
+
+        ``mujoco.Renderer`` copies the textures when it is created and has no public call for a later change.
+        """
+        self._renderer._gl_context.make_current()
+        mujoco.mjr_uploadTexture(self._model, self._renderer._mjr_context, texture)
 
     def close(self) -> None:
         """Free the OpenGL context (idempotent)."""

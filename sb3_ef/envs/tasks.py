@@ -1,7 +1,7 @@
 """Task names of the pixel environments and their parsing (no MuJoCo import: used by gymnasium registration).
 
-A name is ``<suite>/<task>`` with an optional ``-v0`` suffix: ``dmc/cartpole-swingup``, ``metaworld/door-open-v0``.
-DMC names are dm-control's ``<domain>-<task>`` with underscores written as hyphens.
+A name is ``<suite>/<task>`` with an optional ``-v0`` suffix: ``dmc/cartpole-swingup``, ``metaworld/door-open-v0``,
+``dmc-distracting/walker-walk``. DMC names are dm-control's ``<domain>-<task>`` with underscores written as hyphens.
 """
 
 from __future__ import annotations
@@ -32,6 +32,15 @@ DMC_TASKS: dict[str, tuple[str, str]] = {
     f"{domain}-{task}".replace("_", "-"): (domain, task) for domain, task in _DMC_SUITE_TASKS
 }
 
+#: The domains of the Distracting Control Suite (Stone et al. 2021): its per-domain settings (ground plane
+#: transparency, camera ranges) exist for these six only.
+DISTRACTING_DOMAINS: tuple[str, ...] = ("ball_in_cup", "cartpole", "cheetah", "finger", "reacher", "walker")
+
+#: Every task name accepted after ``dmc-distracting/``: the DMC tasks of :data:`DISTRACTING_DOMAINS`.
+DISTRACTING_TASKS: dict[str, tuple[str, str]] = {
+    name: pair for name, pair in DMC_TASKS.items() if pair[0] in DISTRACTING_DOMAINS
+}
+
 #: 12 DMC tasks that contain the paper's 10 (which two are extra is not known).
 DMC_PAPER_TASKS: tuple[str, ...] = (
     "acrobot-swingup", "cartpole-swingup-sparse", "cheetah-run", "finger-spin", "finger-turn-easy",
@@ -58,10 +67,11 @@ METAWORLD_PAPER_TASKS: tuple[str, ...] = (
     "peg-insert-side", "shelf-place", "stick-push",
 )  # fmt: skip
 
-#: Every valid full name, ``dmc/...`` then ``metaworld/...``.
+#: Every valid full name, ``dmc/...``, ``metaworld/...`` then ``dmc-distracting/...``.
 ENV_NAMES: tuple[str, ...] = (
     *(f"dmc/{name}" for name in DMC_TASKS),
     *(f"metaworld/{name}" for name in METAWORLD_TASKS),
+    *(f"dmc-distracting/{name}" for name in DISTRACTING_TASKS),
 )
 
 
@@ -77,10 +87,15 @@ def parse_env_name(name: str) -> TaskName:
     if not isinstance(name, str):
         raise TypeError(f"env name must be a str like 'dmc/cartpole-swingup', got {type(name).__name__}")
     base = name.removesuffix("-v0")
+    if base.startswith("dmc-distracting/") and base.split("/", 1)[1] in DMC_TASKS and base not in ENV_NAMES:
+        raise ValueError(
+            f"Unknown env name {name!r}: the Distracting Control Suite defines its distractions for the domains "
+            f"{', '.join(DISTRACTING_DOMAINS)} only (e.g. 'dmc-distracting/walker-walk')"
+        )
     if base not in ENV_NAMES:
         raise ValueError(
             f"Unknown env name {name!r}{did_you_mean(base, ENV_NAMES)}: expected '<suite>/<task>' (optional '-v0' "
-            "suffix) with suite 'dmc' or 'metaworld' (all names: sb3_ef.envs.ENV_NAMES)"
+            "suffix) with suite 'dmc', 'metaworld' or 'dmc-distracting' (all names: sb3_ef.envs.ENV_NAMES)"
         )
     suite, task = base.split("/", 1)
     return TaskName(suite, task)

@@ -49,7 +49,7 @@ RUNNER_KEYS = frozenset({"n_timesteps", "env_kwargs", "n_envs"})
 EVALUATED_KEYS = ("policy_kwargs", "replay_buffer_class", "replay_buffer_kwargs")
 
 #: Suites built with :func:`sb3_ef.make_env` (which repeats actions); other ids go through ``gym.make``.
-MAKE_ENV_SUITES = ("dmc/", "metaworld/")
+MAKE_ENV_SUITES = ("dmc/", "metaworld/", "dmc-distracting/")
 
 #: Where a grid's runs can execute: a local process pool or a Ray cluster.
 BACKENDS = ("local", "ray")

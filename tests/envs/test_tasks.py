@@ -5,6 +5,8 @@ from dm_control import suite
 from metaworld.env_dict import ALL_V3_ENVIRONMENTS
 
 from sb3_ef.envs.tasks import (
+    DISTRACTING_DOMAINS,
+    DISTRACTING_TASKS,
     DMC_PAPER_TASKS,
     DMC_TASKS,
     ENV_NAMES,
@@ -20,7 +22,14 @@ def test_names_cover_the_installed_suites():
     assert sorted(f"{task}-v3" for task in METAWORLD_TASKS) == sorted(ALL_V3_ENVIRONMENTS)
     assert set(DMC_PAPER_TASKS) <= set(DMC_TASKS) and len(DMC_PAPER_TASKS) == 12
     assert set(METAWORLD_PAPER_TASKS) <= set(METAWORLD_TASKS) and len(METAWORLD_PAPER_TASKS) == 16
-    assert len(ENV_NAMES) == len(set(ENV_NAMES)) == len(DMC_TASKS) + len(METAWORLD_TASKS)
+    assert len(ENV_NAMES) == len(set(ENV_NAMES)) == len(DMC_TASKS) + len(METAWORLD_TASKS) + len(DISTRACTING_TASKS)
+
+
+def test_distracting_control_names_are_the_dmc_tasks_of_its_six_domains():
+    domains = {domain for domain, _ in DISTRACTING_TASKS.values()}
+    assert domains == set(DISTRACTING_DOMAINS) and len(domains) == 6
+    assert {name: pair for name, pair in DMC_TASKS.items() if pair[0] in domains} == DISTRACTING_TASKS
+    assert {"cartpole-balance", "walker-walk", "ball-in-cup-catch", "reacher-easy"} <= set(DISTRACTING_TASKS)
 
 
 @pytest.mark.parametrize(
@@ -30,6 +39,7 @@ def test_names_cover_the_installed_suites():
         ("dmc/ball-in-cup-catch-v0", TaskName("dmc", "ball-in-cup-catch")),
         ("metaworld/button-press-topdown-wall", TaskName("metaworld", "button-press-topdown-wall")),
         ("metaworld/hammer-v0", TaskName("metaworld", "hammer")),
+        ("dmc-distracting/cartpole-balance-v0", TaskName("dmc-distracting", "cartpole-balance")),
     ],
 )
 def test_parse_env_name(name, parsed):

@@ -1,0 +1,78 @@
+"""Background distraction: a DAVIS video on the skybox, drawn per episode, played back and forth when dynamic."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from sb3_ef.envs.distracting.davis import frame_files, load_textures
+from sb3_ef.envs.renderer import FrameRenderer
+
+
+class BackgroundDistraction:
+    """Shows frames of DAVIS videos as the sky and makes the floor (partly) transparent.
+
+    At each reset: one of ``videos`` is drawn, then (static) one of its frames or (dynamic) all of them with a
+    start frame and a direction (forwards or backwards). When dynamic, each simulator step moves one frame in that
+    direction, and the direction turns at the first and the last frame (the video plays back and forth). The image
+    covers every face of the skybox (the skybox texture becomes one square face, repeated), resized to it; the
+    floor's material (``grid``) gets ``ground_alpha``. The skybox is no geom, so segmentation (agent masks) never
+    sees it.
+
+    :param model: the task's MuJoCo model (its skybox texture and ``grid`` material are changed).
+    :param videos: folders of JPEG frames (:func:`~sb3_ef.envs.distracting.davis.video_folders`).
+    :param dynamic: play the video (True) or show one still frame per episode (False).
+    :param ground_alpha: alpha of the floor.
+    """
+
+    def __init__(self, model: mujoco.MjModel, videos: tuple[Path, ...], dynamic: bool, ground_alpha: float) -> None:
+        self._texture = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TEXTURE, "skybox")
+        self._ground = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_MATERIAL, "grid")
+        if self._texture < 0 or self._ground < 0:
+            raise ValueError("The background distraction needs the 'skybox' texture and 'grid' material of DMC models")
+        self.videos, self.dynamic, self.ground_alpha = videos, dynamic, ground_alpha
+        self._side = int(model.tex_width[self._texture])
+        model.tex_height[self._texture] = self._side  # one square face, shown on all six
+        self._start = int(model.tex_adr[self._texture])
+        self._frames = np.zeros((0, self._side * self._side * 3), np.uint8)
+        self._index, self._direction = 0, 1
+        self._shown: int | None = None  # the frame in the model's texture (and on the renderer)
+
+    @property
+    def frame(self) -> int:
+        """Index of the frame shown, among the episode's frames (all of the video's when dynamic)."""
+        return self._index
+
+    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, rng: np.random.Generator) -> None:
+        """Draw the episode's video (and frame, or start frame and direction); load and resize its frames."""
+        model.mat_rgba[self._ground, 3] = self.ground_alpha
+        video = self.videos[int(rng.integers(len(self.videos)))]
+        files = frame_files(video)
+        if not files:
+            raise ValueError(f"The background video folder {str(video)!r} holds no JPEG frames any more")
+        if not self.dynamic:
+            files = [files[int(rng.integers(len(files)))]]
+        self._frames = load_textures(files, self._side, self._side)
+        self._index = int(rng.integers(len(files)))
+        self._direction = int(rng.choice([-1, 1]))
+        self._shown = None
+
+    def step(self, model: mujoco.MjModel, data: mujoco.MjData, rng: np.random.Generator) -> None:
+        """One frame on (dynamic), turning at either end of the video."""
+        if not self.dynamic:
+            return
+        self._index += self._direction
+        if self._index <= 0:
+            self._index, self._direction = 0, abs(self._direction)
+        if self._index >= len(self._frames):  # as in the suite's code, the last frame is shown twice as it turns
+            self._index, self._direction = len(self._frames) - 1, -abs(self._direction)
+
+    def show(self, model: mujoco.MjModel, renderer: FrameRenderer) -> None:
+        """Put the current frame into the skybox texture and upload it to the renderer, if it changed."""
+        if self._shown == self._index:
+            return
+        model.tex_data[self._start : self._start + self._frames.shape[1]] = self._frames[self._index]
+        renderer.upload_texture(self._texture)
+        self._shown = self._index

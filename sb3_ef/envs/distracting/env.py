@@ -1,0 +1,136 @@
+"""Distracting Control Suite tasks: DMC pixel envs with background, colour and camera distractions.
+
+The distractions of Stone et al. (2021) implemented on dm-control's physics: each changes the model or the
+camera pose after a reset and after every simulator step (so, as in the suite, a dynamic distraction moves
+``action_repeat`` times per agent step), before the frame is rendered. Their random draws come from a generator
+seeded at every reset from the env's ``np_random``: an episode is decided by the state of ``np_random`` at its
+reset, which sb3-ef's checkpoints record, so seeded envs repeat their frames and resumed runs their episodes.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from typing import Any, Protocol
+
+import mujoco
+import numpy as np
+
+from sb3_ef.envs.distracting.background import BackgroundDistraction
+from sb3_ef.envs.distracting.camera import CameraDistraction
+from sb3_ef.envs.distracting.color import ColorDistraction
+from sb3_ef.envs.distracting.davis import video_folders
+from sb3_ef.envs.distracting.settings import (
+    DISTRACTIONS,
+    GROUND_PLANE_ALPHA,
+    camera_settings,
+    check_difficulty,
+    color_settings,
+    parse_distractions,
+)
+from sb3_ef.envs.dmc import DMCPixelEnv
+from sb3_ef.envs.tasks import DISTRACTING_TASKS
+
+
+class Distraction(Protocol):
+    """What the env calls on each distraction: at every reset, then after every simulator step."""
+
+    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, rng: np.random.Generator) -> None: ...
+
+    def step(self, model: mujoco.MjModel, data: mujoco.MjData, rng: np.random.Generator) -> None: ...
+
+
+class DistractingDMCPixelEnv(DMCPixelEnv):
+    """A Distracting Control task (see :class:`~sb3_ef.envs.dmc.DMCPixelEnv` for the arguments they share).
+
+    :param task: a task of :data:`~sb3_ef.envs.tasks.DISTRACTING_TASKS`, e.g. ``"walker-walk"``.
+    :param distraction: ``"background"``, ``"camera"``, ``"color"`` or a list of them (default: all three, as the
+        suite's benchmark).
+    :param difficulty: ``"easy"``, ``"medium"`` or ``"hard"``: colour and camera ranges scaled by 0.1, 0.2, 0.3;
+        backgrounds from the first 4, 8 or all of the videos.
+    :param dynamic: distractions move within the episode (the video plays, colours and camera drift) instead of
+        staying as drawn at reset.
+    :param background_dir: DAVIS 2017's ``DAVIS/JPEGImages/480p`` folder (default ``$SB3_EF_DAVIS_DIR``); needed by
+        the background distraction only.
+    :param background_videos: ``"train"`` (the suite's 60 training videos), ``"val"`` (its 30 validation videos) or
+        a list of video folder names.
+    """
+
+    def __init__(
+        self,
+        task: str,
+        size: int = 84,
+        frame_stack: int = 3,
+        action_repeat: int = 2,
+        camera: int | str | None = None,
+        fast_render: bool = False,
+        seed: int | None = None,
+        episode_length: int = 1000,
+        render_mode: str | None = None,
+        distraction: str | Sequence[str] = DISTRACTIONS,
+        difficulty: str = "easy",
+        dynamic: bool = False,
+        background_dir: str | os.PathLike[str] | None = None,
+        background_videos: str | Sequence[str] = "train",
+    ) -> None:
+        domain = DISTRACTING_TASKS[task][0]
+        self.distractions = parse_distractions(distraction)
+        check_difficulty(difficulty)
+        if not isinstance(dynamic, (bool, np.bool_)):
+            raise ValueError(f"dynamic must be True or False, got {dynamic!r}")
+        self.difficulty, self.dynamic = difficulty, bool(dynamic)
+        videos = None
+        if "background" in self.distractions:
+            videos = video_folders(background_dir, background_videos, difficulty)
+        elif background_dir is not None or background_videos != "train":
+            raise ValueError(
+                f"background_dir and background_videos are options of the 'background' distraction, which "
+                f"distraction={list(self.distractions)} leaves out"
+            )
+        super().__init__(
+            task,
+            size=size,
+            frame_stack=frame_stack,
+            action_repeat=action_repeat,
+            camera=camera,
+            fast_render=fast_render,
+            seed=seed,
+            episode_length=episode_length,
+            render_mode=render_mode,
+        )
+        model = self._physics()[0]
+        self._background: BackgroundDistraction | None = None
+        self._active: list[Distraction] = []
+        try:
+            if videos is not None:
+                self._background = BackgroundDistraction(model, videos, self.dynamic, GROUND_PLANE_ALPHA[domain])
+                self._active.append(self._background)
+            if "camera" in self.distractions:
+                self._active.append(CameraDistraction(model, self.camera, camera_settings(domain, difficulty, dynamic)))
+            if "color" in self.distractions:
+                self._active.append(ColorDistraction(model, color_settings(difficulty, dynamic)))
+        except Exception:
+            self.close()
+            self._env.close()
+            raise
+        self._distraction_random = np.random.default_rng(0)
+
+    def _reset_sim(self, seed: int | None, options: dict[str, Any] | None) -> dict[str, Any]:
+        info = super()._reset_sim(seed, options)
+        self._distraction_random = np.random.default_rng(self._simulator_seed())
+        model, data = self._physics()
+        for distraction in self._active:
+            distraction.reset(model, data, self._distraction_random)
+        return info
+
+    def _step_sim(self, action: np.ndarray) -> tuple[float, bool, dict[str, Any]]:
+        result = super()._step_sim(action)
+        model, data = self._physics()
+        for distraction in self._active:
+            distraction.step(model, data, self._distraction_random)
+        return result
+
+    def _render_frame(self) -> np.ndarray:
+        if self._background is not None:
+            self._background.show(self._physics()[0], self._frame_renderer())
+        return super()._render_frame()
