@@ -386,4 +386,7 @@ class DrQv2EF(EFMixin, DrQv2):
         policy = self.policy
         if not isinstance(policy, DrQv2EFPolicy):
             raise TypeError(f"DrQv2EF needs a DrQv2EFPolicy (EF's sizes), got {type(policy).__name__}")
-        return self._foresight(policy.encoder.features_dim, policy.agent_dim, policy.ef_kwargs, policy.channels_last)
+        encoder = policy.encoder  # scales the uint8 frames itself
+        return self._foresight(
+            encoder.features_dim, policy.agent_dim, policy.ef_kwargs, policy.channels_last, encoder, (1.0, 0.0)
+        )

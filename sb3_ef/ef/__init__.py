@@ -1,17 +1,23 @@
-"""Ego-Foresight: agent/scene split, action-conditioned rollout, frame decoder and loss (algorithm-agnostic), and the
-auxiliary-loss interface through which it joins a host."""
+"""Ego-Foresight: agent/scene split, action-conditioned rollout, pixel decoder or latent target, loss
+(algorithm-agnostic), and EF as an auxiliary loss of a host (``ForesightLoss``)."""
 
 from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.ef.decoder import FrameDecoder, decoder_layers
 from sb3_ef.ef.foresight import EgoForesight, ForesightLoss, ForesightTargets, RolloutBlock, draw_rollout_steps
+from sb3_ef.ef.latent import TARGETS, LatentHead, MomentumTarget
+from sb3_ef.ef.probe import fit_probe
 
 __all__ = [
+    "TARGETS",
     "AuxiliaryLoss",
     "EgoForesight",
     "ForesightLoss",
     "ForesightTargets",
     "FrameDecoder",
+    "LatentHead",
+    "MomentumTarget",
     "RolloutBlock",
     "decoder_layers",
     "draw_rollout_steps",
+    "fit_probe",
 ]

@@ -1,5 +1,6 @@
-"""Ego-Foresight: the module (agent/scene split, action-conditioned rollout, frame decoding and its loss), the rule
-that draws each update's rollout length, and EF as an auxiliary loss of a host algorithm (:class:`ForesightLoss`)."""
+"""Ego-Foresight: the module (agent/scene split, action-conditioned rollout, frame decoding and its loss, or the
+prediction of target features in feature space), the rule that draws each update's rollout length, and EF as an
+auxiliary loss of a host algorithm (:class:`ForesightLoss`)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,19 @@ from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.layers import mlp
 from sb3_ef.ef.decoder import FrameDecoder
+from sb3_ef.ef.latent import (
+    DEFAULT_HEAD_HIDDEN_DIM,
+    DEFAULT_PROJECTION_DIM,
+    DEFAULT_TARGET_TAU,
+    DEFAULT_TEMPERATURE,
+    LatentHead,
+    LatentTargets,
+    MomentumTarget,
+    check_target,
+    draw_other_steps,
+    info_nce,
+    stacked_observations_at,
+)
 
 if TYPE_CHECKING:
     from sb3_ef.common.buffers import SequenceReplayBufferSamples
@@ -103,7 +117,16 @@ class EgoForesight(nn.Module):
     :param decode_batch_size: decode only the first this-many samples of each batch in :meth:`loss` (a random subset,
         since replay batches are drawn at random); ``None`` decodes all, as the paper does. **Changes the method**:
         fewer reconstructions per update, so a noisier EF gradient at a lower cost (the decoder dominates it).
+    :param target: ``"pixel"`` (the paper: :meth:`loss` on frame t+k) or ``"latent"`` (:meth:`latent_loss` on target
+        features of the observation at t+k, through :attr:`head`; :attr:`decoder` is then a probe, trained only on
+        detached features by :meth:`probe_loss`, for analysis).
+    :param projection_dim: latent EF's projection size (256); only with ``target="latent"``.
+    :param head_hidden_dim: width of latent EF's projection and prediction MLPs (512); only with ``target="latent"``.
+    :param temperature: latent EF's InfoNCE temperature (0.1); only with ``target="latent"``.
     """
+
+    head: LatentHead  # latent EF only
+    probe_steps: th.Tensor  # latent EF only
 
     def __init__(
         self,
@@ -117,8 +140,18 @@ class EgoForesight(nn.Module):
         skip_channels: int = 0,
         step_sampling: str = "batch",
         decode_batch_size: int | None = None,
+        target: str = "pixel",
+        projection_dim: int | None = None,
+        head_hidden_dim: int | None = None,
+        temperature: float | None = None,
     ):
         super().__init__()
+        latent_options = {
+            "projection_dim": projection_dim,
+            "head_hidden_dim": head_hidden_dim,
+            "temperature": temperature,
+        }
+        self.target = check_target(target, decode_batch_size, **latent_options)
         if not 1 <= agent_dim < feature_dim:
             raise ValueError(f"agent_dim must be in [1, feature_dim={feature_dim}), got {agent_dim}")
         if action_dim < 1:
@@ -139,6 +172,14 @@ class EgoForesight(nn.Module):
         self.decode_batch_size = decode_batch_size
         self.rollout_block = RolloutBlock(agent_dim, action_dim, rollout_hidden_dims)
         self.decoder = FrameDecoder(feature_dim, frame_shape, decoder_channels, skip_channels)
+        if target == "latent":
+            projection = DEFAULT_PROJECTION_DIM if projection_dim is None else projection_dim
+            hidden = DEFAULT_HEAD_HIDDEN_DIM if head_hidden_dim is None else head_hidden_dim
+            self.head = LatentHead(
+                feature_dim, projection, hidden, DEFAULT_TEMPERATURE if temperature is None else temperature
+            )
+            # Updates of the probe decoder (``probe_loss`` steps, counted by whoever fits it): 0 means untrained.
+            self.register_buffer("probe_steps", th.zeros((), dtype=th.long))
 
     @property
     def scene_dim(self) -> int:
@@ -156,7 +197,12 @@ class EgoForesight(nn.Module):
         return self.rollout_block(h_agent, actions)
 
     def decode(self, h_scene: th.Tensor, h_agent: th.Tensor, skip: th.Tensor | None = None) -> th.Tensor:
-        """Decode scene and (predicted) agent features to a (B, C, h, w) frame in [0, 1]."""
+        """Decode scene and (predicted) agent features to a (B, C, h, w) frame in [0, 1] (latent EF: its probe)."""
+        if self.target == "latent" and int(self.probe_steps) == 0:
+            raise ValueError(
+                "This Ego-Foresight predicts features (target='latent'): it decodes frames through a probe decoder, "
+                "which is not trained yet; fit it first with sb3_ef.ef.probe.fit_probe(model)"
+            )
         return self.decoder(th.cat([h_agent, h_scene], dim=-1), skip)
 
     def draw_steps(self, future_mask: th.Tensor, generator: th.Generator | None = None) -> th.Tensor:
@@ -185,8 +231,80 @@ class EgoForesight(nn.Module):
         :param skip: encoder feature map of the context when ``skip_channels > 0``.
         :return: a scalar; 0 (still differentiable) when no sample is valid.
         """
+        if self.target == "latent":
+            raise ValueError(
+                "This Ego-Foresight predicts features (target='latent'): train it with latent_loss (its decoder is a "
+                "probe, trained with probe_loss on detached features)"
+            )
         batch = h.shape[0]
         h_scene, h_agent = self.split(h)
+        max_step = self._checked_window(batch, future_actions, steps, valid)
+        target = self._target_to_float(target, batch)
+        if self.decode_batch_size is not None and batch > self.decode_batch_size:
+            batch = self.decode_batch_size
+            h_scene, h_agent, future_actions, steps, target = (
+                x[:batch] for x in (h_scene, h_agent, future_actions, steps, target)
+            )
+            valid = None if valid is None else valid[:batch]
+            skip = None if skip is None else skip[:batch]
+        predicted_agent = self._agent_at(h_agent, future_actions, steps, max_step)
+        prediction = self.decode(h_scene, predicted_agent, skip)
+        per_sample = (prediction - target).pow(2).flatten(1).sum(dim=1)
+        return _weighted_mean(per_sample, valid)
+
+    def latent_loss(
+        self,
+        h: th.Tensor,
+        future_actions: th.Tensor,
+        steps: th.Tensor,
+        target: th.Tensor,
+        valid: th.Tensor | None = None,
+    ) -> th.Tensor:
+        """Latent EF's loss (``target="latent"`` only): the InfoNCE (:func:`~sb3_ef.ef.latent.info_nce`) of the head's
+        prediction from ``[rolled-out h_a at k, h_s]`` against target projections, averaged over valid samples.
+
+        :param target: (N, projection_dim), N >= B, target projections (from
+            :class:`~sb3_ef.ef.latent.MomentumTarget`): row ``i < B`` that of sample i's observation at t+k, all rows
+            the candidates every prediction is told apart from. The other arguments are :meth:`loss`'s.
+        """
+        if self.target != "latent":
+            raise ValueError("latent_loss needs an Ego-Foresight built with target='latent'")
+        batch = h.shape[0]
+        h_scene, h_agent = self.split(h)
+        max_step = self._checked_window(batch, future_actions, steps, valid)
+        if target.dim() != 2 or target.shape[0] < batch or target.shape[1] != self.head.projection_dim:
+            raise ValueError(
+                f"Expected target features of shape (>= {batch}, {self.head.projection_dim}), got {tuple(target.shape)}"
+            )
+        predicted_agent = self._agent_at(h_agent, future_actions, steps, max_step)
+        prediction = self.head(th.cat([predicted_agent, h_scene], dim=-1))
+        return _weighted_mean(info_nce(prediction, target.detach(), self.head.temperature), valid)
+
+    def probe_loss(
+        self,
+        h: th.Tensor,
+        future_actions: th.Tensor,
+        steps: th.Tensor,
+        target: th.Tensor,
+        valid: th.Tensor | None = None,
+        skip: th.Tensor | None = None,
+    ) -> th.Tensor:
+        """The probe decoder's loss (``target="latent"`` only): :meth:`loss`'s squared error of frame t+k, decoded from
+        ``[rolled-out h_a at k, h_s]`` computed without gradient, so that only :attr:`decoder` learns from it."""
+        if self.target != "latent":
+            raise ValueError("probe_loss needs an Ego-Foresight built with target='latent' (pixel EF trains its own)")
+        batch = h.shape[0]
+        with th.no_grad():
+            h_scene, h_agent = self.split(h)
+            max_step = self._checked_window(batch, future_actions, steps, valid)
+            predicted_agent = self._agent_at(h_agent, future_actions, steps, max_step)
+        target = self._target_to_float(target, batch)
+        features = th.cat([predicted_agent, h_scene], dim=-1)
+        prediction = self.decoder(features, None if skip is None else skip.detach())
+        return _weighted_mean((prediction - target).pow(2).flatten(1).sum(dim=1), valid)
+
+    def _checked_window(self, batch: int, future_actions: th.Tensor, steps: th.Tensor, valid: th.Tensor | None) -> int:
+        """Check the shapes of a loss's window; return the longest rollout it needs (the window under compile)."""
         if steps.shape != (batch,) or steps.dtype not in (th.int32, th.int64):
             raise ValueError(f"Expected integer steps of shape ({batch},), got {tuple(steps.shape)} {steps.dtype}")
         if future_actions.dim() != 3 or future_actions.shape[0] != batch:
@@ -203,22 +321,12 @@ class EgoForesight(nn.Module):
                 raise ValueError(f"steps must lie in [1, {future_actions.shape[1]}], got [{min_step}, {max_step}]")
         if valid is not None and valid.shape != (batch,):
             raise ValueError(f"Expected valid of shape ({batch},), got {tuple(valid.shape)}")
-        target = self._target_to_float(target, batch)
-        if self.decode_batch_size is not None and batch > self.decode_batch_size:
-            batch = self.decode_batch_size
-            h_scene, h_agent, future_actions, steps, target = (
-                x[:batch] for x in (h_scene, h_agent, future_actions, steps, target)
-            )
-            valid = None if valid is None else valid[:batch]
-            skip = None if skip is None else skip[:batch]
+        return max_step
+
+    def _agent_at(self, h_agent: th.Tensor, future_actions: th.Tensor, steps: th.Tensor, max_step: int) -> th.Tensor:
+        """h_a rolled out ``max_step`` actions, each sample's state gathered at its own k: (B, agent_dim)."""
         agent_states = self.rollout(h_agent, future_actions[:, :max_step])
-        predicted_agent = agent_states[th.arange(batch, device=h.device), steps.long() - 1]
-        prediction = self.decode(h_scene, predicted_agent, skip)
-        per_sample = (prediction - target).pow(2).flatten(1).sum(dim=1)
-        if valid is None:
-            return per_sample.mean()
-        weights = valid.to(per_sample.dtype)
-        return (per_sample * weights).sum() / weights.sum().clamp(min=1.0)
+        return agent_states[th.arange(h_agent.shape[0], device=h_agent.device), steps.long() - 1]
 
     def predict(self, h: th.Tensor, actions: th.Tensor, skip: th.Tensor | None = None) -> th.Tensor:
         """Open-loop frames for every step of ``actions`` (B, T, action_dim): (B, T, C, h, w); T may exceed H."""
@@ -258,7 +366,8 @@ class ForesightTargets(NamedTuple):
 
 class ForesightLoss(AuxiliaryLoss):
     """Ego-Foresight as an auxiliary loss of a host's encoder: ``beta * EgoForesight.loss`` on the features of the
-    observation at t, against frame t+k.
+    observation at t, against frame t+k; with ``ef_kwargs["target"] == "latent"``, ``beta * EgoForesight.latent_loss``
+    against :attr:`target_encoder`'s features of the observation at t+k (docs/ef.md).
 
     :param feature_dim: size of the host encoder's features h.
     :param action_dim: size of one action.
@@ -266,9 +375,14 @@ class ForesightLoss(AuxiliaryLoss):
     :param agent_dim: size of h_agent, the first features of h (scene features must remain).
     :param horizon: H, the largest rollout length k.
     :param beta: weight of the loss.
-    :param ef_kwargs: extra arguments of :class:`EgoForesight` (decoder / rollout options).
+    :param ef_kwargs: extra arguments of :class:`EgoForesight` (``target``, decoder / rollout / head options), and
+        with ``target="latent"`` the target encoder's ``target_tau`` (0.01).
     :param channels_last: keep the decoder's conv weights in channels-last memory format (same maths, faster
         convolutions).
+    :param encoder: the host's online encoder (the module its ``after_update`` receives); latent EF's target encoder
+        is a momentum copy of it. Not stored: the host owns it.
+    :param encoder_input: ``(divisor, offset)``: the host feeds ``encoder`` with ``obs.float() / divisor - offset``
+        (see :class:`~sb3_ef.ef.latent.MomentumTarget`).
     """
 
     def __init__(
@@ -281,6 +395,8 @@ class ForesightLoss(AuxiliaryLoss):
         beta: float = 1.0,
         ef_kwargs: dict[str, Any] | None = None,
         channels_last: bool = False,
+        encoder: nn.Module | None = None,
+        encoder_input: tuple[float, float] = (1.0, 0.0),
     ):
         super().__init__()
         if feature_dim <= agent_dim:
@@ -289,23 +405,78 @@ class ForesightLoss(AuxiliaryLoss):
                 f"got features_dim={feature_dim}, agent_dim={agent_dim}"
             )
         self.beta = beta
+        options = dict(ef_kwargs or {})
+        target_tau = options.pop("target_tau", None)
         self.ef = EgoForesight(
-            feature_dim, action_dim, frame_shape=frame_shape, agent_dim=agent_dim, horizon=horizon, **(ef_kwargs or {})
+            feature_dim, action_dim, frame_shape=frame_shape, agent_dim=agent_dim, horizon=horizon, **options
         )
+        self.target_encoder = momentum_target(self.ef, encoder, target_tau, encoder_input)
         if channels_last:
             self.ef.to(memory_format=th.channels_last)  # type: ignore[call-overload]
 
     def prepare(
         self, batch: SequenceReplayBufferSamples, pad: int, generator: th.Generator | None = None
-    ) -> tuple[th.Tensor, ForesightTargets]:
+    ) -> tuple[th.Tensor, ForesightTargets | LatentTargets]:
         """Draw the rollout lengths k (from ``generator``, so that EF leaves the host's random draws as they are
-        without it) and random-shift the observations at t together with frame t+k."""
+        without it) and random-shift the observations at t together with frame t+k (latent EF: with the stacked
+        observation at t+k)."""
         steps = self.ef.draw_steps(batch.future_mask, generator=generator)
         rows = th.arange(steps.shape[0], device=steps.device)
+        valid = batch.future_mask[rows, steps - 1]
+        if self.target_encoder is not None:
+            future = [stacked_observations_at(batch.observations, batch.future_frames, steps)]
+            others = draw_other_steps(batch.future_mask, steps, self.ef.horizon, generator)
+            if others is not None:
+                future.append(stacked_observations_at(batch.observations, batch.future_frames, others))
+            observations, *future = random_shift(batch.observations, *future, pad=pad)
+            negatives = future[1] if others is not None else None
+            return observations, LatentTargets(steps, future[0], valid, batch.future_actions, negatives)
         observations, target = random_shift(batch.observations, batch.future_frames[rows, steps - 1], pad=pad)
-        return observations, ForesightTargets(steps, target, batch.future_mask[rows, steps - 1], batch.future_actions)
+        return observations, ForesightTargets(steps, target, valid, batch.future_actions)
 
-    def forward(self, features: th.Tensor, targets: ForesightTargets) -> tuple[th.Tensor, dict[str, th.Tensor]]:
+    def forward(
+        self, features: th.Tensor, targets: ForesightTargets | LatentTargets
+    ) -> tuple[th.Tensor, dict[str, th.Tensor]]:
         """``beta`` times EF's loss on ``features`` of the prepared observations; logs the unweighted ``ef_loss``."""
-        loss = self.ef.loss(features, targets.actions, targets.steps, targets.target, targets.valid)
+        if isinstance(targets, LatentTargets):
+            if self.target_encoder is None:
+                raise ValueError("LatentTargets need a ForesightLoss built with ef_kwargs target='latent'")
+            future = targets.observations
+            if targets.negatives is not None:
+                future = th.cat([future, targets.negatives])
+            target = self.target_encoder(future)
+            loss = self.ef.latent_loss(features, targets.actions, targets.steps, target, targets.valid)
+        else:
+            loss = self.ef.loss(features, targets.actions, targets.steps, targets.target, targets.valid)
         return self.beta * loss, {"ef_loss": loss.detach()}
+
+    def after_update(self, encoder: nn.Module) -> None:
+        """Latent EF: the target encoder and projection follow the online ones (pixel EF: nothing)."""
+        if self.target_encoder is not None:
+            self.target_encoder.update(encoder, self.ef.head.projection)
+
+
+def _weighted_mean(per_sample: th.Tensor, valid: th.Tensor | None) -> th.Tensor:
+    """Mean of per-sample losses, weighted by ``valid`` (bool or float) when given; 0 when no sample is valid."""
+    if valid is None:
+        return per_sample.mean()
+    weights = valid.to(per_sample.dtype)
+    return (per_sample * weights).sum() / weights.sum().clamp(min=1.0)
+
+
+def momentum_target(
+    ef: EgoForesight,
+    encoder: nn.Module | None,
+    target_tau: float | None = None,
+    encoder_input: tuple[float, float] = (1.0, 0.0),
+) -> MomentumTarget | None:
+    """Latent EF's target encoder (``ef_kwargs`` ``target_tau``, 0.01 by default) for ``ef`` on ``encoder``; ``None``
+    for pixel EF, which refuses a ``target_tau``."""
+    if ef.target == "latent":
+        if encoder is None:
+            raise ValueError("target='latent' predicts the features of the host's encoder: pass encoder=")
+        tau = DEFAULT_TARGET_TAU if target_tau is None else target_tau
+        return MomentumTarget(encoder, ef.head.projection, tau, encoder_input)
+    if target_tau is not None:
+        raise ValueError("ef_kwargs target_tau applies to target='latent' only, got it with target='pixel'")
+    return None

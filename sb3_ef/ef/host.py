@@ -13,6 +13,7 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.type_aliases import MaybeCallback
+from torch import nn
 
 from sb3_ef.auxiliary.host import AuxiliaryHostMixin
 from sb3_ef.common.env_checks import episode_steps
@@ -107,10 +108,27 @@ class EFMixin(AuxiliaryHostMixin):
         super()._setup_model()
 
     def _foresight(
-        self, feature_dim: int, agent_dim: int, ef_kwargs: dict[str, Any] | None, channels_last: bool
+        self,
+        feature_dim: int,
+        agent_dim: int,
+        ef_kwargs: dict[str, Any] | None,
+        channels_last: bool,
+        encoder: nn.Module,
+        encoder_input: tuple[float, float],
     ) -> ForesightLoss:
-        """EF's loss on an encoder of ``feature_dim`` features, with this model's horizon and ``beta``."""
+        """EF's loss on ``encoder`` (the module the host passes to ``after_update``; fed ``obs.float() / divisor -
+        offset`` for ``encoder_input=(divisor, offset)``) of ``feature_dim`` features, with this model's horizon and
+        ``beta``. Latent EF's target encoder is a momentum copy of ``encoder``."""
         action_dim = int(np.prod(self.action_space.shape))  # type: ignore[arg-type]
         return ForesightLoss(
-            feature_dim, action_dim, self.frame_shape, agent_dim, self.ef_horizon, self.beta, ef_kwargs, channels_last
+            feature_dim,
+            action_dim,
+            self.frame_shape,
+            agent_dim,
+            self.ef_horizon,
+            self.beta,
+            ef_kwargs,
+            channels_last,
+            encoder=encoder,
+            encoder_input=encoder_input,
         )

@@ -72,7 +72,9 @@ class EFStepMixin(EFMixin, AuxiliaryStepMixin):
         """Ego-Foresight on the critic's features extractor, built from a fork of the global generator so that the
         host's own random draws are those it has without EF."""
         with th.random.fork_rng(devices=[]):
-            return self._foresight(self.critic.features_extractor.features_dim, self.agent_dim, self.ef_kwargs, False)
+            encoder = self.critic.features_extractor  # fed SB3's preprocessed observations (extract_features)
+            scaling = (255.0 if self.critic.normalize_images else 1.0, 0.0)
+            return self._foresight(encoder.features_dim, self.agent_dim, self.ef_kwargs, False, encoder, scaling)
 
 
 class SACEF(EFStepMixin, SAC):

@@ -74,5 +74,8 @@ def seed_steps_from_episode_length(episode_length: int, minimum: int = 1000, epi
 
 
 def planning_iterations(action_dim: int, iterations: int = 6, large_action_dim: int = 20, extra: int = 2) -> int:
-    """TD-MPC2's MPPI iterations: 6, and 2 more for large action spaces (``action_dim >= 20``: humanoid, dog)."""
+    """TD-MPC2's MPPI iterations: ``iterations`` (6 by default), and 2 more for large action spaces (``action_dim
+    >= 20``: humanoid, dog), also added to a given value, as the reference adds them to its configured one."""
+    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
+        raise ValueError(f"iterations must be a positive integer, got {iterations!r}")
     return iterations + extra * int(action_dim >= large_action_dim)

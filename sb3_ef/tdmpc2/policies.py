@@ -63,8 +63,8 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
     ``optimizer`` trains the world model (parameter groups ``encoder``, at ``encoder_lr_scale`` times the learning
     rate, and ``heads``; the algorithm adds an ``auxiliary`` group for its auxiliary module); ``pi_optimizer`` trains
     the policy prior. ``q_scale`` is the running 5-95 percentile range of Q that normalises the policy loss. Actions
-    come from MPPI planning (``plan``); ``predict`` keeps one warm-start plan per env and resets it where
-    ``episode_start`` is true.
+    come from MPPI planning (``plan``); ``predict`` carries the warm-start plans as its state, which ``episode_start``
+    resets.
 
     :param observation_space: uint8 Box (3 * frame_stack, 64, 64).
     :param action_space: Box in [-1, 1].
@@ -81,7 +81,7 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
     :param horizon: planning / world-model horizon (set by the algorithm).
     :param gamma: discount of the planner's value estimate (set by the algorithm).
     :param planner_kwargs: MPPI settings, see :class:`MPPIPlanner` (``num_samples``, ``eval_action``, ...);
-        ``iterations`` defaults to TD-MPC2's heuristic (6, or 8 when ``action_dim >= 20``).
+        ``iterations`` (6 by default) gets 2 more when ``action_dim >= 20``, a given value too (TD-MPC2's heuristic).
     :param optimizer_class: optimiser of both parameter sets.
     :param optimizer_kwargs: extra optimiser arguments; ``None`` with Adam gives its fused kernel (``fused=True``:
         the same update, faster on CPU and GPU).
@@ -157,12 +157,15 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
         )
         if channels_last:
             self.world_model.encoder.to(memory_format=th.channels_last)  # type: ignore[call-overload]
-        planner_kwargs = {"iterations": planning_iterations(action_dim), **(planner_kwargs or {})}
-        self.planner = MPPIPlanner(horizon=horizon, gamma=gamma, **planner_kwargs)
+        planner_kwargs = dict(planner_kwargs or {})
+        iterations = planning_iterations(action_dim, planner_kwargs.pop("iterations", MPPIPlanner.iterations))
+        self.planner = MPPIPlanner(horizon=horizon, gamma=gamma, iterations=iterations, **planner_kwargs)
         self.register_buffer("q_scale", th.ones(()))
-        self._plan_mean: th.Tensor | None = None
+        self._build_optimizers(lr_schedule(1), encoder_lr_scale)
 
-        learning_rate = lr_schedule(1)
+    def _build_optimizers(self, learning_rate: float, encoder_lr_scale: float) -> None:
+        """``optimizer`` of the world model (groups ``encoder``, at ``encoder_lr_scale`` times the rate, and
+        ``heads``: dynamics, reward, Q) and ``pi_optimizer`` of the policy prior (Adam's ``eps`` 1e-5, as TD-MPC2)."""
         model = self.world_model
         groups: list[dict[str, Any]] = [
             {"name": "encoder", "params": model.encoder.parameters(), "lr_scale": encoder_lr_scale},
@@ -208,28 +211,64 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
         episode_start: np.ndarray | None = None,
         deterministic: bool = False,
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
-        """SB3's predict; the warm-start plan of every env whose ``episode_start`` is true is reset first."""
-        if episode_start is not None and self._plan_mean is not None:
-            starts = th.as_tensor(np.asarray(episode_start, dtype=bool).reshape(-1), device=self._plan_mean.device)
-            if starts.shape[0] == self._plan_mean.shape[0]:
-                self._plan_mean[starts] = 0.0
-        return super().predict(observation, state, episode_start, deterministic)
+        """SB3's ``predict``, the planner's warm start carried as the state (as a recurrent policy carries its own).
+
+        ``state`` is what the previous call returned, ``(plans,)``: the final MPPI means ``(n_envs, horizon,
+        action_dim)``, which warm-start this call's plans shifted by one step; the returned state holds this call's
+        plans for the next one. ``state=None`` and the envs where ``episode_start`` is true plan from a zero mean
+        (an episode's first step). So the action is a function of the observation, the state and the weights, with
+        the random draws of :meth:`_plan_actions`.
+        """
+        if isinstance(observation, tuple):
+            raise ValueError(
+                "predict expects the observation as an array (a VecEnv's obs, or the obs of gymnasium's "
+                "obs, info = env.reset()), got a tuple"
+            )
+        self.set_training_mode(False)
+        observations, vectorized = self.obs_to_tensor(observation)
+        assert isinstance(observations, th.Tensor)
+        previous = self._warm_start(state, episode_start, observations.shape[0])
+        actions, plans = self._plan_actions(observations, previous, deterministic)
+        clipped = np.clip(actions.cpu().numpy(), self.action_space.low, self.action_space.high)  # type: ignore[attr-defined]
+        return (clipped if vectorized else clipped.squeeze(axis=0)), (plans.cpu().numpy(),)
+
+    def _warm_start(
+        self, state: tuple[np.ndarray, ...] | None, episode_start: np.ndarray | None, n_envs: int
+    ) -> th.Tensor | None:
+        """The previous plans held in ``predict``'s ``state``, zero for the envs where ``episode_start`` is true
+        (``None``: every env starts from a zero mean); raise naming the expected shapes."""
+        if state is None:
+            return None
+        expected = (n_envs, self.planner.horizon, int(np.prod(self.action_space.shape)))  # type: ignore[arg-type]
+        if not isinstance(state, tuple) or len(state) != 1 or np.shape(state[0]) != expected:
+            shapes = [np.shape(part) for part in state] if isinstance(state, tuple) else type(state).__name__
+            raise ValueError(
+                "predict expects state=None or the state its previous call returned for these envs, (plans,) with "
+                f"plans of shape {expected} (n_envs, horizon, action_dim), got {shapes}"
+            )
+        plans = th.as_tensor(np.asarray(state[0], dtype=np.float32), device=self.device).clone()
+        if episode_start is not None:
+            starts = np.asarray(episode_start, dtype=bool).reshape(-1)
+            if starts.shape != (n_envs,):
+                raise ValueError(f"predict expects one episode_start flag per env ({n_envs}), got {starts.shape[0]}")
+            plans[th.as_tensor(starts, device=self.device)] = 0.0
+        return plans
+
+    def _plan_actions(
+        self, observations: th.Tensor, previous_mean: th.Tensor | None, deterministic: bool
+    ) -> tuple[th.Tensor, th.Tensor]:
+        """:meth:`plan`; with ``deterministic``, the planner's random draws (samples, policy-prior noise, Q heads,
+        elite draw) come from generators seeded with :data:`DETERMINISTIC_SEED` at each call, and the global
+        generators are left as they were (an evaluation does not shift training's random stream). Otherwise they
+        come from the global generators, as training's do."""
+        with _seeded_draws(observations.device, DETERMINISTIC_SEED) if deterministic else nullcontext():
+            return self.plan(observations, previous_mean, deterministic)
 
     def _predict(self, observation: PyTorchObs, deterministic: bool = False) -> th.Tensor:
-        """The planner's actions, warm-started from the previous call's plans. With ``deterministic``, the planner's
-        random draws (samples, policy-prior noise, Q heads, elite draw) come from generators seeded with
-        :data:`DETERMINISTIC_SEED` at each call: the same observation and warm start give the same action, and the
-        global generators are left as they were (an evaluation does not shift training's random stream)."""
+        """The planner's actions from a zero warm start (an episode's first step); :meth:`predict` carries the
+        warm start from call to call."""
         assert isinstance(observation, th.Tensor)
-        if self._plan_mean is not None and self._plan_mean.shape[0] != observation.shape[0]:
-            self._plan_mean = None
-        with _seeded_draws(observation.device, DETERMINISTIC_SEED) if deterministic else nullcontext():
-            actions, self._plan_mean = self.plan(observation, self._plan_mean, deterministic)
-        return actions
-
-    def reset_planner(self) -> None:
-        """Forget the warm-start plans used by ``predict`` (every env starts from a zero mean)."""
-        self._plan_mean = None
+        return self._plan_actions(observation, None, deterministic)[0]
 
 
 class TDMPC2EFPolicy(TDMPC2Policy):

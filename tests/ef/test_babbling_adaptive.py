@@ -112,6 +112,14 @@ def test_adaptive_babbling_needs_ef_or_a_criterion():
         model.learn(30, callback=MotorBabblingCallback("adaptive", max_steps=50, eval_freq=10, criterion=lambda m: -1))
 
 
+def test_latent_ef_needs_a_criterion():
+    policy = {**EF_POLICY, "ef_kwargs": {**EF_POLICY["ef_kwargs"], "target": "latent"}}
+    model = DrQv2EF("CnnPolicy", toy_env(), buffer_size=200, batch_size=4, learning_starts=10, ef_horizon=3,
+                    babbling_steps=0, policy_kwargs=policy)  # fmt: skip
+    with pytest.raises(ValueError, match=r"latent EF .* decodes none while it trains: pass criterion="):
+        model.learn(10, callback=adaptive(max_steps=50))
+
+
 def test_the_held_out_env_must_match_the_model():
     model = drqv2_ef(learning_rate=1e-3)
     with pytest.raises(ValueError, match=r"eval_env observations must have the model's shape \(9, 32, 32\)"):

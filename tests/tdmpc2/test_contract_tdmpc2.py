@@ -64,15 +64,60 @@ def test_deterministic_predict_repeats_and_leaves_the_global_generator(eval_acti
     assert not np.array_equal(*noisy)
 
 
+def test_predict_twice_on_one_observation_gives_one_action():
+    # No state hidden in the policy: the same inputs (observation, state, episode_start) give the same action.
+    model = make(planner={"max_std": 0.3}).learn(12)
+    obs = observations()
+    first, first_state = model.predict(obs, deterministic=True)
+    second, second_state = model.predict(obs, deterministic=True)
+    np.testing.assert_array_equal(first, second)
+    np.testing.assert_array_equal(first_state[0], second_state[0])
+    warm, _ = model.predict(obs, state=first_state, deterministic=True)
+    np.testing.assert_array_equal(model.predict(obs, state=first_state, deterministic=True)[0], warm)
+
+
+def test_the_state_is_the_warm_start_plan():
+    # Gaussian samples only (no policy-prior trajectory), so that the warm start moves every sample.
+    model = make(planner={"max_std": 0.3, "num_pi_trajs": 0}).learn(12)
+    obs = observations()
+    fresh, (plans,) = model.predict(obs, deterministic=True)
+    assert plans.shape == (2, model.horizon, 2) and plans.dtype == np.float32
+    warm, _ = model.predict(obs, state=(plans,), deterministic=True)
+    assert not np.array_equal(warm, fresh)
+    restarted, _ = model.predict(obs, state=(plans,), episode_start=start(), deterministic=True)
+    np.testing.assert_array_equal(restarted, fresh)
+    # One env restarting: its action is the fresh one, the other keeps its warm start.
+    mixed, _ = model.predict(obs, state=(plans,), episode_start=np.array([True, False]), deterministic=True)
+    np.testing.assert_array_equal(mixed, [fresh[0], warm[1]])
+    single, (single_plans,) = model.predict(obs[0], deterministic=True)  # one unbatched observation
+    assert single.shape == (2,) and single_plans.shape == (1, model.horizon, 2)
+
+
+@pytest.mark.parametrize(
+    ("state", "episode_start", "match"),
+    [
+        ((np.zeros((3, 3, 2), np.float32),), None, r"plans of shape \(2, 3, 2\).*got \[\(3, 3, 2\)\]"),
+        (np.zeros((2, 3, 2), np.float32), None, "got ndarray"),
+        ((np.zeros((2, 3, 2), np.float32),), np.ones(3, bool), r"one episode_start flag per env \(2\), got 3"),
+    ],
+)
+def test_a_state_of_other_envs_is_refused(state, episode_start, match):
+    model = make()
+    with pytest.raises(ValueError, match=match):
+        model.predict(observations(), state=state, episode_start=episode_start)
+
+
 def test_deterministic_predict_is_the_same_after_save_load(tmp_path):
     model = make().learn(12)
     model.save(tmp_path / "model.zip")
     loaded = TDMPC2EF.load(tmp_path / "model.zip", env=toy_env())
     obs = observations()
+    state = loaded_state = None
     for _ in range(2):  # the second call warm-starts from the first call's plans, in both models alike
-        expected, _ = model.predict(obs, deterministic=True)
-        actions, _ = loaded.predict(obs, deterministic=True)
+        expected, state = model.predict(obs, state=state, deterministic=True)
+        actions, loaded_state = loaded.predict(obs, state=loaded_state, deterministic=True)
         np.testing.assert_array_equal(actions, expected)
+        np.testing.assert_array_equal(loaded_state[0], state[0])
 
 
 def test_evaluate_policy_is_repeatable():

@@ -157,8 +157,8 @@ def test_training_is_reproducible_with_a_seed():
 def test_predict_warm_start_is_reset_at_episode_start(monkeypatch):
     model = make()
     observation = np.stack([toy_env().reset(seed=0)[0]] * 2)
-    model.predict(observation)
-    model.policy._plan_mean.fill_(0.5)
+    _, (plans,) = model.predict(observation)
+    state = (np.full_like(plans, 0.5),)
     planner, seen = model.policy.planner, []
     original_plan = planner.plan
 
@@ -167,8 +167,9 @@ def test_predict_warm_start_is_reset_at_episode_start(monkeypatch):
         return original_plan(world_model, z, previous_mean, deterministic)
 
     monkeypatch.setattr(planner, "plan", recording_plan)
-    model.predict(observation, episode_start=np.array([True, False]))
+    model.predict(observation, state=state, episode_start=np.array([True, False]))
     assert th.all(seen[0][0] == 0) and th.all(seen[0][1] == 0.5)
+    assert np.all(state[0] == 0.5)  # the caller's state is read, not written
 
 
 def test_learn_on_dmc_reacher_with_callbacks(tmp_path):

@@ -1,7 +1,7 @@
 """TDMPC2 against the reference (nicklashansen/tdmpc2): numbers derived here from its equations and defaults.
 
-The seed-data burst, the heuristics (seed steps, discount, MPPI iterations), the policy's entropy term, the TD
-target, the evaluation action and the gradient clip.
+The seed actions and the seed-data burst, the heuristics (seed steps, discount, MPPI iterations), the policy's
+entropy term, the TD target, the evaluation action, the warm start in evaluation and the gradient clip.
 """
 
 from __future__ import annotations
@@ -12,6 +12,9 @@ import numpy as np
 import pytest
 import torch as th
 from gymnasium import spaces
+from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.vec_env import DummyVecEnv
 
 from sb3_ef.envs.toy import ToyAgentEnv
 from sb3_ef.tdmpc2 import TDMPC2, TDMPC2EF
@@ -87,6 +90,26 @@ def test_seed_data_burst_then_one_update_per_step(algorithm):
     assert (model.num_timesteps, model._n_updates) == (15, 14)
 
 
+@pytest.mark.parametrize("algorithm", [TDMPC2, TDMPC2EF])
+def test_seed_actions_are_steps_0_to_S_and_the_first_plan_follows_the_burst(algorithm, monkeypatch):
+    # The reference acts randomly at its steps 0..S (S + 1 actions: `step > seed_steps` plans) and runs the burst
+    # at step S, after that step's action: its first planned action comes from the model trained on the seed data.
+    seed_steps = 10
+    model = make(algorithm, learning_starts=seed_steps)
+    plan, calls = model.policy.plan, []
+
+    def recording_plan(*args, **kwargs):
+        calls.append((model.num_timesteps, model._n_updates))
+        return plan(*args, **kwargs)
+
+    monkeypatch.setattr(model.policy, "plan", recording_plan)
+    model.learn(seed_steps + 1)
+    assert (calls, model._n_updates) == ([], seed_steps)
+    model.learn(2, reset_num_timesteps=False)
+    # (steps taken before the planned action, updates run by then)
+    assert calls == [(seed_steps + 1, seed_steps), (seed_steps + 2, seed_steps + 1)]
+
+
 def test_without_the_burst_one_update_per_step_after_the_seed_steps():
     model = make(learning_starts=10, seed_burst=False)
     model.learn(15)
@@ -105,10 +128,28 @@ def test_two_more_planning_iterations_for_large_action_spaces():
         action_space = spaces.Box(-1, 1, (action_dim,), np.float32)
         policy = TDMPC2Policy(observation_space, action_space, learning_rate, **policy_kwargs)
         assert policy.planner.iterations == iterations
-    given = TDMPC2Policy(
-        observation_space, action_space, learning_rate, planner_kwargs={"iterations": 3}, **policy_kwargs
-    )
-    assert given.planner.iterations == 3
+
+
+def test_the_two_iterations_are_added_to_a_given_value_too():
+    # The reference adds them to its configured `iterations` (`cfg.iterations += 2 * (action_dim >= 20)`).
+    assert (planning_iterations(6, 3), planning_iterations(21, 3)) == (3, 5)
+    observation_space = spaces.Box(0, 255, (9, 64, 64), np.uint8)
+    policy_kwargs = {"num_channels": 4, "mlp_dim": 16, "num_q": 2, "planner_kwargs": {"iterations": 3}}
+    for action_dim, iterations in ((6, 3), (21, 5)):
+        action_space = spaces.Box(-1, 1, (action_dim,), np.float32)
+        policy = TDMPC2Policy(observation_space, action_space, learning_rate, **policy_kwargs)
+        assert policy.planner.iterations == iterations
+        # Saved with the value given, so that a loaded policy adds them once.
+        assert policy._get_constructor_parameters()["planner_kwargs"] == {"iterations": 3}
+        assert TDMPC2Policy(**policy._get_constructor_parameters()).planner.iterations == iterations
+    for bad in (0, 2.5):
+        with pytest.raises(ValueError, match=f"iterations must be a positive integer, got {bad}"):
+            TDMPC2Policy(
+                observation_space,
+                action_space,
+                learning_rate,
+                **{**policy_kwargs, "planner_kwargs": {"iterations": bad}},
+            )
 
 
 # The policy prior's entropy term.
@@ -253,6 +294,32 @@ def test_predict_deterministic_uses_the_evaluation_action():
     assert make(policy_kwargs={**TINY_POLICY, "planner_kwargs": {"eval_action": "mean"}}).policy.planner.eval_action
     with pytest.raises(ValueError, match="eval_action"):
         MPPIPlanner(eval_action="median")
+
+
+# Warm start in evaluation.
+
+
+def test_evaluate_policy_warm_starts_within_each_episode(monkeypatch):
+    # The reference's evaluation plans with `t0=t==0`: a zero mean at each episode's first step, then the previous
+    # step's final mean (its `_prev_mean`). SB3's evaluate_policy passes predict's state and episode_start.
+    model = make().learn(12)
+    planner, calls = model.policy.planner, []
+    original_plan = planner.plan
+
+    def recording_plan(world_model, z, previous_mean=None, deterministic=False):
+        actions, mean = original_plan(world_model, z, previous_mean, deterministic)
+        calls.append((None if previous_mean is None else previous_mean.clone(), mean.clone()))
+        return actions, mean
+
+    monkeypatch.setattr(planner, "plan", recording_plan)
+    env = DummyVecEnv([lambda: Monitor(ToyAgentEnv(size=64, max_episode_steps=4))])
+    evaluate_policy(model, env, n_eval_episodes=2, deterministic=True)
+    assert len(calls) == 8
+    for step, (previous, _) in enumerate(calls):
+        if step % 4 == 0:  # an episode's first step
+            assert previous is None or bool((previous == 0).all())
+        else:
+            th.testing.assert_close(previous, calls[step - 1][1], rtol=0, atol=0)
 
 
 # Gradient clipping.

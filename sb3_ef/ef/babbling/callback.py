@@ -206,6 +206,11 @@ class MotorBabblingCallback(BaseCallback):
                     "Adaptive babbling without a criterion scores Ego-Foresight's predictions, but "
                     f"{type(model).__name__} has no EF module: pass criterion=<function of the model>"
                 )
+            if getattr(getattr(model, "ef", None), "target", "pixel") == "latent":
+                raise ValueError(
+                    "Adaptive babbling without a criterion scores EF's decoded frames, and latent EF "
+                    "(ef_kwargs target='latent') decodes none while it trains: pass criterion=<function of the model>"
+                )
             if getattr(getattr(model, "ef", None), "skip_channels", 0):
                 raise ValueError("Adaptive babbling scores EF without U-Net skips (skip_channels=0)")
             expected, received = model.observation_space.shape, self.eval_env.observation_space.shape  # type: ignore[union-attr]

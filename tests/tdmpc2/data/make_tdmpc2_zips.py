@@ -44,11 +44,10 @@ def observations() -> np.ndarray:
 
 
 def deterministic_actions(model) -> np.ndarray:
-    """Planned actions on :func:`observations` from a zero warm start, the planner's draws seeded with 0 (what a
-    deterministic ``predict`` of later versions does)."""
-    model.policy.reset_planner()
+    """Planned actions on :func:`observations` from a zero warm start (every env starting an episode), the
+    planner's draws seeded with 0 (what a deterministic ``predict`` of later versions does)."""
     th.manual_seed(0)
-    return model.predict(observations(), deterministic=True)[0]
+    return model.predict(observations(), episode_start=np.ones(3, dtype=bool), deterministic=True)[0]
 
 
 def expected(model) -> dict[str, np.ndarray]:

@@ -1,0 +1,273 @@
+"""Ego-Foresight in feature space (``ef_kwargs=dict(target="latent")``): the pieces that replace the frame decoder.
+
+Instead of decoding frame t+k, latent EF predicts how a slow-moving copy of the host's encoder (the *target
+encoder*, :class:`MomentumTarget`) encodes the stacked observation at t+k (:func:`stacked_observations_at`): the
+predicted features (the rolled-out ``h_a`` with the context's ``h_s``) go through a projection and a prediction head
+(:class:`LatentHead`), the target features through a momentum copy of that projection, and the loss is an InfoNCE
+(:func:`info_nce`) that must pick the target of t+k among the batch's targets and, for each sample, its own
+observation at another step t+k' (:func:`draw_other_steps`). docs/ef.md ("Ego-Foresight in feature space") gives the
+reasons for each choice and the measurements behind them.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable
+from typing import TYPE_CHECKING, NamedTuple
+
+import torch as th
+from stable_baselines3.common.utils import polyak_update
+from torch import nn
+from torch.nn import functional as F
+
+from sb3_ef.common.augmentation import random_shift
+from sb3_ef.common.env_checks import FRAME_CHANNELS
+from sb3_ef.common.layers import mlp
+
+if TYPE_CHECKING:
+    from sb3_ef.ef.foresight import EgoForesight
+
+#: What Ego-Foresight predicts: the frame at t+k (the paper) or the target encoder's features of the observation at t+k.
+TARGETS = ("pixel", "latent")
+#: Momentum of the target encoder: ``target <- (1 - tau) target + tau online`` after every update (docs/ef.md).
+DEFAULT_TARGET_TAU = 0.01
+DEFAULT_PROJECTION_DIM = 256
+DEFAULT_HEAD_HIDDEN_DIM = 512
+#: Temperature of the InfoNCE on cosine similarities.
+DEFAULT_TEMPERATURE = 0.1
+
+
+def check_target(target: object, decode_batch_size: int | None = None, **latent_options: object) -> str:
+    """``target`` if it names one of :data:`TARGETS`, else a ``ValueError`` naming the choices; the options of the
+    other target (``decode_batch_size`` for latent EF, ``latent_options`` given, not ``None``, for pixel EF) are
+    refused, named."""
+    if not isinstance(target, str) or target not in TARGETS:
+        raise ValueError(f"Ego-Foresight's target (ef_kwargs['target']) must be one of {TARGETS}, got {target!r}")
+    if target == "pixel":
+        given = [name for name, value in latent_options.items() if value is not None]
+        if given:
+            raise ValueError(f"ef_kwargs {given} apply to target='latent' only, got them with target='pixel'")
+    elif decode_batch_size is not None:
+        raise ValueError("ef_kwargs decode_batch_size applies to target='pixel' only (latent EF decodes no frame)")
+    return target
+
+
+class LatentTargets(NamedTuple):
+    """What latent EF's loss compares against for one replay batch (from ``ForesightLoss.prepare``)."""
+
+    steps: th.Tensor  # (B,) rollout lengths k
+    observations: th.Tensor  # (B, 3 * frame_stack, h, w) uint8 stacked observation at t+k, shifted with the one at t
+    valid: th.Tensor  # (B,) bool: step t+k lies inside the episode
+    actions: th.Tensor  # (B, H, action_dim) actions t .. t+H-1
+    negatives: th.Tensor | None  # (B, 3 * frame_stack, h, w) each sample's observation at t+k', k' != k; None if H = 1
+
+
+def draw_other_steps(
+    future_mask: th.Tensor, steps: th.Tensor, horizon: int, generator: th.Generator | None = None
+) -> th.Tensor | None:
+    """For each sample a step k' != k in [1, horizon], uniform among its valid steps (among all others when it has
+    no other valid one): (B,) long, or ``None`` when ``horizon == 1`` (no other step)."""
+    if horizon == 1:
+        return None
+    device = generator.device if generator is not None else future_mask.device
+    rows = th.arange(steps.shape[0], device=device)
+    own = steps.to(device) - 1
+    weights = future_mask[:, :horizon].to(device=device, dtype=th.float32)
+    weights[rows, own] = 0.0
+    lonely = weights.sum(dim=1) == 0
+    weights[lonely] = 1.0
+    weights[rows, own] = 0.0
+    others = th.multinomial(weights, 1, generator=generator).squeeze(1) + 1
+    return others.to(future_mask.device)
+
+
+def stacked_observations_at(observations: th.Tensor, future_frames: th.Tensor, steps: th.Tensor) -> th.Tensor:
+    """The stacked observation at t+k of each sample, built from the replay window (docs/architecture.md): the
+    frames of the observation at t followed by ``future_frames``, ``frame_stack`` consecutive frames ending at
+    frame t+k (oldest first, as the envs stack them).
+
+    :param observations: (B, 3 * frame_stack, h, w) stacked observations at t.
+    :param future_frames: (B, H, 3, h, w) the newest frame of the observations t+1 .. t+H.
+    :param steps: (B,) k in [1, H] per sample.
+    :return: (B, 3 * frame_stack, h, w), same dtype as the inputs.
+    """
+    batch, channels, height, width = observations.shape
+    if (
+        channels % FRAME_CHANNELS
+        or future_frames.dim() != 5
+        or future_frames.shape[0] != batch
+        or tuple(future_frames.shape[2:]) != (FRAME_CHANNELS, height, width)
+    ):
+        raise ValueError(
+            f"Expected observations (batch, 3 * frame_stack, h, w) and future_frames (batch, H, 3, h, w), got "
+            f"{tuple(observations.shape)} and {tuple(future_frames.shape)}"
+        )
+    frame_stack, horizon = channels // FRAME_CHANNELS, future_frames.shape[1]
+    context = observations.unflatten(1, (frame_stack, FRAME_CHANNELS))
+    rows = th.arange(batch, device=observations.device)
+    stacked = []
+    for slot in range(frame_stack):  # slot j of the observation at t+k is frame t+k-frame_stack+1+j
+        index = steps + slot  # in the context's frames for index < frame_stack, else future frame index - frame_stack
+        from_context = context[rows, index.clamp(max=frame_stack - 1)]
+        from_future = future_frames[rows, (index - frame_stack).clamp(0, horizon - 1)]
+        stacked.append(th.where((index < frame_stack)[:, None, None, None], from_context, from_future))
+    return th.stack(stacked, dim=1).flatten(1, 2)
+
+
+def info_nce(prediction: th.Tensor, candidates: th.Tensor, temperature: float) -> th.Tensor:
+    """Per-sample InfoNCE: the cross-entropy of picking candidate ``i`` for prediction ``i`` among all candidates,
+    on cosine similarities divided by ``temperature``.
+
+    :param prediction: (B, P) predictions.
+    :param candidates: (N, P) with N >= B: row ``i < B`` is the positive of prediction ``i``, every row a negative of
+        the other predictions.
+    :return: (B,) losses.
+    """
+    logits = F.normalize(prediction, dim=-1) @ F.normalize(candidates, dim=-1).T / temperature
+    return F.cross_entropy(logits, th.arange(prediction.shape[0], device=prediction.device), reduction="none")
+
+
+class LatentHead(nn.Module):
+    """The online side of latent EF: a projection of the (predicted) features and a prediction head on it.
+
+    Both are MLPs of one ``NormedLinear`` hidden block (Linear -> LayerNorm -> Mish, no batch statistics) and a linear
+    output. The target side projects the target encoder's features with a momentum copy of ``projection``.
+
+    :param feature_dim: size of the features (``h`` of the host's encoder).
+    :param projection_dim: size of the projected vectors the loss compares.
+    :param hidden_dim: width of the hidden block of both MLPs.
+    :param temperature: the InfoNCE's temperature (:func:`info_nce`).
+    """
+
+    def __init__(
+        self, feature_dim: int, projection_dim: int, hidden_dim: int, temperature: float = DEFAULT_TEMPERATURE
+    ):
+        super().__init__()
+        for name, value in (("projection_dim", projection_dim), ("head_hidden_dim", hidden_dim)):
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive int, got {value!r}")
+        if isinstance(temperature, bool) or not isinstance(temperature, (int, float)) or not temperature > 0:
+            raise ValueError(f"temperature must be a positive number, got {temperature!r}")
+        self.projection_dim = projection_dim
+        self.temperature = float(temperature)
+        self.projection = mlp(feature_dim, (hidden_dim,), projection_dim)
+        self.prediction = mlp(projection_dim, (hidden_dim,), projection_dim)
+
+    def forward(self, features: th.Tensor) -> th.Tensor:
+        """(B, feature_dim) -> (B, projection_dim): the prediction of the target's projection."""
+        return self.prediction(self.projection(features))
+
+
+def momentum_copy(module: nn.Module) -> nn.Module:
+    """A copy of ``module`` whose parameters are buffers: in its state dict (saved and loaded with the module that
+    holds it), moved by ``.to``, never in ``parameters()`` and so never given to an optimiser, never requiring grad."""
+    copied = copy.deepcopy(module)
+    for submodule in copied.modules():
+        for name, parameter in list(submodule._parameters.items()):
+            if parameter is not None:
+                del submodule._parameters[name]
+                submodule.register_buffer(name, parameter.detach())
+    return copied.eval()
+
+
+class MomentumTarget(nn.Module):
+    """The target of latent EF: momentum copies of the host's encoder and of the online projection.
+
+    :meth:`update` (called from the loss's ``after_update``) moves each copy towards the online module,
+    ``target <- (1 - tau) target + tau online``, and copies the online encoder's own buffers (batch-norm statistics,
+    if any) as SB3 does for its targets. The copies are buffers (:func:`momentum_copy`), always in eval mode.
+
+    :param encoder: the host's online encoder, the module the host passes to ``after_update``.
+    :param projection: the online projection (:attr:`LatentHead.projection`).
+    :param tau: the momentum update's step, in (0, 1].
+    :param input_scaling: ``(divisor, offset)``: the host feeds its encoder ``obs.float() / divisor - offset`` (DrQ-v2:
+        ``(1, 0)``, its encoder scales itself; TD-MPC2: ``(255, 0.5)``; SB3 with ``normalize_images``: ``(255, 0)``).
+    """
+
+    def __init__(
+        self,
+        encoder: nn.Module,
+        projection: nn.Module,
+        tau: float = DEFAULT_TARGET_TAU,
+        input_scaling: tuple[float, float] = (1.0, 0.0),
+    ):
+        super().__init__()
+        if isinstance(tau, bool) or not isinstance(tau, (int, float)) or not 0.0 < tau <= 1.0:
+            raise ValueError(f"target_tau must be a number in (0, 1], got {tau!r}")
+        if not isinstance(encoder, nn.Module):
+            raise ValueError(f"target='latent' needs the host's encoder (an nn.Module), got {encoder!r}")
+        divisor, offset = input_scaling
+        if not divisor > 0:
+            raise ValueError(f"input_scaling's divisor must be positive, got {input_scaling!r}")
+        self.tau = float(tau)
+        self.divisor, self.offset = float(divisor), float(offset)
+        self._encoder_names = [name for name, _ in encoder.named_parameters()]
+        self._encoder_buffers = [name for name, _ in encoder.named_buffers()]
+        self._projection_names = [name for name, _ in projection.named_parameters()]
+        self.encoder = momentum_copy(encoder)
+        self.projection = momentum_copy(projection)
+
+    def train(self, mode: bool = True) -> MomentumTarget:
+        """The copies stay in eval mode (a target has no dropout and does not update batch statistics)."""
+        return super().train(False)
+
+    @th.no_grad()
+    def features(self, observations: th.Tensor) -> th.Tensor:
+        """The target encoder's features of uint8 stacked observations (the encoder's first output if it returns
+        several, as the offline encoders' ``(h, skip)``)."""
+        output = self.encoder(observations.float() / self.divisor - self.offset)
+        return output[0] if isinstance(output, tuple) else output
+
+    @th.no_grad()
+    def forward(self, observations: th.Tensor) -> th.Tensor:
+        """The target projections ``(B, projection_dim)`` of uint8 stacked observations."""
+        return self.projection(self.features(observations))
+
+    @th.no_grad()
+    def update(self, encoder: nn.Module, projection: nn.Module) -> None:
+        """Move the copies towards the online ``encoder`` and ``projection`` (the modules they were copied from)."""
+        for online, copied, names, what in (
+            (encoder, self.encoder, self._encoder_names, "encoder"),
+            (projection, self.projection, self._projection_names, "projection"),
+        ):
+            parameters = dict(online.named_parameters())
+            if list(parameters) != names:
+                raise ValueError(
+                    f"The target {what} was copied from a module with parameters {names[:3]}..., got one with "
+                    f"{list(parameters)[:3]}...: pass the host's {what} the target was built from"
+                )
+            polyak_update([parameters[n] for n in names], [copied.get_buffer(n) for n in names], self.tau)
+        buffers = dict(encoder.named_buffers())
+        for name in self._encoder_buffers:
+            self.encoder.get_buffer(name).copy_(buffers[name])
+
+
+def latent_window_losses(
+    ef: EgoForesight,
+    target: MomentumTarget,
+    features: Callable[[th.Tensor], tuple[th.Tensor, th.Tensor | None]],
+    observations: th.Tensor,
+    frames: th.Tensor,
+    actions: th.Tensor,
+    steps: th.Tensor,
+    pad: int = 0,
+) -> tuple[th.Tensor, th.Tensor]:
+    """Latent EF's loss and its probe decoder's loss on a batch of full windows (offline pretraining, where every
+    step is valid): what ``ForesightLoss.prepare`` / ``forward`` compute for a host, plus the probe, which then
+    decodes the held-out predictions. Draws k' and the shift from the global generator.
+
+    :param features: ``(h, skip)`` of uint8 stacked observations (the offline model's ``features``).
+    :param frames: (B, H, 3, h, w) frames t+1 .. t+H; ``steps``: (B,) k; ``pad``: random shift of everything, 0: none.
+    """
+    rows = th.arange(steps.shape[0], device=steps.device)
+    valid = th.ones(steps.shape[0], ef.horizon, dtype=th.bool, device=steps.device)
+    others = draw_other_steps(valid, steps, ef.horizon)
+    future = [stacked_observations_at(observations, frames, steps)]
+    if others is not None:
+        future.append(stacked_observations_at(observations, frames, others))
+    frame = frames[rows, steps - 1]
+    if pad:
+        observations, frame, *future = random_shift(observations, frame, *future, pad=pad)
+    h, skip = features(observations)
+    latent = ef.latent_loss(h, actions, steps, target(th.cat(future)))
+    return latent, ef.probe_loss(h, actions, steps, frame, skip=skip)

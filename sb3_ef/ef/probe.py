@@ -1,0 +1,107 @@
+"""The probe decoder of latent Ego-Foresight: frames from frozen features, so that the agent/scene split can be read.
+
+Latent EF (``ef_kwargs=dict(target="latent")``) decodes no frame while it trains. To see what its agent features
+carry, its :class:`~sb3_ef.ef.FrameDecoder` (``ef.decoder``) is trained afterwards as a *probe*: it learns to draw
+frame t+k from ``[h_a rolled out k actions, h_s]`` computed without gradient (:meth:`EgoForesight.probe_loss`), so
+nothing else of the model moves. The probe can only draw what the features hold: saliency of its output with respect
+to the rolled-out ``h_a`` against the agent mask (``sb3_ef.analysis``'s saliency tools, which decode through
+``ef.decode``) then says whether ``h_a`` carries the agent, as it does for pixel EF's own decoder (docs/ef.md).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch as th
+
+from sb3_ef.common.augmentation import random_shift
+from sb3_ef.ef.foresight import EgoForesight
+
+
+def probe_step(
+    ef: EgoForesight,
+    optimizer: th.optim.Optimizer,
+    h: th.Tensor,
+    future_actions: th.Tensor,
+    steps: th.Tensor,
+    target: th.Tensor,
+    valid: th.Tensor | None = None,
+    skip: th.Tensor | None = None,
+) -> th.Tensor:
+    """One step of ``optimizer`` (over ``ef.decoder``'s parameters) on the probe loss; counts it in
+    ``ef.probe_steps``. The gradient is taken with ``autograd.grad`` and cleared after the step, so no ``.grad`` is
+    left on any parameter (the host's optimisers, which also hold the decoder, see none). Returns the detached loss."""
+    parameters = list(ef.decoder.parameters())
+    owned = {id(p) for p in parameters}
+    stepped = [p for group in optimizer.param_groups for p in group["params"]]
+    if not stepped or any(id(p) not in owned for p in stepped):
+        raise ValueError("probe_step's optimizer must hold ef.decoder's parameters only")
+    loss = ef.probe_loss(h, future_actions, steps, target, valid, skip)
+    for parameter, grad in zip(parameters, th.autograd.grad(loss, parameters), strict=True):
+        parameter.grad = grad
+    optimizer.step()
+    for parameter in parameters:
+        parameter.grad = None
+    ef.probe_steps += 1
+    return loss.detach()
+
+
+def fit_probe(
+    model: Any,
+    steps: int = 2000,
+    batch_size: int = 32,
+    learning_rate: float = 1e-3,
+    pad: int = 0,
+    seed: int = 0,
+    replay_buffer: Any = None,
+) -> list[float]:
+    """Train the probe decoder of ``model.ef`` (latent EF) on windows of its replay buffer; returns the losses.
+
+    The encoder's features (``model.encode``, in eval mode) and the rollout are computed without gradient, and only
+    the decoder's parameters move (its own Adam): the model's weights, optimisers and random streams are left as they
+    were. k and the shifts are drawn from a generator seeded by ``seed``; the buffer's sampling draws from NumPy's
+    global generator, as SB3's buffers do.
+
+    :param model: an EF host built with ``ef_kwargs=dict(target="latent")`` (``model.ef``, ``model.encode``,
+        ``model.replay_buffer``), after training.
+    :param steps: probe updates (more steps fit the probe better; it cannot draw what the features do not hold).
+    :param pad: random shift of the context and frame t+k (0: the frames as recorded, as analysis reads them).
+    :param replay_buffer: a :class:`~sb3_ef.common.buffers.SequenceReplayBuffer` to read instead of the model's.
+    """
+    ef = getattr(model, "ef", None)
+    if not isinstance(ef, EgoForesight) or ef.target != "latent":
+        raise ValueError(
+            f"fit_probe needs a model with latent Ego-Foresight (ef_kwargs=dict(target='latent')), got "
+            f"{type(model).__name__} with ef={type(ef).__name__}{'' if ef is None else ' target=' + repr(ef.target)}"
+        )
+    for name, value in (("steps", steps), ("batch_size", batch_size)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f"{name} must be a positive int, got {value!r}")
+    buffer = replay_buffer if replay_buffer is not None else getattr(model, "replay_buffer", None)
+    if buffer is None or not hasattr(buffer, "size") or buffer.size() == 0:
+        raise ValueError("fit_probe samples a replay buffer with transitions: train the model first or pass one")
+    optimizer = th.optim.Adam(ef.decoder.parameters(), lr=learning_rate)
+    generator = th.Generator(device=buffer.device).manual_seed(seed)
+    policy = getattr(model, "policy", None)
+    was_training = policy.training if policy is not None else None
+    if policy is not None:
+        policy.set_training_mode(False)
+    ef.decoder.train(True)  # batch statistics while fitting, running statistics for analysis afterwards
+    losses = []
+    try:
+        for _ in range(steps):
+            batch = buffer.sample(batch_size)
+            k = ef.draw_steps(batch.future_mask, generator=generator)
+            rows = th.arange(k.shape[0], device=k.device)
+            context, frame = random_shift(
+                batch.observations, batch.future_frames[rows, k - 1], pad=pad, generator=generator
+            )
+            with th.no_grad():
+                h = model.encode(context)
+            valid = batch.future_mask[rows, k - 1]
+            losses.append(probe_step(ef, optimizer, h, batch.future_actions, k, frame, valid))
+    finally:
+        ef.decoder.eval()
+        if policy is not None:
+            policy.set_training_mode(bool(was_training))
+    return [float(loss) for loss in th.stack(losses)]

@@ -1,0 +1,47 @@
+"""TD-MPC2's gradient clipping, with an auxiliary loss on the encoder: the host's gradient gets the reference's one
+global clip over the world model, the auxiliary loss's gradient is clipped on its own, and the two are added."""
+
+from __future__ import annotations
+
+import torch as th
+
+
+def clipped_world_model_gradients(
+    optimizer: th.optim.Optimizer, host_loss: th.Tensor, auxiliary_loss: th.Tensor | None, max_norm: float
+) -> dict[str, th.Tensor]:
+    """Backpropagate the world-model losses into ``optimizer``'s parameters and clip; returns the gradient norms
+    before clipping (``grad_norm``, and ``auxiliary_grad_norm`` with an auxiliary loss).
+
+    The host's gradient gets TD-MPC2's one global clip over the world model (encoder, dynamics, reward, Q). The
+    auxiliary loss's gradient (weighted; EF's is summed over pixels: norms in the thousands) is computed apart,
+    clipped to the same norm over the encoder and the auxiliary module, and added: one shared clip would shrink the
+    host's update by the auxiliary norm."""
+    host_params, auxiliary_params = _parameter_groups(optimizer)
+    auxiliary_grads = None
+    if auxiliary_loss is not None:
+        auxiliary_grads = th.autograd.grad(auxiliary_loss, auxiliary_params, retain_graph=True, allow_unused=True)
+    host_loss.backward()
+    norms = {"grad_norm": th.nn.utils.clip_grad_norm_(host_params, max_norm)}
+    if auxiliary_grads is not None:
+        pairs = [
+            (param, grad) for param, grad in zip(auxiliary_params, auxiliary_grads, strict=True) if grad is not None
+        ]
+        auxiliary_norm = th.nn.utils.get_total_norm([grad for _, grad in pairs])
+        scale = (max_norm / (auxiliary_norm + 1e-6)).clamp(max=1.0)
+        for param, grad in pairs:
+            if param.grad is None:
+                # In the parameter's memory layout (autograd.grad's may differ: channels-last decoder weights),
+                # which the fused Adam step assumes.
+                param.grad = th.empty_like(param).copy_(grad).mul_(scale)
+            else:
+                param.grad.add_(grad * scale)
+        norms["auxiliary_grad_norm"] = auxiliary_norm
+    return norms
+
+
+def _parameter_groups(optimizer: th.optim.Optimizer) -> tuple[list[th.nn.Parameter], list[th.nn.Parameter]]:
+    """The parameters of the host's clip (every group but ``auxiliary``: the world model) and of the auxiliary
+    loss's (the groups ``encoder`` and ``auxiliary``)."""
+    groups = {group["name"]: group["params"] for group in optimizer.param_groups}
+    host_params = [param for name, params in groups.items() if name != "auxiliary" for param in params]
+    return host_params, [*groups["encoder"], *groups.get("auxiliary", [])]

@@ -1,0 +1,120 @@
+"""TDMPC2-EF: TD-MPC2 whose world-model encoder is also trained by Ego-Foresight."""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import torch as th
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import GymEnv, Schedule
+
+from sb3_ef.common.compile import CompileOption
+from sb3_ef.ef.foresight import ForesightLoss
+from sb3_ef.ef.host import EFMixin
+from sb3_ef.tdmpc2.policies import TDMPC2EFPolicy
+from sb3_ef.tdmpc2.tdmpc2 import TDMPC2
+
+
+class TDMPC2EF(EFMixin, TDMPC2):
+    """TDMPC2-EF (Ego-Foresight on TD-MPC2): the world model is trained by ``L_TDMPC + beta * L_ef``.
+
+    :class:`TDMPC2` plus Ego-Foresight: it reads the encoder latent of the first observation (agent part: the first
+    ``agent_dim`` features), rolls the agent part forward with the next ``k`` actions and decodes frame ``t+k``;
+    motor babbling (random +-1 actions) fills the first ``babbling_steps`` steps. TD-MPC2's own ``horizon`` stays
+    the world model's and the planner's; EF's window is ``ef_horizon``.
+
+    Paper: Nunes et al., "Ego-Foresight: Self-supervised Learning of Agent-Aware Representations for Improved RL"
+    (ICLR 2026).
+
+    :param beta: weight of the Ego-Foresight loss (to train without EF, use :class:`TDMPC2`).
+    :param ef_horizon: Ego-Foresight prediction horizon H (the rollout length k is drawn in [1, H]).
+    :param babbling_steps: steps of motor babbling at the start (0: none).
+    :param babbling_mode: ``"sign"`` (random +-1) or ``"clamped_uniform"``.
+    :param babbling_in_eval: ``predict`` also babbles while ``num_timesteps < babbling_steps`` (the EF authors'
+        Meta-World evaluation protocol).
+    :param policy_kwargs: see :class:`TDMPC2EFPolicy` (``agent_dim``, ``ef_kwargs``, and :class:`TDMPC2Policy`'s).
+
+    The other arguments are :class:`TDMPC2`'s.
+    """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"CnnPolicy": TDMPC2EFPolicy}
+    policy: TDMPC2EFPolicy
+
+    def __init__(
+        self,
+        policy: str | type[TDMPC2EFPolicy],
+        env: GymEnv | str,
+        learning_rate: float | Schedule = 3e-4,
+        buffer_size: int = 1_000_000,
+        learning_starts: int | None = None,
+        batch_size: int = 256,
+        tau: float = 0.01,
+        gamma: float | None = None,
+        horizon: int = 3,
+        consistency_coef: float = 20.0,
+        reward_coef: float = 0.1,
+        value_coef: float = 0.1,
+        entropy_coef: float = 1e-4,
+        rho: float = 0.5,
+        max_grad_norm: float = 20.0,
+        seed_burst: bool = True,
+        beta: float = 1.0,
+        ef_horizon: int = 10,
+        babbling_steps: int = 1250,
+        babbling_mode: str = "sign",
+        babbling_in_eval: bool = False,
+        check_finite_losses: bool = False,
+        compile: CompileOption = False,
+        replay_buffer_class: type[ReplayBuffer] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+    ):
+        super().__init__(
+            policy,
+            env,
+            learning_rate,
+            buffer_size,
+            learning_starts,
+            batch_size,
+            tau,
+            gamma,
+            horizon=horizon,
+            consistency_coef=consistency_coef,
+            reward_coef=reward_coef,
+            value_coef=value_coef,
+            entropy_coef=entropy_coef,
+            rho=rho,
+            max_grad_norm=max_grad_norm,
+            seed_burst=seed_burst,
+            check_finite_losses=check_finite_losses,
+            compile=compile,
+            replay_buffer_class=replay_buffer_class,
+            replay_buffer_kwargs=replay_buffer_kwargs,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            policy_kwargs=policy_kwargs,
+            verbose=verbose,
+            seed=seed,
+            device=device,
+            _init_setup_model=False,
+        )
+        self._init_ef(beta, ef_horizon, babbling_steps, babbling_mode, babbling_in_eval)
+        if _init_setup_model:
+            self._setup_model()
+
+    def _build_auxiliary(self) -> ForesightLoss:
+        """Ego-Foresight on the world model's latent, sized by the policy (``agent_dim``, ``ef_kwargs``)."""
+        policy = self.policy
+        if not isinstance(policy, TDMPC2EFPolicy):
+            raise TypeError(f"TDMPC2EF needs a TDMPC2EFPolicy (EF's sizes), got {type(policy).__name__}")
+        model, scaling = policy.world_model, (255.0, 0.5)  # WorldModel.encode feeds its encoder obs / 255 - 0.5
+        return self._foresight(
+            model.latent_dim, policy.agent_dim, policy.ef_kwargs, policy.channels_last, model.encoder, scaling
+        )
