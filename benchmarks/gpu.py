@@ -1,5 +1,5 @@
-"""One GPU benchmark: DrQ-v2, DrQv2-EF, SEAR (84x84), TD-MPC2, TDMPC2-EF (64x64) and CURL (84x84 crops of 100x100
-renders) at the paper's settings.
+"""One GPU benchmark: DrQ-v2, DrQv2-EF, SEAR (84x84), TD-MPC2, TDMPC2-EF (64x64), CURL (84x84 crops of 100x100
+renders) and Dreamer-v3 (sheeprl's, 64x64; ``pip install -e .[dreamerv3]``) at the paper's settings.
 
 For each algorithm, eager and compiled (the torch.compile mode given by ``--compile-mode``: ``default``, or e.g.
 ``reduce-overhead`` for CUDA graphs; CURL, whose update is its authors' eager one, has no compiled mode), on
@@ -11,6 +11,11 @@ For each algorithm, eager and compiled (the torch.compile mode given by ``--comp
 - ``env steps/s``: the whole training loop (acting, env step with rendering, buffer, updates at the algorithm's
   ``train_freq``), after warm-up;
 - ``peak GB``: the device's peak allocated memory during the run (buffer included).
+
+Dreamer-v3 trains in sheeprl's loop at its own settings (the S model, batch 16 sequences x 64 steps, replay ratio
+0.5 gradient steps per env step, its replay buffer memory-mapped on disk): its ``env steps/s`` are those of
+``loop_steps`` steps of that loop after a warm-up (``warmup_steps`` random steps, then ``loop_steps`` of training),
+and it has no sample or ``train()`` timing; it runs eager (sheeprl's own ``algo.compile`` is not measured here).
 
 Writes JSON and a Markdown table (``--out PATH`` gives ``PATH.json`` and ``PATH.md``). Eager runs go first; a run
 that would start past ``--budget-s`` is recorded as skipped, so the script ends in time (under 8 minutes on one
@@ -30,6 +35,7 @@ import json
 import os
 import platform
 import statistics
+import tempfile
 import time
 import traceback
 from dataclasses import asdict, dataclass
@@ -39,6 +45,7 @@ from typing import Any
 import torch as th
 
 from sb3_ef.curl import CURL
+from sb3_ef.dreamerv3 import DreamerV3
 from sb3_ef.drqv2 import DrQv2, DrQv2EF
 from sb3_ef.envs import make_env
 from sb3_ef.sear import SEAR
@@ -52,15 +59,24 @@ ALGORITHMS: dict[str, tuple[type, int]] = {  # name: (class, rendered frame size
     "TDMPC2": (TDMPC2, 64),
     "TDMPC2EF": (TDMPC2EF, 64),
     "CURL": (CURL, 100),
+    "DreamerV3": (DreamerV3, 64),
 }
 # What an algorithm needs beyond the others: SEAR's env renders agent masks, CURL crops 84x84 windows.
 ENV_KWARGS: dict[str, dict[str, Any]] = {"SEAR": {"agent_masks": True}}
 ALGORITHM_KWARGS: dict[str, dict[str, Any]] = {"CURL": {"crop_size": 84}}
-# Algorithms without a ``compile`` argument (SB3's own updates).
-EAGER_ONLY = frozenset({"CURL"})
+# Algorithms without a ``compile`` argument (SB3's own updates; sheeprl's loop).
+EAGER_ONLY = frozenset({"CURL", "DreamerV3"})
 # (baseline, algorithm) pairs of the ratio table: EF against its host, and the paper's other baselines against
 # DrQ-v2 (its throughput table: SEAR 88 and CURL 44 against DrQ-v2's 155 env steps/s).
-RATIOS = (("DrQv2", "DrQv2EF"), ("TDMPC2", "TDMPC2EF"), ("DrQv2", "SEAR"), ("DrQv2", "CURL"))
+RATIOS = (("DrQv2", "DrQv2EF"), ("TDMPC2", "TDMPC2EF"), ("DrQv2", "SEAR"), ("DrQv2", "CURL"), ("DrQv2", "DreamerV3"))
+#: Dreamer-v3's settings: the authors' DMC-vision recipe (zoo_configs/dreamerv3.yml); the smoke run's model is tiny.
+DREAMER_KWARGS: dict[str, Any] = {"model_size": "S", "batch_size": 16, "sequence_length": 64, "replay_ratio": 0.5}
+SMOKE_DREAMER_KWARGS: dict[str, Any] = {
+    "model_size": "XS",
+    "batch_size": 4,
+    "sequence_length": 8,
+    "sheeprl_overrides": {"algo.dense_units": 16, "algo.world_model.recurrent_model.recurrent_state_size": 16},
+}
 
 
 @dataclass(frozen=True)
@@ -160,6 +176,10 @@ def measure(name: str, compiled: bool | str | dict, device: th.device, sizes: Si
     started = time.perf_counter()
     if device.type == "cuda":
         th.cuda.reset_peak_memory_stats(device)
+    if name == "DreamerV3":
+        measure_dreamer(result, device, sizes, smoke)
+        result.seconds = round(time.perf_counter() - started, 1)
+        return result
     model = buffer = None
     try:
         model = build(name, compiled, device, sizes, smoke)
@@ -203,6 +223,34 @@ def measure(name: str, compiled: bool | str | dict, device: th.device, sizes: Si
             th.cuda.empty_cache()
     result.seconds = round(time.perf_counter() - started, 1)
     return result
+
+
+def measure_dreamer(result: Result, device: th.device, sizes: Sizes, smoke: bool) -> None:
+    """Dreamer-v3's env steps/s over ``loop_steps`` steps of sheeprl's loop, after ``warmup_steps`` random steps and
+    ``loop_steps`` steps of training (untimed); errors become the result's status."""
+    from sb3_ef.dreamerv3.timing import timed_training
+
+    env = make_env(ENV_NAME, size=result.frame_size, frame_stack=1, fast_render=True, seed=0)
+    result.storage_device = "disk (memmap)"
+    every = sizes.loop_steps
+    first = -(-sizes.warmup_steps // every) * every + every  # the first mark after a whole segment of training
+    try:
+        with tempfile.TemporaryDirectory(prefix="gpu_dreamerv3_") as folder:
+            model = DreamerV3(
+                "CnnPolicy", env, buffer_size=sizes.buffer_size, learning_starts=sizes.warmup_steps, work_dir=folder,
+                seed=0, device=str(device), **(SMOKE_DREAMER_KWARGS if smoke else DREAMER_KWARGS),
+            )  # fmt: skip
+            marks = {mark.step: mark for mark in timed_training(model, first + every, every)}
+            start, end = marks[first], marks[first + every]
+            result.env_steps_per_s = round(every / (end.wall_s - start.wall_s), 2)
+    except Exception as error:  # one failing run must not cost the others
+        result.status = f"error: {type(error).__name__}: {error}"
+        traceback.print_exc()
+    finally:
+        env.close()
+        if device.type == "cuda":
+            result.peak_memory_gb = round(th.cuda.max_memory_allocated(device) / 1e9, 2)
+            th.cuda.empty_cache()
 
 
 def ratio(results: list[Result], plain: str, ef: str, compiled: bool, field: str) -> str:

@@ -425,3 +425,32 @@ def test_resume_passes_over_a_truncated_newest_checkpoint(saved_model, tmp_path)
         warnings.simplefilter("error")
         assert latest_checkpoint(tmp_path).step == 200  # without intact: what is there, unchecked
     assert zipfile.is_zipfile(tmp_path / "rl_model_100_steps.zip")
+
+
+OFFLINE_CLI_CASES = [
+    Case("pretrain --steps -3", lambda: ["pretrain", "d", "r", "--steps", "-3"], SystemExit,
+         r"argument --steps: expected a positive integer, got -3"),
+    Case("pretrain --lr 0", lambda: ["pretrain", "d", "r", "--lr", "0"], SystemExit,
+         r"argument --lr: expected a positive number, got 0.0"),
+    Case("pretrain --holdout 2.5", lambda: ["pretrain", "d", "r", "--holdout", "2.5"], SystemExit,
+         r"argument --holdout: expected a count of episodes or a fraction < 1, got 2.5"),
+    Case("collect --size 0", lambda: ["collect", "toy/agent-v0", "o", "--size", "0"], SystemExit,
+         r"argument --size: expected a positive integer, got 0"),
+    Case("predict --steps 0", lambda: ["predict", "m.pt", "o", "--dataset", "d", "--steps", "0"], SystemExit,
+         r"argument --steps: expected a positive integer, got 0"),
+    Case("predict a missing model", lambda: ["predict", "missing.pt", "o", "--dataset", "d"], FileNotFoundError,
+         r"No pretrained model at 'missing.pt'"),
+    Case("collect an unknown toy env", lambda: ["collect", "toy/agent-vX", "o", "--no-progress"], ValueError,
+         r"Unknown env 'toy/agent-vX': .*Did you mean: `agent`\?"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("case", OFFLINE_CLI_CASES, ids=[case.name for case in OFFLINE_CLI_CASES])
+def test_offline_cli_bad_input_is_one_line_and_exit_status_2(case, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    argv = case.run()
+    status, err = run_cli(argv, capsys)
+    lines = [line for line in err.splitlines() if line.startswith(f"sb3-ef {argv[0]}: error:")]
+    assert status == 2 and len(lines) == 1 and "Traceback" not in err, err
+    assert re.search(case.message, lines[0]), lines[0]
+    assert list(tmp_path.iterdir()) == []  # nothing written

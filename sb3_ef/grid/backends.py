@@ -4,12 +4,16 @@ Both backends share one contract: :meth:`execute` takes the runs to train and yi
 ``("start", spec, None)``, ``("retry", spec, error)`` and ``("finish", spec, result)``. At most ``capacity`` runs are
 in flight, so a ``start`` event is the moment the run gets its worker. A failed run is retried ``retries`` times
 (resuming from its last checkpoint); after that it finishes with status ``failed``.
+
+When :meth:`execute` is left early (Ctrl-C in the driver, or the caller stops iterating), the runs in flight are
+stopped at once: local workers are ended (they ignore the terminal's Ctrl-C themselves, and remove a file they are
+writing), Ray tasks cancelled. Their checkpoints, written atomically, stay for the next invocation to resume from.
 """
 
 from __future__ import annotations
 
+import functools
 import os
-import threading
 import time
 import traceback
 from collections import deque
@@ -20,25 +24,13 @@ from multiprocessing import get_context
 from typing import Any
 
 from sb3_ef.grid.grid import RunSpec
+from sb3_ef.grid.local_worker import call_in_worker, set_up_worker
 from sb3_ef.grid.run import RunOptions, RunPaths, RunResult, execute_run, store_result
 
 Event = tuple[str, RunSpec, Any]
 
-#: Seconds between a local worker's checks that the driver that started it is still alive.
-PARENT_CHECK_INTERVAL = 1.0
-
-
-def _exit_with_parent(parent_pid: int) -> None:
-    """Pool-worker initializer: end this worker when the driver process is gone (killed, even by SIGKILL), so no
-    orphaned worker goes on training a run that the next invocation trains too. Checkpoint files are written
-    atomically, so ending mid-write leaves the last complete checkpoint."""
-
-    def watch() -> None:
-        while os.getppid() == parent_pid:
-            time.sleep(PARENT_CHECK_INTERVAL)
-        os._exit(1)
-
-    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
+#: Seconds the driver waits for a stopped local worker to end before it kills it.
+STOP_TIMEOUT = 5.0
 
 
 def _failure(spec: RunSpec, error: BaseException) -> RunResult:
@@ -73,19 +65,20 @@ class LocalBackend:
             self.workers,
             mp_context=get_context("spawn"),
             max_tasks_per_child=1,
-            initializer=_exit_with_parent,
+            initializer=set_up_worker,
             initargs=(os.getpid(),),
         )
 
     def execute(self, specs: Sequence[RunSpec]) -> Iterator[Event]:
         queue, attempts = deque(specs), dict.fromkeys((spec.run_id for spec in specs), 0)
         running: dict[Future, RunSpec] = {}
-        pool = self._pool()
+        pool, completed = self._pool(), False
         try:
             while queue or running:
                 while queue and len(running) < self.workers:
                     spec = queue.popleft()
-                    running[pool.submit(execute_run, spec, self.out, **self.run_kwargs)] = spec
+                    task = functools.partial(execute_run, spec, self.out, **self.run_kwargs)
+                    running[pool.submit(call_in_worker, task)] = spec
                     yield "start", spec, None
                 done, _ = wait(running, return_when=FIRST_COMPLETED)
                 broken = False
@@ -104,8 +97,28 @@ class LocalBackend:
                 if broken:
                     pool.shutdown(cancel_futures=True)
                     pool = self._pool()
+            completed = True
         finally:
-            pool.shutdown(cancel_futures=True)
+            if completed:
+                pool.shutdown()
+            else:  # Ctrl-C, or the caller stopped iterating: end the runs in flight now
+                _stop(pool)
+
+
+def _stop(pool: ProcessPoolExecutor) -> None:
+    """End the runs in flight of ``pool`` now: its workers get SIGTERM (SIGKILL after :data:`STOP_TIMEOUT`), the pool
+    sees them gone and shuts down without starting others."""
+    # ProcessPoolExecutor has no public way to end running tasks before Python 3.14 (terminate_workers).
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    for process in processes:
+        process.terminate()
+    deadline = time.monotonic() + STOP_TIMEOUT
+    for process in processes:
+        process.join(max(0.0, deadline - time.monotonic()))
+        if process.is_alive():
+            process.kill()
+            process.join()
+    pool.shutdown(cancel_futures=True)
 
 
 def _execute_on_node(spec: RunSpec, out: str, **run_kwargs: Any) -> RunResult:

@@ -7,9 +7,35 @@ sb3-ef benchmark GRID.yml --out DIR [--runs GLOB ...] [--backend local|ray] [--w
 from __future__ import annotations
 
 import argparse
-from collections.abc import Sequence
+import math
+import os
+import sys
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
 from sb3_ef.grid.grid import BACKENDS
+
+if TYPE_CHECKING:
+    from sb3_ef.grid.grid import RunSpec
+
+#: Exit status after Ctrl-C (128 + SIGINT), as shells report it.
+INTERRUPTED = 130
+
+
+def at_least(minimum: int | float, kind: Callable[[str], int | float] = int) -> Callable[[str], int | float]:
+    """An argparse ``type``: a number of ``kind`` that is at least ``minimum``."""
+
+    def parse(text: str) -> int | float:
+        try:
+            value = kind(text)
+        except ValueError:
+            expected = "an integer" if kind is int else "a number"
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+        if not math.isfinite(value) or value < minimum:
+            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {text}")
+        return value
+
+    return parse
 
 
 def keep_count(text: str) -> int | None:
@@ -27,11 +53,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", required=True, help="results folder: evaluation CSVs, checkpoints, run results")
     parser.add_argument("--runs", nargs="+", metavar="GLOB", help="only the runs whose id matches, e.g. 'drqv2/*'")
     parser.add_argument("--backend", choices=BACKENDS, default="local", help="local process pool or Ray cluster")
-    parser.add_argument("--workers", type=int, default=1, help="local backend: runs in parallel")
-    parser.add_argument("--threads", type=int, default=1, help="torch threads per run (Ray: CPUs per task too)")
+    parser.add_argument("--workers", type=at_least(1), default=1, help="local backend: runs in parallel")
+    parser.add_argument("--threads", type=at_least(1), default=1, help="torch threads per run (Ray: CPUs per task too)")
     parser.add_argument("--address", help="Ray: cluster address ('auto', host:port); default: start Ray here")
-    parser.add_argument("--gpus", type=float, default=0.0, help="Ray: GPUs per task (fractions share a GPU)")
-    parser.add_argument("--retries", type=int, default=1, help="attempts after a failure (each resumes)")
+    parser.add_argument("--gpus", type=at_least(0, float), default=0.0, help="Ray: GPUs per task (fractions share one)")
+    parser.add_argument("--retries", type=at_least(0), default=1, help="attempts after a failure (each resumes)")
     parser.add_argument("--device", default="auto", help="torch device of each run")
     parser.add_argument(
         "--keep-checkpoints",
@@ -45,12 +71,29 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``sb3-ef benchmark``; returns 1 when a run failed, else 0."""
+    """Entry point of ``sb3-ef benchmark``; returns 1 when a run failed, 130 after Ctrl-C, else 0."""
     args = build_parser().parse_args(argv)
-    from sb3_ef.grid.grid import load_grid, select_runs
+    from sb3_ef.grid.grid import load_grid, read_grid_file
+
+    if os.path.exists(args.out) and not os.path.isdir(args.out):
+        raise ValueError(f"--out {args.out!r} is a file: expected the results folder (created when missing)")
+    read_grid_file(args.grid)  # a broken file is reported before the heavy imports
+    try:
+        return _run(args, load_grid(args.grid))
+    except KeyboardInterrupt:
+        print(
+            f"sb3-ef benchmark: interrupted: finished runs are kept in {args.out}; rerun the same command to skip "
+            "them and resume the others from their last checkpoint",
+            file=sys.stderr,
+        )
+        return INTERRUPTED
+
+
+def _run(args: argparse.Namespace, runs: list[RunSpec]) -> int:
+    """Select, plan or train the runs of the grid as ``args`` say."""
+    from sb3_ef.grid.grid import select_runs
     from sb3_ef.grid.runner import plan_table, run_benchmark
 
-    runs = load_grid(args.grid)
     if args.runs:
         runs = select_runs(runs, args.runs)
     if args.dry_run:

@@ -31,15 +31,17 @@ import gymnasium as gym
 import yaml
 
 import sb3_ef  # noqa: F401  (registers the environments)
+from sb3_ef.common.validation import did_you_mean
 from sb3_ef.zoo import config as zoo_config
 
 #: Top-level keys of a grid file: the blocks, and a free-form place for YAML anchors the blocks refer to.
 FILE_KEYS = frozenset({"grids", "anchors"})
-#: Keys of a grid block and of an algorithm's mapping.
+#: Keys of a grid block (those every block must give: REQUIRED_BLOCK_KEYS) and of an algorithm's mapping.
 BLOCK_KEYS = frozenset(
     {"algorithms", "tasks", "seeds", "n_timesteps", "eval_freq", "eval_episodes", "checkpoint_freq", "env_kwargs",
      "hyperparams"}
 )  # fmt: skip
+REQUIRED_BLOCK_KEYS = frozenset({"algorithms", "tasks", "seeds", "eval_freq"})
 ALGORITHM_KEYS = frozenset({"algo", "conf_file", "hyperparams", "env_kwargs", "steps_per_second"})
 
 #: Zoo-config keys the runner reads itself; the rest go to the algorithm constructor.
@@ -76,12 +78,18 @@ class Algorithm:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "algo", self.algo or self.label)
-        if self.algo not in zoo_config.ZOO_ALGORITHMS:
-            raise ValueError(f"Algorithm {self.label!r}: algo {self.algo!r} is not one of {zoo_config.ZOO_ALGORITHMS}")
+        if self.algo not in zoo_config.BENCHMARK_ALGORITHMS:
+            hint = did_you_mean(str(self.algo), zoo_config.BENCHMARK_ALGORITHMS)
+            raise ValueError(
+                f"Algorithm {self.label!r}: algo {self.algo!r}{hint} is not one of "
+                f"{', '.join(zoo_config.BENCHMARK_ALGORITHMS)}"
+            )
         if not self.label or "/" in self.label or self.label != self.label.strip():
             raise ValueError(
                 f"Algorithm label must be a non-empty name without '/' or spaces around, got {self.label!r}"
             )
+        _check_mapping(f"Algorithm {self.label!r}: 'hyperparams'", self.hyperparams)
+        _check_mapping(f"Algorithm {self.label!r}: 'env_kwargs'", self.env_kwargs)
 
 
 @dataclass(frozen=True)
@@ -119,12 +127,21 @@ class RunSpec:
 
 def resolve_task(task: str) -> str:
     """The registered gymnasium id for ``task``: itself, or with ``-v0`` appended (``dmc/cartpole-balance``)."""
+    if not isinstance(task, str):
+        raise ValueError(f"A task must be a gymnasium id (a string), got {task!r}")
     for candidate in (task, f"{task}-v0"):
         if candidate in gym.envs.registry:
             return candidate
     raise ValueError(
-        f"Unknown task {task!r}: expected a registered id such as 'dmc/cartpole-balance-v0' or 'toy/agent-v0'"
+        f"Unknown task {task!r}{did_you_mean(task, gym.envs.registry)}: expected a registered id such as "
+        "'dmc/cartpole-balance-v0' or 'toy/agent-v0'"
     )
+
+
+def _unknown_keys(unknown: Iterable[str], expected: Iterable[str]) -> str:
+    """``'eval_frq' (did you mean 'eval_freq'?), 'x'`` for a message naming unknown keys."""
+    expected = sorted(expected)
+    return ", ".join(f"{key!r}{did_you_mean(str(key), expected)}" for key in sorted(unknown, key=str))
 
 
 def _algorithms(value: Any) -> list[Algorithm]:
@@ -137,10 +154,13 @@ def _algorithms(value: Any) -> list[Algorithm]:
     algorithms = []
     for label, options in value.items():
         options = options or {}
+        if not isinstance(options, Mapping):
+            raise ValueError(f"Algorithm {label!r}: expected a mapping of options, got {options!r}")
         unknown = set(options) - ALGORITHM_KEYS
         if unknown:
             raise ValueError(
-                f"Algorithm {label!r}: unknown key(s) {sorted(unknown)}; expected {sorted(ALGORITHM_KEYS)}"
+                f"Algorithm {label!r}: unknown key(s) {_unknown_keys(unknown, ALGORITHM_KEYS)}; expected "
+                f"{', '.join(sorted(ALGORITHM_KEYS))}"
             )
         algorithms.append(Algorithm(str(label), **options))
     return algorithms
@@ -154,6 +174,11 @@ def _seeds(value: Any) -> list[int]:
     raise ValueError(f"'seeds' must be a positive count or a non-empty list of ints, got {value!r}")
 
 
+def _check_mapping(name: str, value: Any) -> None:
+    if not isinstance(value, Mapping):
+        raise ValueError(f"{name} must be a mapping of names to values, got {value!r}")
+
+
 def _positive(name: str, value: Any) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or int(value) != value or value < 1:
         raise ValueError(f"{name!r} must be a positive integer, got {value!r}")
@@ -162,9 +187,9 @@ def _positive(name: str, value: Any) -> int:
 
 def _entry(algorithm: Algorithm, task: str, overrides: Mapping[str, Any]) -> dict[str, Any]:
     """The zoo entry for ``task`` with ``overrides`` applied, every key checked against the algorithm class."""
-    from sb3_ef.zoo.registration import algorithm_classes
+    from sb3_ef.zoo.registration import benchmark_classes
 
-    algo_class = algorithm_classes()[algorithm.algo]
+    algo_class = benchmark_classes()[algorithm.algo]
     path = algorithm.conf_file or zoo_config.default_config_path(algorithm.algo)
     entries = zoo_config.load_config(path)
     zoo_config.validate_config(algorithm.algo, algo_class, entries, source=os.fspath(path))
@@ -225,6 +250,10 @@ def grid_runs(
     checkpoint_freq = _positive("checkpoint_freq", checkpoint_freq or eval_freq)
     if checkpoint_freq % eval_freq:
         raise ValueError(f"checkpoint_freq ({checkpoint_freq}) must be a multiple of eval_freq ({eval_freq})")
+    if not isinstance(tasks, (str, Sequence)):
+        raise ValueError(f"'tasks' must be a list of gymnasium ids, got {tasks!r}")
+    for name, value in (("env_kwargs", env_kwargs), ("hyperparams", hyperparams)):
+        _check_mapping(repr(name), value or {})
     tasks = [resolve_task(task) for task in ([tasks] if isinstance(tasks, str) else tasks)]
     if not tasks:
         raise ValueError("'tasks' must name at least one task")
@@ -273,28 +302,59 @@ def select_runs(runs: Sequence[RunSpec], patterns: Sequence[str]) -> list[RunSpe
     return selected
 
 
-def load_grid(path: str | os.PathLike) -> list[RunSpec]:
-    """Read a grid file (see the module docstring) and expand every block; run ids must be unique."""
-    with open(path) as file:
-        document = yaml.safe_load(file)
+def _yaml_error(error: yaml.MarkedYAMLError) -> str:
+    """``, line 3, column 10: not valid YAML: <problem> (while parsing ... at line 2, column 18)``."""
+
+    def at(mark: Any) -> str:
+        return f"line {mark.line + 1}, column {mark.column + 1}"
+
+    where = f", {at(error.problem_mark)}" if error.problem_mark is not None else ""
+    text = f"{where}: not valid YAML: {error.problem or error.context}"
+    if error.problem and error.context and error.context_mark is not None:
+        text += f" ({error.context} at {at(error.context_mark)})"
+    return text
+
+
+def read_grid_file(path: str | os.PathLike) -> list[dict[str, Any]]:
+    """The blocks of a grid file, their keys checked (cheap: nothing heavy is imported); a YAML error names the
+    file, line and column."""
+    try:
+        with open(path) as file:
+            document = yaml.safe_load(file)
+    except yaml.MarkedYAMLError as error:
+        raise ValueError(f"{path}{_yaml_error(error)}") from None
+    except yaml.YAMLError as error:
+        raise ValueError(f"{path}: not valid YAML: {error}") from None
+    except UnicodeDecodeError as error:
+        raise ValueError(f"{path}: not a text file ({error.reason} at byte {error.start})") from None
     if not isinstance(document, dict) or not isinstance(document.get("grids"), list) or not document["grids"]:
-        raise ValueError(f"{path}: expected a mapping with a non-empty list 'grids' of blocks")
+        raise ValueError(f"{path}: expected a mapping with a non-empty list 'grids' of blocks, got {document!r:.80}")
     if set(document) - FILE_KEYS:
         raise ValueError(
-            f"{path}: unknown top-level key(s) {sorted(set(document) - FILE_KEYS)}; expected {sorted(FILE_KEYS)}"
+            f"{path}: unknown top-level key(s) {_unknown_keys(set(document) - FILE_KEYS, FILE_KEYS)}; expected "
+            f"{', '.join(sorted(FILE_KEYS))}"
         )
-    runs = []
     for index, block in enumerate(document["grids"]):
         where = f"{path}, grids[{index}]"
         if not isinstance(block, dict):
             raise ValueError(f"{where}: expected a mapping, got {block!r}")
-        unknown = set(block) - BLOCK_KEYS
-        missing = {"algorithms", "tasks", "seeds", "eval_freq"} - set(block)
-        if unknown or missing:
-            raise ValueError(f"{where}: unknown key(s) {sorted(unknown)}, missing key(s) {sorted(missing)}")
+        problems = []
+        if set(block) - BLOCK_KEYS:
+            problems.append(f"unknown key(s) {_unknown_keys(set(block) - BLOCK_KEYS, BLOCK_KEYS)}")
+        if REQUIRED_BLOCK_KEYS - set(block):
+            problems.append(f"missing key(s) {', '.join(sorted(REQUIRED_BLOCK_KEYS - set(block)))}")
+        if problems:
+            raise ValueError(f"{where}: {'; '.join(problems)} (keys of a block: {', '.join(sorted(BLOCK_KEYS))})")
+    return document["grids"]
+
+
+def load_grid(path: str | os.PathLike) -> list[RunSpec]:
+    """Read a grid file (see the module docstring) and expand every block; run ids must be unique."""
+    runs = []
+    for index, block in enumerate(read_grid_file(path)):
         try:
             runs += grid_runs(**block)
         except ValueError as error:
-            raise ValueError(f"{where}: {error}") from error
+            raise ValueError(f"{path}, grids[{index}]: {error}") from error
     check_unique(runs)
     return runs

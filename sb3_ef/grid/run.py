@@ -115,7 +115,7 @@ def truncate_records(path: Path, last_step: int) -> None:
 
 
 def build_env(spec: RunSpec, seed: int) -> gym.Env:
-    """The run's env: :func:`sb3_ef.make_env` for ``dmc/`` and ``metaworld/`` tasks, ``gym.make`` otherwise."""
+    """The run's env: :func:`sb3_ef.make_env` for the suites of ``MAKE_ENV_SUITES``, ``gym.make`` otherwise."""
     if spec.task.startswith(MAKE_ENV_SUITES):
         from sb3_ef.envs import make_env
 
@@ -159,6 +159,10 @@ def execute_run(
 
     A finished run (``result.json`` present) is not trained again: its stored result comes back as ``skipped``.
     """
+    if spec.algo == "dreamerv3":  # sheeprl's training loop, with the same files and resume rule
+        from sb3_ef.dreamerv3.grid_run import execute_dreamerv3_run
+
+        return execute_dreamerv3_run(spec, out, threads, device, keep_checkpoints, node)
     import torch as th
 
     from sb3_ef.common.checkpoints import ResumableCheckpointCallback, latest_checkpoint, load_checkpoint

@@ -9,8 +9,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 from collections.abc import Callable
 from typing import Any, TypeVar
+
+from sb3_ef.offline.interrupt import exit_on_interrupt
 
 N = TypeVar("N", int, float)
 
@@ -33,6 +36,9 @@ def _number_type(cast: Callable[[str], N], accepts: Callable[[N], bool], expecte
 positive_int = _number_type(int, lambda value: value >= 1, "a positive integer")
 non_negative_int = _number_type(int, lambda value: value >= 0, "an integer >= 0")
 positive_float = _number_type(float, lambda value: value > 0, "a positive number")
+holdout_value = _number_type(
+    float, lambda value: 0 <= value < 1 or (value.is_integer() and value >= 1), "a count of episodes or a fraction < 1"
+)
 
 
 def json_object(text: str) -> dict[str, Any]:
@@ -54,8 +60,8 @@ def collect_parser() -> argparse.ArgumentParser:
     parser.add_argument("env", help="env name, e.g. metaworld/hammer, dmc/reacher-easy, toy/agent-v0")
     parser.add_argument("out", help="output folder: one .npz / .h5 file per episode, or a LeRobot dataset")
     parser.add_argument("--episodes", type=positive_int, default=10)
-    parser.add_argument("--size", type=int, default=64, help="frame size (ignored with --policy: the model's)")
-    parser.add_argument("--action-repeat", type=int, default=2)
+    parser.add_argument("--size", type=positive_int, default=64, help="frame size (ignored with --policy: the model's)")
+    parser.add_argument("--action-repeat", type=positive_int, default=2)
     parser.add_argument("--mode", choices=("sign", "clamped_uniform"), default="sign", help="babbling actions")
     parser.add_argument("--policy", help="saved DrQv2EF / TDMPC2EF (.zip) acting instead of babbling")
     parser.add_argument("--algo", choices=("drqv2_ef", "tdmpc2_ef"), help="algorithm of --policy")
@@ -73,22 +79,28 @@ def collect_main(argv: list[str] | None = None) -> int:
     args = collect_parser().parse_args(argv)
     from sb3_ef.offline.collect import collect
 
-    paths = collect(
-        args.env,
-        args.out,
-        episodes=args.episodes,
-        size=args.size,
-        action_repeat=args.action_repeat,
-        mode=args.mode,
-        policy=args.policy,
-        algo=args.algo,
-        seed=args.seed,
-        fast_render=not args.slow_render,
-        masks=not args.no_masks,
-        file_format=args.format,
-        progress_bar=not args.no_progress,
-    )
-    print(f"Wrote {len(paths)} episodes to {args.out}")
+    with exit_on_interrupt("sb3-ef collect"):
+        paths = collect(
+            args.env,
+            args.out,
+            episodes=args.episodes,
+            size=args.size,
+            action_repeat=args.action_repeat,
+            mode=args.mode,
+            policy=args.policy,
+            algo=args.algo,
+            seed=args.seed,
+            fast_render=not args.slow_render,
+            masks=not args.no_masks,
+            file_format=args.format,
+            progress_bar=not args.no_progress,
+        )
+    if args.format == "lerobot":
+        with open(os.path.join(args.out, "meta", "info.json")) as file:
+            count = json.load(file)["total_episodes"]
+        print(f"{count} episodes in {args.out} (a LeRobot v3.0 dataset)")
+    else:
+        print(f"{len(paths)} episodes in {args.out} ({os.path.basename(paths[0])} .. {os.path.basename(paths[-1])})")
     return 0
 
 
@@ -101,21 +113,27 @@ def pretrain_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("out", help="output folder: checkpoint.pt, model.pt, metrics.json, tb/")
     parser.add_argument("--encoder", choices=("dcgan-unet", "drqv2", "tdmpc2"), default="dcgan-unet")
-    parser.add_argument("--context", type=int, default=3, help="stacked context frames (the RL frame stack)")
-    parser.add_argument("--horizon", type=int, default=10, help="largest prediction step k")
-    parser.add_argument("--agent-dim", type=int, default=32)
-    parser.add_argument("--steps", type=int, default=10_000)
-    parser.add_argument("--batch-size", type=int, default=32)
-    parser.add_argument("--lr", type=float, default=1e-3)
-    parser.add_argument("--shift-pad", type=int, default=0, help="random-shift augmentation in pixels (0: none)")
-    parser.add_argument("--holdout", type=float, default=0.1, help="held-out episodes: a count, or a fraction < 1")
-    parser.add_argument("--eval-every", type=int, default=1000)
-    parser.add_argument("--checkpoint-every", type=int, default=500)
+    parser.add_argument("--context", type=positive_int, default=3, help="stacked context frames (the RL frame stack)")
+    parser.add_argument("--horizon", type=positive_int, default=10, help="largest prediction step k")
+    parser.add_argument("--agent-dim", type=positive_int, default=32)
+    parser.add_argument("--steps", type=positive_int, default=10_000, help="updates in all (a resumed run included)")
+    parser.add_argument("--batch-size", type=positive_int, default=32)
+    parser.add_argument("--lr", type=positive_float, default=1e-3)
+    parser.add_argument(
+        "--shift-pad", type=non_negative_int, default=0, help="random-shift augmentation in pixels (0: none)"
+    )
+    parser.add_argument(
+        "--holdout", type=holdout_value, default=0.1, help="held-out episodes: a count, or a fraction < 1"
+    )
+    parser.add_argument("--eval-every", type=positive_int, default=1000)
+    parser.add_argument("--checkpoint-every", type=positive_int, default=500)
     parser.add_argument("--encoder-kwargs", type=json_object, default={}, help="JSON, e.g. '{\"width\": 32}'")
     parser.add_argument("--ef-kwargs", type=json_object, default={}, help="JSON, e.g. '{\"decoder_channels\": 32}'")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--threads", type=int, help="torch CPU threads (1 is fastest on a busy shared machine)")
+    parser.add_argument(
+        "--threads", type=positive_int, help="torch CPU threads (1 is fastest on a busy shared machine)"
+    )
     parser.add_argument("--no-resume", action="store_true", help="start over even if OUT/checkpoint.pt exists")
     parser.add_argument("--overwrite", action="store_true", help="train again over a finished run in OUT")
     parser.add_argument(
@@ -158,13 +176,12 @@ def reader_options(args: argparse.Namespace) -> dict[str, Any]:
         kind, allowed = "neither a LeRobot dataset nor an RLDS folder", set()
     for name in sorted(set(options) - allowed):
         where = "LeRobot datasets" if name in lerobot else "RLDS folders" if name in rlds else "LeRobot and RLDS data"
-        raise SystemExit(f"sb3-ef: --{name.replace('_', '-')} applies to {where} only; {args.dataset} is {kind}")
+        raise ValueError(f"--{name.replace('_', '-')} applies to {where} only; {args.dataset} is {kind}")
     return options
 
 
 def pretrain_main(argv: list[str] | None = None) -> int:
     args = pretrain_parser().parse_args(argv)
-    from sb3_ef.offline.episodes import EpisodeError
     from sb3_ef.offline.pretrain import pretrain
     from sb3_ef.offline.readers import open_dataset
 
@@ -174,11 +191,9 @@ def pretrain_main(argv: list[str] | None = None) -> int:
         torch.set_num_threads(args.threads)
     holdout = args.holdout if args.holdout < 1 else int(args.holdout)
     options = reader_options(args)
-    try:
-        dataset = open_dataset(args.dataset, args.context + args.horizon, **options) if options else args.dataset
+    dataset = open_dataset(args.dataset, args.context + args.horizon, **options) if options else args.dataset
+    with exit_on_interrupt("sb3-ef pretrain"):
         _, scores = _pretrain(pretrain, dataset, args, holdout)
-    except (EpisodeError, FileExistsError, FileNotFoundError) as error:
-        raise SystemExit(f"sb3-ef pretrain: {error}") from None
     print(json.dumps({key: value for key, value in scores.items() if not isinstance(value, list)}, indent=2))
     return 0
 
@@ -215,10 +230,10 @@ def predict_parser() -> argparse.ArgumentParser:
     parser.add_argument("model", help="model.pt or checkpoint.pt written by sb3-ef pretrain")
     parser.add_argument("out", help="output folder: prediction.png and prediction.gif / .mp4")
     parser.add_argument("--dataset", required=True, help="where the context frames come from (as for pretrain)")
-    parser.add_argument("--episode", type=int, default=0)
-    parser.add_argument("--start", type=int, help="last context frame (default: context - 1)")
+    parser.add_argument("--episode", type=non_negative_int, default=0)
+    parser.add_argument("--start", type=non_negative_int, help="last context frame (default: context - 1)")
     parser.add_argument("--actions", choices=("dataset", "figure8"), default="dataset")
-    parser.add_argument("--steps", type=int, help="frames to predict (default: the horizon)")
+    parser.add_argument("--steps", type=positive_int, help="frames to predict (default: the horizon)")
     parser.add_argument("--video", choices=("gif", "mp4"), default="gif")
     add_reader_arguments(parser)
     return parser
@@ -226,22 +241,15 @@ def predict_parser() -> argparse.ArgumentParser:
 
 def predict_main(argv: list[str] | None = None) -> int:
     args = predict_parser().parse_args(argv)
-    from sb3_ef.offline.episodes import EpisodeError
     from sb3_ef.offline.model import load_pretrained
     from sb3_ef.offline.predict import predict_episode
     from sb3_ef.offline.readers import open_dataset
 
     options = reader_options(args)
     model, _ = load_pretrained(args.model)
-    try:
-        dataset = open_dataset(args.dataset, min_frames=model.config.context + 1, **options)
-        if not 0 <= args.episode < len(dataset):
-            raise SystemExit(
-                f"sb3-ef predict: --episode {args.episode} is not in 0..{len(dataset) - 1} of {args.dataset}"
-            )
-        episode = dataset[args.episode]
-    except (EpisodeError, FileNotFoundError) as error:
-        raise SystemExit(f"sb3-ef predict: {error}") from None
-    written = predict_episode(model, episode, args.out, args.start, args.actions, args.steps, args.video)
+    dataset = open_dataset(args.dataset, min_frames=model.config.context + 1, **options)
+    if not args.episode < len(dataset):
+        raise ValueError(f"--episode {args.episode} is not in 0..{len(dataset) - 1} of {args.dataset}")
+    written = predict_episode(model, dataset[args.episode], args.out, args.start, args.actions, args.steps, args.video)
     print(json.dumps(written, indent=2))
     return 0

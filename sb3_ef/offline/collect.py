@@ -1,20 +1,56 @@
-"""Record episodes of an sb3-ef env (motor babbling, or a saved DrQv2EF / TDMPC2EF policy) in the folder format,
-with the simulator's agent masks."""
+"""Record episodes of an sb3-ef env (motor babbling, or a saved DrQv2EF / TDMPC2EF policy) in the folder format or
+as a LeRobot dataset, with the simulator's agent masks.
+
+Episode ``i`` is reset with seed ``seed + i`` and babbles from a generator seeded with ``(seed, i)``, so it does not
+depend on the others: a rerun into the same folder keeps the intact episodes there and records the rest. The
+settings of a collection are kept in ``OUT/sb3_ef_collect.json``; a rerun with other settings is refused.
+"""
 
 from __future__ import annotations
 
+import glob
+import json
 import os
+import warnings
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from sb3_ef.common.env_checks import FRAME_CHANNELS
+from sb3_ef.common.files import write_text_atomically
 from sb3_ef.ef.babbling import babble, check_babbling
-from sb3_ef.offline.episodes import Episode, make_episode, write_episode
+from sb3_ef.offline.episodes import (
+    HDF5_SUFFIXES,
+    NPZ_SUFFIXES,
+    Episode,
+    EpisodeError,
+    make_episode,
+    read_episode_file,
+    write_episode,
+)
+from sb3_ef.offline.interrupt import Interrupted, sigint_deferred
+from sb3_ef.offline.progress import make_progress_bar
 
 #: ``collect``'s file formats: one ``.npz`` / ``.h5`` file per episode, or a LeRobot v3.0 dataset folder.
 FORMATS = ("npz", "h5", "lerobot")
+#: The file in the output folder that records a collection's settings.
+RECORD = "sb3_ef_collect.json"
+#: ``collect``'s recorded arguments and the ``sb3-ef collect`` options that set them, for the messages.
+OPTIONS = {
+    "env_name": "ENV",
+    "size": "--size",
+    "action_repeat": "--action-repeat",
+    "mode": "--mode",
+    "policy": "--policy",
+    "algo": "--algo",
+    "seed": "--seed",
+    "fast_render": "--slow-render",
+    "masks": "--no-masks",
+    "file_format": "--format",
+    "env_kwargs": "env_kwargs",
+}
 
 
 def record_episode(env: Any, act: Any, seed: int | None = None, source: str = "", masks: bool = True) -> Episode:
@@ -34,6 +70,36 @@ def record_episode(env: Any, act: Any, seed: int | None = None, source: str = ""
     return make_episode(np.stack(frames), np.stack(actions), np.stack(agent_masks) if masks else None, source)
 
 
+class _Recorder:
+    """The env and the actor of a collection: episode ``i`` is reset with seed ``seed + i`` and babbles from a
+    generator seeded with ``(seed, i)``."""
+
+    def __init__(self, settings: dict[str, Any], env_kwargs: dict[str, Any]):
+        from sb3_ef.analysis.cli import load_ef_model
+
+        self.seed, self.mode = settings["seed"], settings["mode"]
+        self.rng = np.random.default_rng(self.seed)
+        size, frame_stack, self.model = settings["size"], 1, None
+        if settings["policy"] is not None:
+            self.model = load_ef_model(settings["policy"], settings["algo"])
+            size = self.model.frame_shape[-1]
+            frame_stack = self.model.observation_space.shape[0] // FRAME_CHANNELS
+        self.env = _make_env(
+            settings["env_name"], size, frame_stack, settings["action_repeat"], settings["fast_render"], **env_kwargs
+        )
+        self.frame_shape = (FRAME_CHANNELS, size, size)
+        self.action_dim = int(np.prod(self.env.action_space.shape))
+
+    def _act(self, observation: np.ndarray) -> np.ndarray:
+        if self.model is not None:
+            return self.model.predict(observation, deterministic=True)[0]
+        return babble(self.rng, self.env.action_space.shape, self.mode)
+
+    def episode(self, index: int, source: str, masks: bool) -> Episode:
+        self.rng = np.random.default_rng([self.seed, index])
+        return record_episode(self.env, self._act, seed=self.seed + index, source=source, masks=masks)
+
+
 def collect(
     env_name: str,
     out_dir: str | os.PathLike,
@@ -51,12 +117,13 @@ def collect(
     **env_kwargs: Any,
 ) -> list[str]:
     """Write ``episodes`` files ``episode_00000.<npz|h5>`` to ``out_dir`` and return their paths, or with
-    ``file_format="lerobot"`` a LeRobot v3.0 dataset (:class:`~sb3_ef.offline.lerobot.LeRobotWriter`: AV1 video,
-    actions and agent masks in Parquet) and return ``[out_dir]``.
+    ``file_format="lerobot"`` a LeRobot v3.0 dataset (:class:`~sb3_ef.offline.lerobot_writer.LeRobotWriter`: AV1
+    video, actions and agent masks in Parquet) and return ``[out_dir]``.
 
-    NPZ / HDF5 files that already exist are kept (an interrupted collection continues where it stopped): episode
-    ``i`` is reset with seed ``seed + i`` and babbles from a generator seeded with ``(seed, i)``, so it does not
-    depend on the others. A LeRobot dataset is written in one go (an existing one is refused).
+    A rerun into the same folder (with the same settings) keeps what is there and records the rest: intact
+    NPZ / HDF5 episodes are kept (a damaged one is recorded again, with a warning), a LeRobot dataset is continued.
+    Ctrl-C keeps the finished episodes (a LeRobot dataset of them) and raises
+    :class:`~sb3_ef.offline.interrupt.Interrupted`.
 
     :param env_name: ``dmc/<domain>-<task>``, ``metaworld/<task>`` or another registered sb3-ef env (``toy/agent-v0``).
     :param mode: babbling mode when no ``policy`` is given (``"sign"`` as in the paper, or ``"clamped_uniform"``).
@@ -69,54 +136,143 @@ def collect(
         (a LeRobot dataset has masks for every episode or none: any index records all)
         (masks are only needed to score held-out episodes; each costs a second render per step).
     """
-    from sb3_ef.analysis.cli import load_ef_model
-
     if file_format not in FORMATS:
         raise ValueError(f"file_format must be one of {FORMATS}, got {file_format!r}")
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes must be a positive number of episodes to record, got {episodes!r}")
     check_babbling(0, mode)
-    rng = np.random.default_rng(seed)  # re-seeded per episode below
-    if policy is not None:
-        model = load_ef_model(policy, algo)
-        frame_shape, frame_stack = model.frame_shape, model.observation_space.shape[0] // FRAME_CHANNELS
-        act = lambda observation: model.predict(observation, deterministic=True)[0]  # noqa: E731
-    else:
-        frame_shape, frame_stack = (FRAME_CHANNELS, size, size), 1
-        act = None
-    env = _make_env(env_name, frame_shape[-1], frame_stack, action_repeat, fast_render, **env_kwargs)
-    if act is None:
-        act = lambda _observation: babble(rng, env.action_space.shape, mode)  # noqa: E731
-    paths = []
-    bar = _progress(episodes, progress_bar)
-    writer = None
+    out_dir = os.fspath(out_dir)
+    settings = {"env_name": env_name, "size": size, "action_repeat": action_repeat, "mode": mode, "policy": policy}
+    settings.update(algo=algo, seed=seed, fast_render=fast_render, file_format=file_format, env_kwargs=env_kwargs)
+    settings["masks"] = masks if isinstance(masks, bool) else sorted(int(index) for index in masks)
+    settings = json.loads(json.dumps(settings, default=repr))  # as recorded: tuples become lists
+    _check_folder(out_dir, settings)
+    recorder = _Recorder(settings, env_kwargs)
+    bar = make_progress_bar(episodes, "collect", "episode", progress_bar)
     try:
-        for index in range(episodes):
-            path = os.path.join(os.fspath(out_dir), f"episode_{index:05d}.{file_format}")
-            with_masks = masks if isinstance(masks, bool) else index in masks
-            if file_format == "lerobot":
-                rng = np.random.default_rng([seed, index])
-                source = f"{os.fspath(out_dir)} (episode {index})"
-                episode = record_episode(env, act, seed=seed + index, source=source, masks=bool(masks))
-                if writer is None:
-                    from sb3_ef.offline.lerobot import LeRobotWriter
-
-                    writer = LeRobotWriter(out_dir, episode.frame_shape, episode.action_dim, masks=bool(masks))
-                writer.add(episode)
-            elif not os.path.exists(path):
-                rng = np.random.default_rng([seed, index])
-                write_episode(path, record_episode(env, act, seed=seed + index, source=path, masks=with_masks))
-            if file_format != "lerobot":
-                paths.append(path)
-            if bar is not None:
-                bar.update(1)
-        if writer is not None:
-            paths.append(writer.close())
+        if file_format == "lerobot":
+            return [_collect_lerobot(recorder, out_dir, settings, episodes, bar)]
+        return _collect_files(recorder, out_dir, settings, episodes, masks, bar)
     finally:
-        env.close()
+        recorder.env.close()
         if bar is not None:
             bar.close()
+
+
+def _check_folder(out_dir: str, settings: dict[str, Any]) -> None:
+    """Refuse a folder collected with other settings, and for a LeRobot dataset one holding anything else."""
+    path = os.path.join(out_dir, RECORD)
+    if os.path.isfile(path):
+        with open(path) as file:
+            recorded = json.load(file)
+        ignored = {"masks"} if settings["file_format"] != "lerobot" else set()  # masks are per episode file
+        differences = [
+            f"{OPTIONS[name]}: {recorded.get(name)!r}, not {value!r}"
+            for name, value in settings.items()
+            if name not in ignored and recorded.get(name) != value
+        ]
+        if differences:
+            raise ValueError(
+                f"{out_dir} holds a collection with other settings ({'; '.join(differences)}): rerun with its "
+                "settings to continue it, or collect into another folder"
+            )
+    elif settings["file_format"] == "lerobot" and os.path.isdir(out_dir):
+        files = sorted(os.path.relpath(os.path.join(d, f), out_dir) for d, _, fs in os.walk(out_dir) for f in fs)
+        if files:
+            raise FileExistsError(
+                f"{out_dir} is not empty ({len(files)} files, e.g. {files[0]}) and holds no collection of sb3-ef "
+                "collect: --format lerobot writes into a new or empty folder"
+            )
+
+
+def _write_record(out_dir: str, settings: dict[str, Any]) -> None:
+    """Keep the settings in ``out_dir`` (left as it is when it holds them already: a full disk still reruns)."""
+    os.makedirs(out_dir, exist_ok=True)
+    path, text = os.path.join(out_dir, RECORD), json.dumps(settings, indent=2)
+    if not os.path.isfile(path) or Path(path).read_text() != text:
+        write_text_atomically(path, text)
+
+
+def _collect_files(
+    recorder: _Recorder, out_dir: str, settings: dict[str, Any], episodes: int, masks: bool | Sequence[int], bar: Any
+) -> list[str]:
+    """One ``.npz`` / ``.h5`` file per episode; intact files already there are kept."""
+    paths = [os.path.join(out_dir, f"episode_{index:05d}.{settings['file_format']}") for index in range(episodes)]
+    kept = _intact_episodes(paths, recorder)
+    _write_record(out_dir, settings)
+    try:
+        for index, path in enumerate(paths):
+            if index not in kept:
+                with_masks = masks if isinstance(masks, bool) else index in masks
+                episode = recorder.episode(index, path, with_masks)
+                with sigint_deferred():  # the file is written whole: an interrupt waits for it
+                    write_episode(path, episode)
+            if bar is not None:
+                bar.update(1)
+    except KeyboardInterrupt:
+        count = sum(os.path.isfile(path) for path in paths)
+        raise Interrupted(
+            f"{count} of {episodes} episodes are in {out_dir} (one still being recorded is dropped): rerun the "
+            f"command to record the other {episodes - count}"
+        ) from None
+    others = sorted(set(glob.glob(os.path.join(out_dir, "*"))) - set(paths))
+    others = [path for path in others if path.endswith(NPZ_SUFFIXES + HDF5_SUFFIXES)]
+    if others:
+        warnings.warn(
+            f"{out_dir} also holds {len(others)} other episode files ({os.path.basename(others[0])}, ...): readers "
+            "of the folder read them too",
+            stacklevel=3,
+        )
     return paths
+
+
+def _intact_episodes(paths: list[str], recorder: _Recorder) -> set[int]:
+    """The indices of the episode files already there that read back intact; a damaged one is named in a warning
+    (and recorded again), one of another frame shape or action size is refused before anything is recorded."""
+    intact, other_shapes = set(), []
+    for index, path in enumerate(paths):
+        if not os.path.exists(path):
+            continue
+        try:
+            episode = read_episode_file(path)
+        except EpisodeError as error:
+            warnings.warn(f"{error}: recording it again", stacklevel=4)
+            continue
+        if episode.frame_shape != recorder.frame_shape or episode.action_dim != recorder.action_dim:
+            other_shapes.append(f"{path}: frames {episode.frame_shape} and {episode.action_dim}-d actions")
+        intact.add(index)
+    if other_shapes:
+        raise ValueError(
+            f"{other_shapes[0]}, while this collection records frames {recorder.frame_shape} and "
+            f"{recorder.action_dim}-d actions (--size, ENV): collect into another folder, or with the settings that "
+            f"wrote the {len(other_shapes)} episodes there"
+        )
+    return intact
+
+
+def _collect_lerobot(recorder: _Recorder, out_dir: str, settings: dict[str, Any], episodes: int, bar: Any) -> str:
+    """A LeRobot v3.0 dataset; the dataset of an interrupted collection in ``out_dir`` is continued."""
+    from sb3_ef.offline.lerobot_writer import LeRobotWriter
+
+    masks = bool(settings["masks"])
+    writer = LeRobotWriter(out_dir, recorder.frame_shape, recorder.action_dim, masks=masks, append=True)
+    _write_record(out_dir, settings)
+    if bar is not None:
+        bar.update(min(writer.episodes, episodes))
+    if writer.episodes >= episodes:
+        return out_dir
+    try:
+        with writer:  # on an error or Ctrl-C it still finishes the episodes added (files and meta/)
+            for index in range(writer.episodes, episodes):
+                writer.add(recorder.episode(index, f"{out_dir} (episode {index})", masks))
+                if bar is not None:
+                    bar.update(1)
+    except KeyboardInterrupt:
+        raise Interrupted(
+            f"{writer.episodes} of {episodes} episodes are in {out_dir}, a LeRobot dataset of those (one still being "
+            f"recorded is dropped): rerun the command to record the other {episodes - writer.episodes}"
+        ) from None
+    return out_dir
 
 
 def _make_env(name: str, size: int, frame_stack: int, action_repeat: int, fast_render: bool, **kwargs: Any) -> Any:
@@ -131,14 +287,9 @@ def _make_env(name: str, size: int, frame_stack: int, action_repeat: int, fast_r
 
     import sb3_ef  # noqa: F401  (registers the envs)
 
-    return gym.make(name, size=size, frame_stack=frame_stack, **kwargs)
-
-
-def _progress(total: int, enabled: bool) -> Any:
-    if not enabled:
-        return None
     try:
-        from tqdm.auto import tqdm
-    except ImportError:
-        return None
-    return tqdm(total=total, desc="collect", unit="episode")
+        return gym.make(name, size=size, frame_stack=frame_stack, **kwargs)
+    except gym.error.Error as error:  # an unknown id or version: gymnasium's message suggests the right one
+        raise ValueError(
+            f"Unknown env {name!r}: {error} (sb3-ef envs: dmc/<domain>-<task>, metaworld/<task>, toy/agent-v0)"
+        ) from None

@@ -1,4 +1,5 @@
-"""One episode of robot video with actions, the checks every reader applies, and the folder format's writer.
+"""One episode of robot video with actions, the checks every reader applies, and the folder format's files (one
+``.npz`` or ``.h5`` file per episode), read and written.
 
 The episode contract: ``frames`` uint8 (T + 1, 3, H, W), channels-first, frame ``t`` is what the camera saw before
 action ``t``; ``actions`` float32 (T, action_dim); ``masks`` optional bool (T + 1, H, W), the agent's pixels in each
@@ -9,11 +10,14 @@ after it) and then drop the last action.
 from __future__ import annotations
 
 import os
+import zipfile
+import zlib
 from dataclasses import dataclass
 
 import numpy as np
 
 from sb3_ef.common.env_checks import FRAME_CHANNELS
+from sb3_ef.common.files import atomic_path
 
 #: File suffixes of the folder format.
 NPZ_SUFFIXES = (".npz",)
@@ -86,20 +90,96 @@ def make_episode(
 
 
 def write_episode(path: str | os.PathLike, episode: Episode) -> str:
-    """Write one episode in the folder format: ``.npz`` (compressed) or ``.h5`` / ``.hdf5`` by suffix."""
+    """Write one episode in the folder format: ``.npz`` (compressed) or ``.h5`` / ``.hdf5`` by suffix, whole or not
+    at all (a temporary file renamed once complete: a full disk or Ctrl-C leaves no cut file)."""
     path = os.fspath(path)
+    if not path.endswith(NPZ_SUFFIXES + HDF5_SUFFIXES):
+        raise ValueError(f"Expected a path ending in .npz, .h5 or .hdf5, got {path!r}")
     arrays = {"frames": episode.frames, "actions": episode.actions}
     if episode.masks is not None:
         arrays["masks"] = episode.masks
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    try:
+        with atomic_path(path) as temporary:
+            if path.endswith(NPZ_SUFFIXES):
+                np.savez_compressed(temporary, **arrays)  # type: ignore[arg-type]  # numpy's stub: a key might be allow_pickle
+            else:
+                import h5py
+
+                with h5py.File(temporary, "w") as file:
+                    for key, value in arrays.items():
+                        file.create_dataset(key, data=value, compression="gzip")
+    except OSError as error:  # numpy's and h5py's messages do not name the file
+        raise OSError(error.errno, f"Could not write {path}: {error.strerror or error}") from error
+    return path
+
+
+def read_episode_file(path: str | os.PathLike, source: str | None = None, min_frames: int = 2) -> Episode:
+    """One episode of the folder format, checked (:func:`make_episode`); a damaged file, missing arrays or an
+    ``.npz`` holding Python objects raise ``EpisodeError`` naming ``source`` (default: the path)."""
+    path = os.fspath(path)
+    source = source or path
     if path.endswith(NPZ_SUFFIXES):
-        np.savez_compressed(path, **arrays)  # type: ignore[arg-type]  # numpy's stub: a key might be allow_pickle
-    elif path.endswith(HDF5_SUFFIXES):
+        arrays = _read_npz(path, source)
+    else:
         import h5py
 
-        with h5py.File(path, "w") as file:
-            for key, value in arrays.items():
-                file.create_dataset(key, data=value, compression="gzip")
-    else:
-        raise ValueError(f"Expected a path ending in .npz, .h5 or .hdf5, got {path!r}")
-    return path
+        try:
+            with h5py.File(path, "r") as file:
+                arrays = {key: file[key][()] for key in file}
+        except OSError as error:
+            raise EpisodeError(f"{source}: not a readable HDF5 file ({error})") from error
+    _check_keys(source, list(arrays))
+    return make_episode(arrays["frames"], arrays["actions"], arrays.get("masks"), source, min_frames)
+
+
+def _read_npz(path: str, source: str) -> dict[str, np.ndarray]:
+    """The arrays of an ``.npz`` episode; a damaged file, a single ``.npy`` array or a file holding Python objects is
+    an ``EpisodeError``."""
+    try:
+        with open(path, "rb") as handle:
+            archive = np.load(handle, allow_pickle=False)
+            if not isinstance(archive, np.lib.npyio.NpzFile):
+                raise EpisodeError(f"{source}: a single .npy array, not an .npz archive of 'frames' and 'actions'")
+            with archive:
+                return {key: archive[key] for key in archive.files}
+    except EpisodeError:
+        raise
+    except ValueError as error:  # numpy: object arrays, or not an npz at all
+        raise EpisodeError(f"{source}: not a readable .npz of numeric arrays (corrupt, or holds objects)") from error
+    except (OSError, EOFError, zipfile.BadZipFile, zlib.error) as error:
+        raise EpisodeError(f"{source}: corrupt or truncated .npz file ({error})") from error
+
+
+def episode_file_shapes(path: str, source: str) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """The shapes of an episode file's ``frames`` and ``actions`` arrays, from their headers (nothing decompressed)."""
+    try:
+        if path.endswith(NPZ_SUFFIXES):
+            with open(path, "rb") as file:
+                if file.read(6) == b"\x93NUMPY":
+                    raise EpisodeError(f"{source}: a single .npy array, not an .npz archive of 'frames' and 'actions'")
+            with zipfile.ZipFile(path) as archive:
+                _check_keys(source, [name.removesuffix(".npy") for name in archive.namelist()])
+                return _npy_shape(archive, "frames.npy"), _npy_shape(archive, "actions.npy")
+        import h5py
+
+        with h5py.File(path, "r") as file:
+            _check_keys(source, list(file))
+            return tuple(file["frames"].shape), tuple(file["actions"].shape)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as error:
+        if isinstance(error, EpisodeError):
+            raise
+        raise EpisodeError(f"{source}: corrupt or truncated episode file ({error})") from error
+
+
+def _check_keys(source: str, present: list[str]) -> None:
+    missing = [key for key in ("frames", "actions") if key not in present]
+    if missing:
+        raise EpisodeError(f"{source}: missing {missing}; expected keys 'frames', 'actions' and optionally 'masks'")
+
+
+def _npy_shape(archive: zipfile.ZipFile, name: str) -> tuple[int, ...]:
+    with archive.open(name) as member:
+        major, _ = np.lib.format.read_magic(member)
+        read_header = np.lib.format.read_array_header_1_0 if major == 1 else np.lib.format.read_array_header_2_0
+        return tuple(read_header(member)[0])

@@ -19,6 +19,7 @@ from sb3_ef.analysis.prediction import eval_mode
 from sb3_ef.analysis.saliency import Saliency, decoder_saliency
 from sb3_ef.offline.episodes import Episode
 from sb3_ef.offline.model import OfflineEF
+from sb3_ef.offline.progress import make_progress_bar
 from sb3_ef.offline.windows import Windows, cut_windows, window_starts
 
 
@@ -65,7 +66,8 @@ def evaluate(
     horizon = config.horizon
     sums = {name: np.zeros(horizon) for name in ("frame", "copy_frame", "agent", "copy_agent", "agent_pixels")}
     with_masks = all(episodes[index].masks is not None for index, _ in picks)
-    bar = _progress(-(-len(picks) // batch_size) + (min(saliency_windows, len(picks)) if with_masks else 0), progress)
+    total = -(-len(picks) // batch_size) + (min(saliency_windows, len(picks)) if with_masks else 0)
+    bar = make_progress_bar(total, "held-out evaluation", "step", progress)
     for start in range(0, len(picks), batch_size):
         windows = cut_windows(episodes, picks[start : start + batch_size], config.context, horizon, device)
         predicted = predict_windows(model, windows)
@@ -91,16 +93,6 @@ def evaluate(
     if bar is not None:
         bar.close()
     return scores
-
-
-def _progress(total: int, enabled: bool) -> Any:
-    if not enabled:
-        return None
-    try:
-        from tqdm.auto import tqdm
-    except ImportError:
-        return None
-    return tqdm(total=total, desc="held-out evaluation", unit="step")
 
 
 def _add_errors(scores: dict, name: str, model_error: np.ndarray, copy_error: np.ndarray) -> None:

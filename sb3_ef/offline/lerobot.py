@@ -1,5 +1,6 @@
-"""LeRobot datasets (Parquet tables + MP4 videos) read and written with pyarrow and PyAV, without the ``lerobot``
-package (which pulls in torchvision, datasets, huggingface-hub and its own video stack).
+"""LeRobot datasets (Parquet tables + MP4 videos) read with pyarrow and PyAV, without the ``lerobot`` package (which
+pulls in torchvision, datasets, huggingface-hub and its own video stack); written by
+:mod:`sb3_ef.offline.lerobot_writer`.
 
 Layout of a v3.0 dataset folder (several episodes per file)::
 
@@ -22,35 +23,24 @@ import glob
 import io
 import json
 import os
-from collections.abc import Iterable
-from fractions import Fraction
 from typing import Any
 
 import numpy as np
 
+from sb3_ef.offline.dataset import EpisodeDataset, check_image_size
 from sb3_ef.offline.episodes import Episode, EpisodeError, make_episode
-from sb3_ef.offline.readers import EpisodeDataset
+from sb3_ef.offline.lerobot_format import (
+    INFO,
+    MASK_KEY,
+    V3_DATA_PATH,
+    V3_VIDEO_PATH,
+    VIDEO_COLUMNS,
+    is_lerobot_dataset,
+    lerobot_imports,
+)
+from sb3_ef.offline.lerobot_writer import LeRobotWriter, write_lerobot
 
-INFO = os.path.join("meta", "info.json")
-V3_DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
-V3_VIDEO_PATH = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
-V3_EPISODES_PATH = "meta/episodes/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
-VIDEO_COLUMNS = ("chunk_index", "file_index", "from_timestamp", "to_timestamp")
-#: The Parquet column of the agent masks written by :class:`LeRobotWriter` (not a LeRobot convention).
-MASK_KEY = "observation.agent_mask"
-
-
-def is_lerobot_dataset(path: str | os.PathLike) -> bool:
-    return os.path.isfile(os.path.join(os.fspath(path), INFO))
-
-
-def _imports() -> tuple[Any, Any]:
-    try:
-        import av
-        import pyarrow.parquet as pq
-    except ImportError as error:
-        raise ImportError("LeRobot datasets need pyarrow and av (PyAV): pip install sb3-ef[offline]") from error
-    return av, pq
+__all__ = ["MASK_KEY", "LeRobotDataset", "LeRobotWriter", "is_lerobot_dataset", "write_lerobot"]
 
 
 class LeRobotDataset(EpisodeDataset):
@@ -81,7 +71,8 @@ class LeRobotDataset(EpisodeDataset):
         min_frames: int = 2,
     ):
         super().__init__(min_frames)
-        self._av, self._pq = _imports()
+        self._av, self._pq = lerobot_imports()
+        self.image_size = check_image_size(image_size)
         self.root = os.fspath(root)
         info_path = os.path.join(self.root, INFO)
         if not os.path.isfile(info_path):
@@ -113,7 +104,6 @@ class LeRobotDataset(EpisodeDataset):
         if self.mask_key is not None and self.mask_key not in features:
             raise EpisodeError(f"{info_path}: no mask feature {self.mask_key!r} (features: {sorted(features)})")
         self.is_video = features[self.camera]["dtype"] == "video"
-        self.image_size = image_size
         self.fps = float(self.info["fps"])
         self.episodes = self._read_episode_index()
 
@@ -193,8 +183,7 @@ class LeRobotDataset(EpisodeDataset):
             start = 0.0
         return os.path.join(self.root, data), (os.path.join(self.root, video) if video else None), start
 
-    def __getitem__(self, index: int) -> Episode:
-        self._check_index(index)
+    def _read(self, index: int) -> Episode:
         episode = self.episodes[index]
         number, length = int(episode["episode_index"]), int(episode["length"])
         data_path, video_path, start = self._paths(episode)
@@ -303,226 +292,3 @@ def _resize_masks(masks: np.ndarray, frames: np.ndarray) -> np.ndarray:
         cols = np.arange(width) * masks.shape[2] // width
         masks = masks[:, rows][:, :, cols]
     return masks
-
-
-class LeRobotWriter:
-    """Writes episodes as a LeRobot v3.0 dataset folder: one camera (MP4), the actions and optionally agent masks.
-
-    Row ``t`` of an episode holds frame ``t`` and action ``t``; the last frame has no action and gets zeros (the
-    reader drops it again). Timestamps are ``frame_index / fps``.
-
-    :param codec: an FFmpeg video encoder: ``"libsvtav1"`` (AV1, LeRobot's default; lossy), ``"libx264"`` (H.264,
-        lossy) or ``"libx264rgb"`` (H.264 in RGB with ``qp=0``: lossless, frames read back exactly).
-    :param episodes_per_file: start a new data and video file every this many episodes (None: one file each).
-    """
-
-    def __init__(
-        self,
-        root: str | os.PathLike,
-        frame_shape: tuple[int, int, int],
-        action_dim: int,
-        fps: int = 10,
-        camera: str = "observation.image",
-        codec: str = "libsvtav1",
-        masks: bool = False,
-        task: str = "babbling",
-        robot_type: str | None = None,
-        episodes_per_file: int | None = None,
-        crf: int = 30,
-    ):
-        self._av, self._pq = _imports()
-        import pyarrow as pa
-
-        self._pa = pa
-        self.root = os.fspath(root)
-        if os.path.exists(os.path.join(self.root, INFO)):
-            raise FileExistsError(f"{self.root} already holds a LeRobot dataset ({INFO}); write to another folder")
-        channels, height, width = frame_shape
-        if channels != 3 or height % 2 or width % 2:
-            raise ValueError(f"Expected RGB frames (3, H, W) with even H and W for video, got {frame_shape}")
-        self.frame_shape, self.action_dim, self.fps = tuple(frame_shape), action_dim, fps
-        self.camera, self.codec, self.with_masks, self.task = camera, codec, masks, task
-        self.episodes_per_file, self.crf = episodes_per_file, crf
-        self.robot_type = robot_type
-        self._rows: list[dict[str, Any]] = []  # episode table
-        self._file_index, self._in_file, self._frames, self._file_frames = 0, 0, 0, 0
-        self._data_writer: Any = None
-        self._container: Any = None
-        self._stream: Any = None
-
-    def add(self, episode: Episode) -> None:
-        """Append one episode (its frames, actions and, when the writer records masks, masks)."""
-        if episode.frame_shape != self.frame_shape or episode.action_dim != self.action_dim:
-            raise ValueError(
-                f"{episode.source}: frames {episode.frame_shape} and {episode.action_dim}-d actions differ from the "
-                f"dataset's {self.frame_shape} and {self.action_dim}-d actions"
-            )
-        if self.with_masks and episode.masks is None:
-            raise ValueError(f"{episode.source}: the dataset records agent masks and this episode has none")
-        if self.episodes_per_file and self._in_file == self.episodes_per_file:
-            self._close_files()
-            self._file_index += 1
-        if self._container is None:
-            self._open_files()
-        length = len(episode.frames)
-        start_time = self._file_frames / self.fps
-        for frame in episode.frames:
-            video_frame = self._av.VideoFrame.from_ndarray(np.ascontiguousarray(frame.transpose(1, 2, 0)), "rgb24")
-            video_frame.pts, video_frame.time_base = self._file_frames, Fraction(1, self.fps)
-            for packet in self._stream.encode(video_frame):
-                self._container.mux(packet)
-            self._file_frames += 1
-        self._write_rows(episode, len(self._rows))
-        location = {"chunk_index": 0, "file_index": self._file_index}
-        self._rows.append(
-            {
-                "episode_index": len(self._rows),
-                "tasks": [self.task],
-                "length": length,
-                **{f"data/{key}": value for key, value in location.items()},
-                "dataset_from_index": self._frames,
-                "dataset_to_index": self._frames + length,
-                **{f"videos/{self.camera}/{key}": value for key, value in location.items()},
-                f"videos/{self.camera}/from_timestamp": start_time,
-                f"videos/{self.camera}/to_timestamp": self._file_frames / self.fps,
-                "meta/episodes/chunk_index": 0,
-                "meta/episodes/file_index": 0,
-            }
-        )
-        self._frames += length
-        self._in_file += 1
-
-    def extend(self, episodes: Iterable[Episode]) -> LeRobotWriter:
-        for episode in episodes:
-            self.add(episode)
-        return self
-
-    def _open_files(self) -> None:
-        location = {"video_key": self.camera, "chunk_index": 0, "file_index": self._file_index}
-        video = os.path.join(self.root, V3_VIDEO_PATH.format(**location))
-        os.makedirs(os.path.dirname(video), exist_ok=True)
-        lossless = self.codec == "libx264rgb"
-        os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 prints its whole configuration per file unless told errors only
-        options = {"qp": "0"} if lossless else {"crf": str(self.crf)}
-        self._container = self._av.open(video, "w")
-        self._stream = self._container.add_stream(self.codec, rate=self.fps, options=options)
-        self._stream.height, self._stream.width = self.frame_shape[1:]
-        self._stream.pix_fmt = "rgb24" if lossless else "yuv420p"
-        self._stream.codec_context.gop_size = 2  # LeRobot's keyframe interval: cheap seeks to any episode
-        self._file_frames, self._in_file = 0, 0
-
-    def _write_rows(self, episode: Episode, index: int) -> None:
-        pa = self._pa
-        length = len(episode.frames)
-        actions = np.zeros((length, self.action_dim), np.float32)
-        actions[: episode.steps] = episode.actions
-        columns = {
-            "action": pa.FixedSizeListArray.from_arrays(pa.array(actions.ravel()), self.action_dim),
-            "timestamp": pa.array(np.arange(length, dtype=np.float32) / self.fps),
-            "frame_index": pa.array(np.arange(length, dtype=np.int64)),
-            "episode_index": pa.array(np.full(length, index, dtype=np.int64)),
-            "index": pa.array(np.arange(self._frames, self._frames + length, dtype=np.int64)),
-            "task_index": pa.array(np.zeros(length, dtype=np.int64)),
-        }
-        if self.with_masks:
-            height, width = self.frame_shape[1:]
-            rows = pa.FixedSizeListArray.from_arrays(pa.array(episode.masks.ravel()), width)  # type: ignore[union-attr]
-            columns[MASK_KEY] = pa.FixedSizeListArray.from_arrays(rows, height)
-        table = pa.table(columns)
-        if self._data_writer is None:
-            path = os.path.join(self.root, V3_DATA_PATH.format(chunk_index=0, file_index=self._file_index))
-            os.makedirs(os.path.dirname(path), exist_ok=True)
-            self._data_writer = self._pq.ParquetWriter(path, table.schema, compression="snappy")
-        self._data_writer.write_table(table)  # one row group per episode
-
-    def _close_files(self) -> None:
-        if self._container is not None:
-            for packet in self._stream.encode():
-                self._container.mux(packet)
-            self._container.close()
-            self._container = None
-        if self._data_writer is not None:
-            self._data_writer.close()
-            self._data_writer = None
-
-    def close(self) -> str:
-        """Finish the files and write the episode table and ``meta/info.json``; returns the dataset folder."""
-        self._close_files()
-        pa = self._pa
-        if not self._rows:
-            raise ValueError(f"No episode was added to {self.root}")
-        table = pa.Table.from_pylist(self._rows)
-        path = os.path.join(self.root, V3_EPISODES_PATH.format(chunk_index=0, file_index=0))
-        os.makedirs(os.path.dirname(path), exist_ok=True)
-        self._pq.write_table(table, path)
-        self._pq.write_table(
-            pa.table({"task_index": [0], "task": [self.task]}), os.path.join(self.root, "meta", "tasks.parquet")
-        )
-        height, width = self.frame_shape[1:]
-        codec_name = {"libsvtav1": "av1", "libx264": "h264", "libx264rgb": "h264"}.get(self.codec, self.codec)
-        features: dict[str, Any] = {
-            self.camera: {
-                "dtype": "video",
-                "shape": [height, width, 3],
-                "names": ["height", "width", "channels"],
-                "info": {
-                    "video.height": height,
-                    "video.width": width,
-                    "video.codec": codec_name,
-                    "video.pix_fmt": "rgb24" if self.codec == "libx264rgb" else "yuv420p",
-                    "video.is_depth_map": False,
-                    "video.fps": self.fps,
-                    "video.channels": 3,
-                    "has_audio": False,
-                },
-            },
-            "action": {"dtype": "float32", "shape": [self.action_dim], "names": None},
-        }
-        if self.with_masks:
-            features[MASK_KEY] = {"dtype": "bool", "shape": [height, width], "names": ["height", "width"]}
-        for name, dtype in (
-            ("timestamp", "float32"),
-            ("frame_index", "int64"),
-            ("episode_index", "int64"),
-            ("index", "int64"),
-            ("task_index", "int64"),
-        ):
-            features[name] = {"dtype": dtype, "shape": [1], "names": None}
-        info = {
-            "codebase_version": "v3.0",
-            "robot_type": self.robot_type,
-            "total_episodes": len(self._rows),
-            "total_frames": self._frames,
-            "total_tasks": 1,
-            "chunks_size": 1000,
-            "data_files_size_in_mb": 100,
-            "video_files_size_in_mb": 200,
-            "fps": self.fps,
-            "splits": {"train": f"0:{len(self._rows)}"},
-            "data_path": V3_DATA_PATH,
-            "video_path": V3_VIDEO_PATH,
-            "features": features,
-        }
-        with open(os.path.join(self.root, INFO), "w") as file:
-            json.dump(info, file, indent=4)
-        return self.root
-
-    def __enter__(self) -> LeRobotWriter:
-        return self
-
-    def __exit__(self, *exc_info: Any) -> None:
-        if exc_info[0] is None:
-            self.close()
-        else:
-            self._close_files()
-
-
-def write_lerobot(root: str | os.PathLike, episodes: list[Episode], **kwargs: Any) -> str:
-    """Write ``episodes`` as a LeRobot v3.0 dataset (see :class:`LeRobotWriter` for the options)."""
-    if not episodes:
-        raise ValueError("No episodes to write")
-    first = episodes[0]
-    kwargs.setdefault("masks", all(episode.masks is not None for episode in episodes))
-    with LeRobotWriter(root, first.frame_shape, first.action_dim, **kwargs) as writer:
-        writer.extend(episodes)
-    return os.fspath(root)

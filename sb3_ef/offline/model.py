@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import pickle
+import zipfile
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -10,6 +12,7 @@ import torch as th
 from torch import nn
 
 from sb3_ef.ef import EgoForesight
+from sb3_ef.ef.foresight import momentum_target
 from sb3_ef.offline.encoders import build_encoder
 
 
@@ -39,6 +42,8 @@ class OfflineEF(nn.Module):
         self.encoder = build_encoder(
             config.encoder, config.frame_shape, config.context, config.action_dim, **dict(config.encoder_kwargs)
         )
+        options = dict(config.ef_kwargs)
+        target_tau = options.pop("target_tau", None)
         self.ef = EgoForesight(
             self.encoder.features_dim,
             config.action_dim,
@@ -46,8 +51,10 @@ class OfflineEF(nn.Module):
             agent_dim=config.agent_dim,
             horizon=config.horizon,
             skip_channels=self.encoder.skip_channels,
-            **config.ef_kwargs,
+            **options,
         )
+        # Latent EF (ef_kwargs target="latent"): the momentum copy of the encoder whose features it predicts.
+        self.target_encoder = momentum_target(self.ef, self.encoder, target_tau)
 
     def features(self, observations: th.Tensor) -> tuple[th.Tensor, th.Tensor | None]:
         return self.encoder(observations)
@@ -65,16 +72,48 @@ class OfflineEF(nn.Module):
         return {"config": asdict(self.config), "state_dict": self.state_dict(), **extra}
 
 
+def read_checkpoint(path: str | os.PathLike, device: str | th.device = "cpu") -> dict[str, Any]:
+    """The dict of a checkpoint written by ``pretrain`` (``model.pt`` or ``checkpoint.pt``).
+
+    Only tensors and plain values are unpickled (``weights_only``). A missing file is a ``FileNotFoundError``; a
+    damaged or truncated file, a Stable-Baselines3 model zip or another file a ``ValueError`` naming it.
+    """
+    name = os.fspath(path)
+    if not os.path.isfile(name):
+        raise FileNotFoundError(f"No pretrained model at {name!r}")
+    if zipfile.is_zipfile(name) and _is_sb3_zip(name):
+        raise ValueError(
+            f"{name!r} is a Stable-Baselines3 model zip (an RL agent, as sb3-ef train saves it), not a model of sb3-ef "
+            "pretrain: pass the OUT/model.pt or OUT/checkpoint.pt it wrote (for an RL agent: sb3-ef analyze model)"
+        )
+    try:
+        checkpoint = th.load(name, map_location=device, weights_only=True)
+    except (RuntimeError, EOFError, OSError, ValueError, pickle.UnpicklingError) as error:
+        reason = " ".join(str(error).split()).split(". ")[0] or type(error).__name__  # torch adds advice after it
+        reason = "an empty file" if os.path.getsize(name) == 0 else reason
+        raise ValueError(
+            f"{name!r} is not a readable checkpoint of sb3-ef pretrain (damaged, truncated or another file: {reason})"
+        ) from None
+    if not isinstance(checkpoint, dict) or "config" not in checkpoint or "state_dict" not in checkpoint:
+        raise ValueError(f"{name!r} is not an sb3-ef offline checkpoint (no 'config' / 'state_dict')")
+    return checkpoint
+
+
 def load_pretrained(path: str | os.PathLike, device: str | th.device = "cpu") -> tuple[OfflineEF, dict[str, Any]]:
     """Rebuild an :class:`OfflineEF` from a checkpoint written by ``pretrain``; returns it (in eval mode) and the
-    whole checkpoint dict."""
-    if not os.path.isfile(path):
-        raise FileNotFoundError(f"No pretrained model at {os.fspath(path)!r}")
-    checkpoint = th.load(path, map_location=device, weights_only=False)
-    if not isinstance(checkpoint, dict) or "config" not in checkpoint or "state_dict" not in checkpoint:
-        raise ValueError(f"{os.fspath(path)!r} is not an sb3-ef offline checkpoint (no 'config' / 'state_dict')")
+    whole checkpoint dict (:func:`read_checkpoint` says which files are refused)."""
+    checkpoint = read_checkpoint(path, device)
     config = dict(checkpoint["config"])
     config["frame_shape"] = tuple(config["frame_shape"])
     model = OfflineEF(OfflineEFConfig(**config)).to(device)
-    model.load_state_dict(checkpoint["state_dict"])
+    try:
+        model.load_state_dict(checkpoint["state_dict"])
+    except RuntimeError as error:
+        raise ValueError(f"{os.fspath(path)!r}: its weights do not fit its configuration ({error})") from None
     return model.eval(), checkpoint
+
+
+def _is_sb3_zip(path: str) -> bool:
+    """Stable-Baselines3 saves a zip holding ``data`` (JSON) beside ``policy.pth``; torch's archives have none."""
+    with zipfile.ZipFile(path) as archive:
+        return "data" in archive.namelist()

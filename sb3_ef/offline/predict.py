@@ -81,7 +81,9 @@ def predict_episode(
         raise ValueError(f"actions must be one of {ACTION_SOURCES}, got {actions!r}")
     context = model.config.context
     start = context - 1 if start is None else start
-    steps = steps or model.config.horizon
+    steps = model.config.horizon if steps is None else steps
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+        raise ValueError(f"steps must be a positive number of frames to predict (--steps), got {steps!r}")
     if not context - 1 <= start < episode.steps:
         raise ValueError(f"start must lie in [{context - 1}, {episode.steps - 1}] for {episode.source}, got {start}")
     if actions == "dataset":

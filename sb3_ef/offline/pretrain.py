@@ -1,27 +1,62 @@
 """Offline pretraining of an encoder + Ego-Foresight on (frames, actions) episodes, as in the paper's BAIR
-experiment: held-out episodes, TensorBoard scalars and image grids, resumable checkpoints and a progress bar."""
+experiment: held-out episodes, TensorBoard scalars and image grids, resumable checkpoints and a progress bar.
+
+Files are written whole or not at all (:mod:`sb3_ef.common.files`). A resumed run must have the model
+configuration and the training settings (learning rate, batch size, shift, held-out split) of the checkpoint it
+continues; Ctrl-C saves a checkpoint at the last finished update and raises
+:class:`~sb3_ef.offline.interrupt.Interrupted`.
+"""
 
 from __future__ import annotations
 
 import json
 import os
-from collections.abc import Sequence
+import shutil
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from typing import Any, TypeVar
 
 import torch as th
 
 from sb3_ef.analysis.prediction import frame_grid, to_uint8_frames
 from sb3_ef.common.augmentation import random_shift
+from sb3_ef.common.files import write_atomically, write_text_atomically
+from sb3_ef.ef.latent import latent_window_losses
+from sb3_ef.offline.dataset import EpisodeDataset
 from sb3_ef.offline.episodes import Episode, EpisodeError
 from sb3_ef.offline.evaluate import evaluate, predict_windows
-from sb3_ef.offline.model import OfflineEF, OfflineEFConfig, load_pretrained
-from sb3_ef.offline.readers import EpisodeDataset, open_dataset
-from sb3_ef.offline.streaming import EpisodeList, check_like, window_batches
+from sb3_ef.offline.interrupt import Interrupted, sigint_deferred
+from sb3_ef.offline.model import OfflineEF, OfflineEFConfig, load_pretrained, read_checkpoint
+from sb3_ef.offline.progress import make_progress_bar
+from sb3_ef.offline.readers import open_dataset
+from sb3_ef.offline.streaming import EpisodeList, window_batches
 from sb3_ef.offline.windows import Windows, cut_windows
 
 CHECKPOINT = "checkpoint.pt"
 MODEL = "model.pt"
 METRICS = "metrics.json"
+#: ``pretrain``'s arguments and the ``sb3-ef pretrain`` options that set them, for the messages.
+OPTIONS = {
+    "steps": "--steps",
+    "batch_size": "--batch-size",
+    "learning_rate": "--lr",
+    "shift_pad": "--shift-pad",
+    "holdout": "--holdout",
+    "eval_every": "--eval-every",
+    "checkpoint_every": "--checkpoint-every",
+    "encoder": "--encoder",
+    "context": "--context",
+    "horizon": "--horizon",
+    "agent_dim": "--agent-dim",
+    "encoder_kwargs": "--encoder-kwargs",
+    "ef_kwargs": "--ef-kwargs",
+    "frame_shape": "the dataset's frames",
+    "action_dim": "the dataset's actions",
+    "cache_mb": "--cache-mb",
+    "workers": "--workers",
+}
+#: The training settings a resumed run shares with the checkpoint it continues (recorded in every checkpoint).
+RESUMED_SETTINGS = ("learning_rate", "batch_size", "shift_pad", "holdout")
 T = TypeVar("T")
 
 
@@ -31,6 +66,37 @@ def split_holdout(episodes: Sequence[T], holdout: int | float) -> tuple[list[T],
     if not 0 <= count < len(episodes):
         raise ValueError(f"holdout must leave at least one of {len(episodes)} episodes for training, got {holdout}")
     return list(episodes[: len(episodes) - count]), list(episodes[len(episodes) - count :])
+
+
+@dataclass
+class _Run:
+    """What the training loop needs, besides the batches. ``settings``: ``pretrain``'s training arguments."""
+
+    out_dir: str
+    model: OfflineEF
+    optimizer: th.optim.Optimizer
+    settings: dict[str, Any]
+    held_out: list[Episode]
+    device: str
+    writer: Any
+
+    @property
+    def steps(self) -> int:
+        return self.settings["steps"]
+
+    def save(self, name: str, step: int, with_optimizer: bool = True) -> str:
+        """The model (with the optimiser and the settings) as ``out_dir/name``, written atomically."""
+        extra = {"optimizer": self.optimizer.state_dict()} if with_optimizer else {}
+        training = {name: self.settings[name] for name in RESUMED_SETTINGS}
+        checkpoint = self.model.checkpoint(step=step, training=training, **extra)
+        path = os.path.join(self.out_dir, name)
+        with sigint_deferred():  # torch turns an interrupt inside its writer into a RuntimeError
+            try:
+                write_atomically(path, lambda file: th.save(checkpoint, file))
+            except RuntimeError as error:  # torch's zip writer reports a failed write (a full disk) this way
+                free = shutil.disk_usage(self.out_dir).free
+                raise OSError(f"Could not write {path} ({free} bytes free on its disk): {error}") from None
+        return path
 
 
 def pretrain(
@@ -61,9 +127,10 @@ def pretrain(
 ) -> tuple[OfflineEF, dict[str, Any]]:
     """Train encoder + EF to predict frame t + k from ``context`` frames and k actions (k drawn in 1..``horizon``).
 
-    Writes to ``out_dir``: ``checkpoint.pt`` every ``checkpoint_every`` steps (training restarts from it when
-    ``resume``), ``model.pt`` at the end (load with :func:`~sb3_ef.offline.model.load_pretrained`), ``metrics.json``
-    with the held-out scores of :func:`~sb3_ef.offline.evaluate.evaluate`, and TensorBoard logs under ``tb/``.
+    Writes to ``out_dir``: ``checkpoint.pt`` every ``checkpoint_every`` steps (training continues from it when
+    ``resume``, with the same settings), ``model.pt`` at the end (load with
+    :func:`~sb3_ef.offline.model.load_pretrained`), ``metrics.json`` with the held-out scores of
+    :func:`~sb3_ef.offline.evaluate.evaluate`, and TensorBoard logs under ``tb/``.
 
     :param dataset: a source for :func:`~sb3_ef.offline.readers.open_dataset`, a reader, or loaded episodes.
     :param encoder: ``"dcgan-unet"`` (64x64, U-Net skips), ``"drqv2"`` or ``"tdmpc2"`` (64x64).
@@ -78,116 +145,228 @@ def pretrain(
     :param workers: ``DataLoader`` worker processes decoding windows (0: in this process).
     :return: the trained model (eval mode) and the final held-out scores.
     """
-    if not cache_mb > 0 or workers < 0:
-        raise ValueError(f"Expected cache_mb > 0 and workers >= 0, got cache_mb={cache_mb}, workers={workers}")
+    settings = {"steps": steps, "batch_size": batch_size, "learning_rate": learning_rate, "shift_pad": shift_pad}
+    settings.update(holdout=holdout, eval_every=eval_every, checkpoint_every=checkpoint_every)
+    _check_settings({**settings, "saliency_windows": saliency_windows, "cache_mb": cache_mb, "workers": workers})
     th.manual_seed(seed)
+    out_dir = os.fspath(out_dir)
     _refuse_finished_run(out_dir, steps, resume, overwrite)
+    reader = _reader(dataset, context + horizon)
+    lengths = reader.lengths()
+    train_indices, held_out = _split(reader, lengths, holdout)
+    first = reader[train_indices[0]]
+    config = OfflineEFConfig(
+        encoder, first.frame_shape, first.action_dim, context, horizon, agent_dim, encoder_kwargs or {}, ef_kwargs or {}
+    )
+    os.makedirs(out_dir, exist_ok=True)
+    model, optimizer, start = _start(out_dir, config, settings, resume, device)
+    writer = _writer(os.path.join(out_dir, "tb")) if tensorboard else None
+    run = _Run(out_dir, model, optimizer, {**settings, "saliency_windows": saliency_windows}, held_out, device, writer)
+    train_lengths = [lengths[i] for i in train_indices]
+    batches = window_batches(
+        reader, train_indices, train_lengths, context, horizon, batch_size, cache_mb, workers, seed + start
+    )
+    try:
+        _train(run, batches, start, progress_bar)
+        scores = _finish(run, len(train_indices), progress_bar)
+    finally:
+        batches.close()  # stops the DataLoader workers, if any
+        if writer is not None:
+            writer.close()
+    return model, scores
+
+
+def _check_settings(values: dict[str, Any]) -> None:
+    """Refuse settings that cannot train (counts below 1, a learning rate <= 0, negative sizes) at once."""
+    rules: dict[str, tuple[str, int | None]] = {
+        "learning_rate": ("a number > 0", None),
+        "cache_mb": ("a number > 0", None),
+    }
+    rules.update(dict.fromkeys(("steps", "batch_size", "eval_every", "checkpoint_every"), ("an integer >= 1", 1)))
+    rules.update(dict.fromkeys(("shift_pad", "saliency_windows", "workers"), ("an integer >= 0", 0)))
+    problems = [
+        f"{name}{f' ({OPTIONS[name]})' if name in OPTIONS else ''} must be {expected}, got {values[name]!r}"
+        for name, (expected, least) in rules.items()
+        if not (_is_int(values[name], least) if least is not None else _is_positive(values[name]))
+    ]
+    if problems:
+        raise ValueError("; ".join(problems))
+
+
+def _is_positive(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and value > 0
+
+
+def _is_int(value: Any, least: int) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= least
+
+
+def _reader(dataset: str | os.PathLike | EpisodeDataset | list[Episode], min_frames: int) -> EpisodeDataset:
     if isinstance(dataset, EpisodeDataset):
         reader = dataset
     elif isinstance(dataset, list):
         reader = EpisodeList(dataset)
     else:
-        reader = open_dataset(dataset, context + horizon)
-    reader.min_frames = context + horizon
-    lengths = reader.lengths()
-    short = [i for i, length in enumerate(lengths) if length < context + horizon]
-    if short:
-        reader[short[0]]  # raises the reader's EpisodeError naming the file and episode
+        reader = open_dataset(dataset, min_frames)
+    reader.min_frames = min_frames
+    return reader
+
+
+def _split(reader: EpisodeDataset, lengths: list[int], holdout: int | float) -> tuple[list[int], list[Episode]]:
+    """Training episode indices and the held-out episodes (read whole), after the length checks."""
     if not lengths:
         raise EpisodeError("The dataset holds no episodes")
+    short = [i for i, length in enumerate(lengths) if length < reader.min_frames]
+    if short:
+        reader[short[0]]  # raises the reader's EpisodeError naming the file and episode
     train_indices, held_out_indices = split_holdout(range(len(reader)), holdout)
-    first = reader[train_indices[0]]
-    held_out = [check_like(reader[i], first) for i in held_out_indices]
-    config = OfflineEFConfig(
-        encoder, first.frame_shape, first.action_dim, context, horizon, agent_dim, encoder_kwargs or {}, ef_kwargs or {}
-    )
-    os.makedirs(out_dir, exist_ok=True)
-    checkpoint_path = os.path.join(out_dir, CHECKPOINT)
-    start = 0
-    if resume and os.path.isfile(checkpoint_path):
-        model, checkpoint = load_pretrained(checkpoint_path, device)
-        if model.config != config:
-            raise ValueError(
-                f"{checkpoint_path} was trained with {model.config}, not {config}: use another out_dir or resume=False"
-            )
-        start = checkpoint["step"]
-        if start > steps:
-            raise ValueError(f"{checkpoint_path} is already at step {start}, beyond steps={steps}")
-    else:
-        model, checkpoint = OfflineEF(config).to(device), None
+    return train_indices, [reader[i] for i in held_out_indices]
+
+
+def _start(
+    out_dir: str, config: OfflineEFConfig, settings: dict[str, Any], resume: bool, device: str
+) -> tuple[OfflineEF, th.optim.Optimizer, int]:
+    """A new model and optimiser, or those of ``out_dir/checkpoint.pt`` when resuming, and the step to start at."""
+    path = os.path.join(out_dir, CHECKPOINT)
+    if not (resume and os.path.isfile(path)):
+        model = OfflineEF(config).to(device)
+        return model, th.optim.Adam(model.parameters(), lr=settings["learning_rate"]), 0
+    start_over = "pass resume=False (sb3-ef pretrain --no-resume) to start over, replacing it"
+    try:
+        model, checkpoint = load_pretrained(path, device)
+    except ValueError as error:
+        raise ValueError(f"{error}: {start_over}") from None
+    requested = {**vars(config), **{name: settings[name] for name in RESUMED_SETTINGS}}
+    recorded = {**vars(model.config), **checkpoint.get("training", requested)}
+    differences = [
+        f"{name} {recorded[name]!r} ({OPTIONS[name]}), not {requested[name]!r}"
+        for name in requested
+        if _normalised(recorded[name]) != _normalised(requested[name])
+    ]
+    if differences:
+        raise ValueError(
+            f"{path} was trained with {'; '.join(differences)}: resume with the same settings, {start_over}, or "
+            "train into another folder"
+        )
+    if checkpoint["step"] > settings["steps"]:
+        raise ValueError(f"{path} is already at step {checkpoint['step']}, beyond steps={settings['steps']} (--steps)")
     model.train()
-    optimizer = th.optim.Adam(model.parameters(), lr=learning_rate)
-    batches = window_batches(
-        reader,
-        train_indices,
-        [lengths[i] for i in train_indices],
-        context,
-        horizon,
-        batch_size,
-        cache_mb,
-        workers,
-        seed + start,
-    )
-    if checkpoint is not None:
-        optimizer.load_state_dict(checkpoint["optimizer"])
-    writer = _writer(os.path.join(out_dir, "tb")) if tensorboard else None
-    bar = _progress(steps, start, progress_bar)
-    for step in range(start, steps):
-        batch = _to(next(batches), device)
-        ef_steps = model.ef.draw_steps(th.ones(batch_size, horizon, dtype=th.bool, device=device))
-        target = batch.frames[th.arange(batch_size, device=device), ef_steps - 1]
-        observations = batch.observations
-        if shift_pad:
-            observations, target = random_shift(observations, target, pad=shift_pad)
-        h, skip = model.features(observations)
-        loss = model.ef.loss(h, batch.actions, ef_steps, target, skip=skip)
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        optimizer.step()
-        done = step + 1
+    optimizer = th.optim.Adam(model.parameters(), lr=settings["learning_rate"])
+    optimizer.load_state_dict(checkpoint["optimizer"])
+    return model, optimizer, int(checkpoint["step"])
+
+
+def _normalised(value: Any) -> Any:
+    """Tuples and lists alike (a configuration read back from a checkpoint holds lists)."""
+    if isinstance(value, (list, tuple)):
+        return [_normalised(item) for item in value]
+    if isinstance(value, dict):
+        return {key: _normalised(item) for key, item in value.items()}
+    return value
+
+
+def _train(run: _Run, batches: Iterator[Windows], start: int, show_progress: bool) -> None:
+    """Updates ``start`` .. ``run.steps``: logging, evaluations and checkpoints; Ctrl-C saves a checkpoint."""
+    model, done = run.model, start
+    bar = make_progress_bar(run.steps, "pretrain", "step", show_progress, initial=start)
+    model.train()
+    try:
+        for step in range(start, run.steps):
+            batch = next(batches)
+            with sigint_deferred():  # Ctrl-C lands between updates, never inside one
+                loss = _update(run, batch)
+                done = step + 1
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(loss=f"{loss:.1f}")
+            if run.writer is not None and (done % 50 == 0 or done == run.steps):
+                run.writer.add_scalar("train/ef_loss", loss, done)
+            if run.held_out and run.writer is not None and done % run.settings["eval_every"] == 0 and done < run.steps:
+                scores = evaluate(model, run.held_out, saliency_windows=min(8, run.settings["saliency_windows"]))
+                _log_evaluation(run.writer, model, run.held_out, done, scores)
+                model.train()
+            if done % run.settings["checkpoint_every"] == 0 or done == run.steps:
+                run.save(CHECKPOINT, done)
+    except KeyboardInterrupt:
         if bar is not None:
-            bar.update(1)
-            bar.set_postfix(loss=f"{loss.item():.1f}")
-        if writer is not None and (done % 50 == 0 or done == steps):
-            writer.add_scalar("train/ef_loss", loss.item(), done)
-        if held_out and writer is not None and done % eval_every == 0 and done < steps:
-            _log_evaluation(
-                writer, model, held_out, done, evaluate(model, held_out, saliency_windows=min(8, saliency_windows))
-            )
-            model.train()
-        if done % checkpoint_every == 0 or done == steps:
-            th.save(model.checkpoint(step=done, optimizer=optimizer.state_dict()), checkpoint_path)
-    batches.close()  # stops the DataLoader workers, if any
+            bar.close()
+        if done == start:
+            raise Interrupted(f"stopped at step {done} of {run.steps}, before another update finished") from None
+        path = run.save(CHECKPOINT, done)
+        raise Interrupted(f"stopped at step {done} of {run.steps}; {path} saved: rerun the command to go on") from None
     if bar is not None:
         bar.close()
+
+
+def _update(run: _Run, batch: Windows) -> float:
+    """One gradient step of the EF loss on a batch of windows; returns the loss."""
+    model, device = run.model, run.device
+    batch = _to(batch, device)
+    batch_size, horizon = batch.actions.shape[:2]
+    ef_steps = model.ef.draw_steps(th.ones(batch_size, horizon, dtype=th.bool, device=device))
+    if model.target_encoder is not None:  # latent EF, and its probe decoder on detached features (docs/ef.md)
+        latent, probe = latent_window_losses(
+            model.ef, model.target_encoder, model.features, batch.observations, batch.frames, batch.actions, ef_steps,
+            run.settings["shift_pad"],
+        )  # fmt: skip
+        loss = latent + probe
+        model.ef.probe_steps += 1
+    else:
+        target = batch.frames[th.arange(batch_size, device=device), ef_steps - 1]
+        observations = batch.observations
+        if run.settings["shift_pad"]:
+            observations, target = random_shift(observations, target, pad=run.settings["shift_pad"])
+        h, skip = model.features(observations)
+        loss = model.ef.loss(h, batch.actions, ef_steps, target, skip=skip)
+    run.optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    run.optimizer.step()
+    if model.target_encoder is not None:
+        model.target_encoder.update(model.encoder, model.ef.head.projection)
+    return loss.item()
+
+
+def _finish(run: _Run, train_episodes: int, show_progress: bool) -> dict[str, Any]:
+    """The final held-out scores, ``model.pt`` and ``metrics.json``."""
+    model, held_out = run.model, run.held_out
     model.eval()
-    scores = evaluate(model, held_out, saliency_windows=saliency_windows, progress=progress_bar) if held_out else {}
-    if held_out and writer is not None:
-        _log_evaluation(writer, model, held_out, steps, scores)
-    th.save(model.checkpoint(step=steps), os.path.join(out_dir, MODEL))
-    with open(os.path.join(out_dir, METRICS), "w") as file:
-        json.dump(
-            {"steps": steps, "train_episodes": len(train_indices), "held_out_episodes": len(held_out), **scores},
-            file,
-            indent=2,
-        )
-    if writer is not None:
-        writer.close()
-    return model, scores
+    scores: dict[str, Any] = {}
+    try:
+        if held_out:
+            saliency_windows = run.settings["saliency_windows"]
+            scores = evaluate(model, held_out, saliency_windows=saliency_windows, progress=show_progress)
+    except KeyboardInterrupt:
+        checkpoint = os.path.join(run.out_dir, CHECKPOINT)
+        raise Interrupted(
+            f"stopped in the final evaluation; {checkpoint} holds all {run.steps} steps: rerun the command to "
+            "evaluate and write model.pt"
+        ) from None
+    if held_out and run.writer is not None:
+        _log_evaluation(run.writer, model, held_out, run.steps, scores)
+    run.save(MODEL, run.steps, with_optimizer=False)
+    metrics = {"steps": run.steps, "train_episodes": train_episodes, "held_out_episodes": len(held_out), **scores}
+    with sigint_deferred():
+        write_text_atomically(os.path.join(run.out_dir, METRICS), json.dumps(metrics, indent=2))
+    return scores
 
 
-def _refuse_finished_run(out_dir: str | os.PathLike, steps: int, resume: bool, overwrite: bool) -> None:
+def _refuse_finished_run(out_dir: str, steps: int, resume: bool, overwrite: bool) -> None:
     """A finished run (``model.pt`` at ``steps`` or beyond) is kept unless ``overwrite``: only a resumed run with
     more steps continues it."""
     model_path = os.path.join(out_dir, MODEL)
     if overwrite or not os.path.isfile(model_path):
         return
-    done = th.load(model_path, map_location="cpu", weights_only=False).get("step", 0)
+    try:
+        done = read_checkpoint(model_path).get("step", 0)
+    except ValueError as error:
+        raise ValueError(
+            f"{error}: pass overwrite=True (sb3-ef pretrain --overwrite) to train into {out_dir} again"
+        ) from None
     if resume and done < steps:
         return
     raise FileExistsError(
         f"{model_path} holds a finished run of {done} steps: pass overwrite=True (sb3-ef pretrain --overwrite) to "
-        f"train again from scratch into {os.fspath(out_dir)}, a larger steps to continue it, or another folder"
+        f"train again from scratch into {out_dir}, a larger steps to continue it, or another folder"
     )
 
 
@@ -214,13 +393,3 @@ def _writer(log_dir: str) -> Any:
     from torch.utils.tensorboard import SummaryWriter
 
     return SummaryWriter(log_dir)
-
-
-def _progress(total: int, initial: int, enabled: bool) -> Any:
-    if not enabled:
-        return None
-    try:
-        from tqdm.auto import tqdm
-    except ImportError:
-        return None
-    return tqdm(total=total, initial=initial, desc="pretrain", unit="step")

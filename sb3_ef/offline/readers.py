@@ -11,48 +11,26 @@ from __future__ import annotations
 import glob
 import io
 import os
-import zipfile
-import zlib
-from abc import ABC, abstractmethod
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
-from sb3_ef.offline.episodes import HDF5_SUFFIXES, NPZ_SUFFIXES, Episode, EpisodeError, make_episode
-from sb3_ef.offline.tfrecord import Features, parse_example, read_record_at, record_offsets
+from sb3_ef.offline.dataset import EpisodeDataset, check_image_size, check_like
+from sb3_ef.offline.episodes import (
+    HDF5_SUFFIXES,
+    NPZ_SUFFIXES,
+    Episode,
+    EpisodeError,
+    episode_file_shapes,
+    make_episode,
+    read_episode_file,
+)
+from sb3_ef.offline.shards import index_records, read_example, shard_paths
+from sb3_ef.offline.tfrecord import Features
 
 TFRECORD_SUFFIXES = (".tfrecord", ".tfrecords")
 MINARI_PREFIX = "minari:"
 RLDS_PREFIX = "rlds:"
-
-
-class EpisodeDataset(ABC):
-    """A sequence of episodes: ``len(dataset)``, ``dataset[i]`` and iteration, each read on demand.
-
-    :param min_frames: the fewest frames an episode may have (context + horizon); shorter ones raise.
-    """
-
-    def __init__(self, min_frames: int = 2):
-        self.min_frames = min_frames
-
-    @abstractmethod
-    def __len__(self) -> int: ...
-
-    @abstractmethod
-    def __getitem__(self, index: int) -> Episode: ...
-
-    def __iter__(self) -> Iterator[Episode]:
-        for index in range(len(self)):
-            yield self[index]
-
-    def lengths(self) -> list[int]:
-        """Frames per episode, to index the dataset for streaming. Readers that know them from metadata or headers
-        override this; here every episode is read once (and let go)."""
-        return [len(episode.frames) for episode in self]
-
-    def _check_index(self, index: int) -> None:
-        if not 0 <= index < len(self):
-            raise IndexError(f"Episode index {index} out of range for a dataset of {len(self)} episodes")
 
 
 class FolderDataset(EpisodeDataset):
@@ -74,58 +52,27 @@ class FolderDataset(EpisodeDataset):
         return len(self.paths)
 
     def lengths(self) -> list[int]:
-        """Frames per episode from the array headers (no frame is decompressed)."""
-        return [_frame_count(path, f"{path} (episode {index})") for index, path in enumerate(self.paths)]
+        """Frames per episode from the array headers (no frame is decompressed); the files' frame shapes and action
+        sizes are compared there too, so that a folder mixing them is refused before training starts."""
+        lengths, first = [], None
+        for index, path in enumerate(self.paths):
+            source = f"{path} (episode {index})"
+            frames, actions = episode_file_shapes(path, source)
+            shapes = (frames[1:], actions[1:])
+            if first is None:
+                first = (shapes, source)
+            elif shapes != first[0]:
+                raise EpisodeError(
+                    f"{source}: frames of shape {frames[1:]} and actions of shape {actions[1:]} differ from "
+                    f"{first[1]}: {first[0][0]} and {first[0][1]} (the episodes of a dataset share one frame shape and "
+                    "action size)"
+                )
+            lengths.append(int(frames[0]))
+        return lengths
 
-    def __getitem__(self, index: int) -> Episode:
-        self._check_index(index)
+    def _read(self, index: int) -> Episode:
         path = self.paths[index]
-        source = f"{path} (episode {index})"
-        if path.endswith(NPZ_SUFFIXES):
-            arrays = _read_npz(path, source)
-        else:
-            import h5py
-
-            try:
-                with h5py.File(path, "r") as file:
-                    arrays = {key: file[key][()] for key in file}
-            except OSError as error:
-                raise EpisodeError(f"{source}: not a readable HDF5 file ({error})") from error
-        missing = [key for key in ("frames", "actions") if key not in arrays]
-        if missing:
-            raise EpisodeError(f"{source}: missing {missing}; expected keys 'frames', 'actions' and optionally 'masks'")
-        return make_episode(arrays["frames"], arrays["actions"], arrays.get("masks"), source, self.min_frames)
-
-
-def _read_npz(path: str, source: str) -> dict[str, np.ndarray]:
-    """The arrays of an ``.npz`` episode; a damaged file or one holding Python objects is an ``EpisodeError``."""
-    try:
-        with np.load(path, allow_pickle=False) as file:
-            return {key: file[key] for key in file.files}
-    except ValueError as error:  # numpy: object arrays, or not an npz at all
-        raise EpisodeError(f"{source}: not a readable .npz of numeric arrays (corrupt, or holds objects)") from error
-    except (OSError, EOFError, zipfile.BadZipFile, zlib.error) as error:
-        raise EpisodeError(f"{source}: corrupt or truncated .npz file ({error})") from error
-
-
-def _frame_count(path: str, source: str) -> int:
-    """Frames of an episode file from the header of its ``frames`` array."""
-    try:
-        if path.endswith(NPZ_SUFFIXES):
-            with zipfile.ZipFile(path) as archive, archive.open("frames.npy") as member:
-                major, _ = np.lib.format.read_magic(member)
-                read_header = np.lib.format.read_array_header_1_0 if major == 1 else np.lib.format.read_array_header_2_0
-                shape = read_header(member)[0]
-        else:
-            import h5py
-
-            with h5py.File(path, "r") as file:
-                shape = file["frames"].shape
-    except KeyError as error:
-        raise EpisodeError(f"{source}: missing ['frames']; expected keys 'frames', 'actions'") from error
-    except (OSError, ValueError, zipfile.BadZipFile, zlib.error) as error:
-        raise EpisodeError(f"{source}: corrupt or truncated episode file ({error})") from error
-    return int(shape[0])
+        return read_episode_file(path, f"{path} (episode {index})", self.min_frames)
 
 
 class MinariDataset(EpisodeDataset):
@@ -156,8 +103,7 @@ class MinariDataset(EpisodeDataset):
     def __len__(self) -> int:
         return len(self._ids)
 
-    def __getitem__(self, index: int) -> Episode:
-        self._check_index(index)
+    def _read(self, index: int) -> Episode:
         (data,) = self._dataset.iterate_episodes([self._ids[index]])
         source = f"minari:{self.dataset_id} (episode {self._ids[index]})"
         observations = data.observations
@@ -218,29 +164,28 @@ class BAIRDataset(EpisodeDataset):
         self.verify = verify
         if isinstance(paths, (str, os.PathLike)) and os.path.isdir(paths):
             paths = sorted(p for p in glob.glob(os.path.join(paths, "*")) if p.endswith(TFRECORD_SUFFIXES))
-        self.paths = [os.fspath(path) for path in ([paths] if isinstance(paths, (str, os.PathLike)) else paths)]
+        self.paths = shard_paths(paths)
         if not self.paths:
             raise FileNotFoundError("No .tfrecord files given or found")
         self.camera = camera
-        self.image_size = image_size
-        self._offsets = [(path, offset) for path in self.paths for offset in _offsets(path)]
+        self.image_size = check_image_size(image_size, optional=False)
+        self._records = index_records(self.paths)
 
     def __len__(self) -> int:
-        return len(self._offsets)
+        return len(self._records)
 
     def lengths(self) -> list[int]:
         """Frames per episode from each record's step features (records are parsed, images not decoded)."""
         return [len(self._steps(index)[1]) for index in range(len(self))]
 
     def _steps(self, index: int) -> tuple[Features, list[int], str]:
-        path, offset = self._offsets[index]
+        path, offset = self._records[index]
         source = f"{path} (episode {index})"
-        features = parse_record(_read_record(path, offset, source, self.verify), source)
+        features = read_example(path, offset, source, self.verify)
         steps = sorted({int(key.split("/", 1)[0]) for key in features if key.split("/", 1)[0].isdigit()})
         return features, steps, source
 
-    def __getitem__(self, index: int) -> Episode:
-        self._check_index(index)
+    def _read(self, index: int) -> Episode:
         features, steps, source = self._steps(index)
         if not steps:
             raise EpisodeError(f"{source}: no per-step features '{{t}}/{self.camera}/encoded' in this record")
@@ -275,30 +220,6 @@ class BAIRDataset(EpisodeDataset):
         return image.transpose(2, 0, 1)
 
 
-def _offsets(path: str) -> list[int]:
-    try:
-        return record_offsets(path)
-    except ValueError as error:
-        raise EpisodeError(str(error)) from error
-
-
-def _read_record(path: str, offset: int, source: str, verify: bool) -> bytes:
-    """One TFRecord record read at random, its CRCs checked when ``verify``; errors name ``source``."""
-    with open(path, "rb") as file:
-        try:
-            return read_record_at(file, offset, path, verify)
-        except ValueError as error:
-            raise EpisodeError(f"{source}: {error}") from error
-
-
-def parse_record(data: bytes, source: str) -> Features:
-    """``parse_example`` whose errors name ``source``."""
-    try:
-        return parse_example(data)
-    except ValueError as error:
-        raise EpisodeError(f"{source}: {error}") from error
-
-
 def open_dataset(source: str | os.PathLike, min_frames: int = 2, **kwargs) -> EpisodeDataset:
     """The reader for ``source``: ``minari:<id>``, a LeRobot folder, an RLDS folder (or ``rlds:<path>``),
     ``.tfrecord`` file(s) / a folder of them (BAIR), or a folder of episodes; ``kwargs`` go to the reader."""
@@ -326,11 +247,4 @@ def load_episodes(dataset: EpisodeDataset) -> list[Episode]:
     episodes = list(dataset)
     if not episodes:
         raise EpisodeError("The dataset holds no episodes")
-    first = episodes[0]
-    for episode in episodes[1:]:
-        if episode.frame_shape != first.frame_shape or episode.action_dim != first.action_dim:
-            raise EpisodeError(
-                f"{episode.source}: frames {episode.frame_shape} and {episode.action_dim}-d actions differ from "
-                f"{first.source}: frames {first.frame_shape} and {first.action_dim}-d actions"
-            )
-    return episodes
+    return [check_like(episode, episodes[0]) for episode in episodes]

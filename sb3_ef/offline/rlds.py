@@ -18,8 +18,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from sb3_ef.offline.dataset import EpisodeDataset, check_image_size
 from sb3_ef.offline.episodes import Episode, EpisodeError, make_episode
-from sb3_ef.offline.readers import EpisodeDataset, _offsets, _read_record, parse_record
+from sb3_ef.offline.shards import index_records, read_example
 from sb3_ef.offline.tfrecord import Features
 
 STEPS = "steps/"
@@ -41,7 +42,14 @@ OXE_LAYOUTS: dict[str, tuple[str, tuple[str, ...]]] = {
     "toto": ("observation/image", _EEF_OPEN),
     "language_table": ("observation/rgb", ("action",)),
     "droid": ("observation/exterior_image_1_left", ("action",)),
+    "droid_cartesian": (
+        "observation/exterior_image_1_left",
+        ("action_dict/cartesian_velocity", "1-action_dict/gripper_position"),
+    ),
 }
+#: An action key ``1-<feature>`` is one minus that feature: DROID's gripper position (0 open, 1 closed) as the
+#: openness Octo and OpenVLA train on (1 open, 0 closed).
+ONE_MINUS = "1-"
 #: Tried in turn when no layout is named: most datasets converted to RLDS use one of these.
 IMAGE_KEYS = (
     "observation/image",
@@ -87,6 +95,7 @@ class RLDSDataset(EpisodeDataset):
     :param layout: an ``OXE_LAYOUTS`` name (default: the folder's dataset name when it is one, else auto-detected).
     :param image_key: the image feature (without ``steps/``), e.g. ``"observation/image"``; overrides ``layout``.
     :param action_keys: float features (without ``steps/``) concatenated into the action; overrides ``layout``.
+        ``"1-<feature>"`` takes one minus the feature (``"1-action_dict/gripper_position"``).
     :param image_size: resize frames to ``image_size`` x ``image_size`` (None: keep their size).
     """
 
@@ -117,20 +126,20 @@ class RLDSDataset(EpisodeDataset):
         self.layout = layout
         self.image_key = image_key or default_image
         self.action_keys = tuple(action_keys) if action_keys else default_actions
-        self.image_size, self.verify = image_size, verify
-        self._offsets = [(path, offset) for path in self.paths for offset in _offsets(path)]
+        self.image_size, self.verify = check_image_size(image_size), verify
+        self._records = index_records(self.paths)
 
     def __len__(self) -> int:
-        return len(self._offsets)
+        return len(self._records)
 
     def lengths(self) -> list[int]:
         """Frames per episode, from each record's step count (records are parsed, images not decoded)."""
         return [len(self._resolve(*self._features(i))[0]) for i in range(len(self))]
 
     def _features(self, index: int) -> tuple[Features, str]:
-        path, offset = self._offsets[index]
+        path, offset = self._records[index]
         source = f"{path} (episode {index})"
-        return parse_record(_read_record(path, offset, source, self.verify), source), source
+        return read_example(path, offset, source, self.verify), source
 
     def _resolve(self, features: Features, source: str) -> tuple[list[bytes], list[np.ndarray]]:
         """The image bytes of every step and the action feature arrays, by the configured or detected names."""
@@ -151,7 +160,7 @@ class RLDSDataset(EpisodeDataset):
                 if isinstance(features.get(STEPS + "action"), np.ndarray)
                 else tuple(k for k in ACTION_PARTS if STEPS + k in features)
             )
-        missing = [k for k in action_keys if STEPS + k not in features]
+        missing = [k for k in action_keys if STEPS + k.removeprefix(ONE_MINUS) not in features]
         if not action_keys or missing:
             raise EpisodeError(
                 f"{source}: no action feature {missing or ['action']}; the step features are {available} "
@@ -159,17 +168,18 @@ class RLDSDataset(EpisodeDataset):
             )
         actions = []
         for key in action_keys:
-            values = features[STEPS + key]
+            name = key.removeprefix(ONE_MINUS)
+            values = features[STEPS + name]
             if isinstance(values, list) or len(values) % max(len(images), 1):
                 raise EpisodeError(
-                    f"{source}: expected {len(images)} steps x n numbers in {key!r}, got "
+                    f"{source}: expected {len(images)} steps x n numbers in {name!r}, got "
                     f"{len(values)} {'byte strings' if isinstance(values, list) else 'numbers'}"
                 )
-            actions.append(np.asarray(values, dtype=np.float32).reshape(len(images), -1))
+            action = np.asarray(values, dtype=np.float32).reshape(len(images), -1)
+            actions.append(1 - action if key.startswith(ONE_MINUS) else action)
         return images, actions
 
-    def __getitem__(self, index: int) -> Episode:
-        self._check_index(index)
+    def _read(self, index: int) -> Episode:
         features, source = self._features(index)
         images, actions = self._resolve(features, source)
         for flag, position in (("is_first", 0), ("is_last", -1)):

@@ -16,8 +16,8 @@ from collections.abc import Generator, Iterator, Sequence
 import numpy as np
 import torch as th
 
+from sb3_ef.offline.dataset import EpisodeDataset
 from sb3_ef.offline.episodes import Episode, EpisodeError
-from sb3_ef.offline.readers import EpisodeDataset
 from sb3_ef.offline.windows import Windows, WindowSampler, window_starts
 
 
@@ -31,8 +31,7 @@ class EpisodeList(EpisodeDataset):
     def __len__(self) -> int:
         return len(self.episodes)
 
-    def __getitem__(self, index: int) -> Episode:
-        self._check_index(index)
+    def _read(self, index: int) -> Episode:
         episode = self.episodes[index]
         if len(episode.frames) < self.min_frames:
             raise EpisodeError(
@@ -47,16 +46,6 @@ class EpisodeList(EpisodeDataset):
 
 def episode_bytes(episode: Episode) -> int:
     return sum(array.nbytes for array in (episode.frames, episode.actions, episode.masks) if array is not None)
-
-
-def check_like(episode: Episode, first: Episode) -> Episode:
-    """``episode`` if its frame shape and action size equal ``first``'s, else an ``EpisodeError`` naming both."""
-    if episode.frame_shape != first.frame_shape or episode.action_dim != first.action_dim:
-        raise EpisodeError(
-            f"{episode.source}: frames {episode.frame_shape} and {episode.action_dim}-d actions differ from "
-            f"{first.source}: frames {first.frame_shape} and {first.action_dim}-d actions"
-        )
-    return episode
 
 
 class StreamingWindowSampler:
@@ -101,7 +90,7 @@ class StreamingWindowSampler:
         self.loaded = len(self.pool)
 
     def _load(self, position: int) -> Episode:
-        return check_like(self.dataset[self.indices[position]], self.first)
+        return self.dataset[self.indices[position]]  # the dataset checks it against the first episode read
 
     def sample(self, batch_size: int, device: th.device | str = "cpu") -> Windows:
         if self.streaming:

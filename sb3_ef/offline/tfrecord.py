@@ -18,6 +18,8 @@ from typing import BinaryIO
 
 import numpy as np
 
+from sb3_ef.common.files import write_atomically
+
 _CRC_TABLE: list[int] = []
 for _byte in range(256):
     _crc = _byte
@@ -79,19 +81,27 @@ def read_records(path: str | os.PathLike, check_crc: bool = True) -> Iterator[by
 def record_offsets(path: str | os.PathLike) -> list[int]:
     """Byte offsets of every record of a TFRecord file, from the length fields alone (the data is not read).
 
-    :raises ValueError: the file ends inside a record (truncated), naming the record and the bytes expected.
+    Each length field is checked against the CRC-32C stored after it (12 bytes per record: cheap even in Python).
+
+    :raises ValueError: a length field that does not match its CRC (a damaged file), or a file that ends inside a
+        record (truncated), naming the record and the bytes expected.
     """
     offsets: list[int] = []
     size = os.path.getsize(path)
     with open(path, "rb") as file:
         position = 0
         while position < size:
-            header = file.read(8)
-            if len(header) < 8:
+            header = file.read(12)
+            if len(header) < 12:
                 raise ValueError(
                     f"{os.fspath(path)}: record {len(offsets)} is truncated (header of {len(header)} of 12 bytes)"
                 )
-            (length,) = struct.unpack("<Q", header)
+            if struct.unpack("<I", header[8:])[0] != masked_crc32c(header[:8]):
+                raise ValueError(
+                    f"{os.fspath(path)}: record {len(offsets)} (byte {position}) has a corrupt length field (it does "
+                    "not match its CRC-32C): the file is damaged"
+                )
+            (length,) = struct.unpack("<Q", header[:8])
             offsets.append(position)
             position += 12 + length + 4
             if position > size:
@@ -127,12 +137,15 @@ def read_record_at(
 
 
 def write_records(path: str | os.PathLike, records: Sequence[bytes]) -> None:
-    """Write ``records`` (serialised data) as a TFRecord file."""
-    with open(path, "wb") as file:
+    """Write ``records`` (serialised data) as a TFRecord file, whole or not at all (:mod:`sb3_ef.common.files`)."""
+
+    def write(file: BinaryIO) -> None:
         for data in records:
             header = struct.pack("<Q", len(data))
             file.write(header + struct.pack("<I", masked_crc32c(header)))
             file.write(data + struct.pack("<I", masked_crc32c(data)))
+
+    write_atomically(path, write)
 
 
 # Protobuf wire format: tag = field number << 3 | wire type.

@@ -22,6 +22,11 @@ from sb3_ef.common.validation import did_you_mean
 PAPER_ALGORITHMS = ("drqv2_ef", "drqv2", "tdmpc2_ef", "tdmpc2", "sear", "curl")
 #: Algorithm keys this package registers in rl-zoo3: the paper's, and EF on SB3's SAC, TD3 and sb3-contrib's TQC.
 ZOO_ALGORITHMS = (*PAPER_ALGORITHMS, "sac_ef", "td3_ef", "tqc_ef")
+#: Algorithm keys of `sb3-ef benchmark` grids: rl-zoo3's, and the paper's Dreamer-v3 baseline, which sheeprl trains
+#: in its own loop (sb3_ef.dreamerv3), not rl-zoo3.
+BENCHMARK_ALGORITHMS = (*ZOO_ALGORITHMS, "dreamerv3")
+#: Keys whose algorithms explore with their own noise (SB3's action-noise keys are refused for them).
+OWN_EXPLORATION_ALGORITHMS = (*PAPER_ALGORITHMS, "dreamerv3")
 
 #: Keys rl-zoo3's ExperimentManager consumes before the remaining ones reach the algorithm constructor.
 ZOO_KEYS = frozenset(
@@ -49,8 +54,8 @@ _CONFIG_DIR = Path(__file__).resolve().parents[2] / "zoo_configs"
 
 def default_config_path(algo: str) -> Path:
     """The zoo_configs/<algo>.yml shipped next to the package (editable install / source checkout)."""
-    if algo not in ZOO_ALGORITHMS:
-        raise ValueError(f"No default zoo config for algorithm {algo!r}: expected one of {ZOO_ALGORITHMS}")
+    if algo not in BENCHMARK_ALGORITHMS:
+        raise ValueError(f"No default zoo config for algorithm {algo!r}: expected one of {BENCHMARK_ALGORITHMS}")
     path = _CONFIG_DIR / f"{algo}.yml"
     if not path.is_file():
         raise FileNotFoundError(f"Default zoo config {path} not found: pass --conf-file explicitly")
@@ -92,8 +97,9 @@ def allowed_keys(algo_class: type) -> frozenset[str]:
 
 def check_keys(algo: str, algo_class: type, keys: Any, where: str) -> None:
     """Raise ``ValueError`` naming the first key that ``algo_class`` (through rl-zoo3) would not accept."""
-    allowed = allowed_keys(algo_class) | (frozenset() if algo in PAPER_ALGORITHMS else NOISE_KEYS)
-    rejected = {**REJECTED_KEYS, **(REJECTED_PAPER_KEYS if algo in PAPER_ALGORITHMS else {})}
+    own_exploration = algo in OWN_EXPLORATION_ALGORITHMS
+    allowed = allowed_keys(algo_class) | (frozenset() if own_exploration else NOISE_KEYS)
+    rejected = {**REJECTED_KEYS, **(REJECTED_PAPER_KEYS if own_exploration else {})}
     for key in keys:
         if key in rejected:
             raise ValueError(f"{where}: key {key!r} is not supported for {algo}: {rejected[key]}")

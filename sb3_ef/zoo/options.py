@@ -9,14 +9,20 @@ accepts silently or turns into a traceback:
 - unknown options (with the closest names), values of the wrong type, ``key:value`` pairs without ``:`` or whose
   value is not a Python expression (rl-zoo3 evaluates them while parsing);
 - counts that must be positive: ``-n`` (rl-zoo3 reads ``-n -5`` as "use the config's n_timesteps"),
-  ``--eval-episodes``, ``--n-eval-envs``, ``--log-interval`` (or ``-1``), ``--keep-checkpoints``.
+  ``--eval-episodes``, ``--n-eval-envs``, ``--log-interval``, ``--eval-freq`` and ``--save-freq`` (or ``-1``,
+  rl-zoo3's "off"), ``--keep-checkpoints``; ``--checkpoint-buffer`` and ``--keep-checkpoints`` only with
+  ``--save-freq``;
+- the ``--algo`` key (sb3-ef's and rl-zoo3's, :data:`RL_ZOO3_ALGORITHMS`) and the ``--env`` id (gymnasium's registry
+  with sb3-ef's ids and those of the ``--gym-packages``), with the closest names.
 
-This module imports only the standard library.
+:func:`merge_train_argv` gives the command line of a resumed run: the recorded one with the new options over it.
+This module imports only the standard library, gymnasium and the ``--gym-packages`` (for the env ids).
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import types
 from collections.abc import Sequence
 from typing import Any, NamedTuple
@@ -85,6 +91,9 @@ TRAIN_OPTIONS: tuple[Option, ...] = (
     Option(("-tags", "--wandb-tags"), "list"),
 )
 
+#: The algorithm keys rl-zoo3 itself registers (``rl_zoo3.utils.ALGOS``; a test compares them with rl-zoo3's).
+RL_ZOO3_ALGORITHMS = ("a2c", "ddpg", "dqn", "ppo", "sac", "td3", "ars", "crossq", "qrdqn", "tqc", "trpo", "ppo_lstm")
+
 #: The ``train`` options sb3-ef adds (removed before rl-zoo3 parses the rest).
 SB3_EF_TRAIN_OPTIONS: tuple[Option, ...] = (
     Option(
@@ -123,6 +132,8 @@ POSITIVE = {
     "n_eval_envs": False,
     "n_envs": False,
     "log_interval": True,
+    "eval_freq": True,
+    "save_freq": True,
     "keep_checkpoints": False,
     "n_trials": False,
     "n_jobs": False,
@@ -188,14 +199,103 @@ def check_zoo_argv(argv: Sequence[str], options: Sequence[Option], prog: str) ->
     return args
 
 
+def check_algo_and_env(args: argparse.Namespace) -> None:
+    """Raise :class:`UsageError` for an ``--algo`` that neither sb3-ef nor rl-zoo3 registers, or an ``--env`` id
+    that is not registered once sb3-ef and the ``--gym-packages`` are imported (rl-zoo3's defaults when not given)."""
+    from sb3_ef.zoo.config import ZOO_ALGORITHMS
+
+    algorithms = (*ZOO_ALGORITHMS, *RL_ZOO3_ALGORITHMS)
+    algo = args.algo or "ppo"
+    if algo not in algorithms:
+        raise UsageError(
+            f"Unknown algorithm {algo!r}{did_you_mean(algo, algorithms)}: expected one of "
+            f"{', '.join(sorted(algorithms))}"
+        )
+    import gymnasium as gym
+
+    import sb3_ef  # noqa: F401  (registers sb3-ef's env ids)
+
+    for package in args.gym_packages or ():
+        try:
+            importlib.import_module(package)  # as rl-zoo3 does before it looks the id up
+        except ImportError as error:
+            raise UsageError(f"--gym-packages: cannot import {package!r} ({error})") from None
+    env = args.env or "CartPole-v1"
+    if env not in gym.envs.registry:
+        raise UsageError(
+            f"Unknown env id {env!r}{did_you_mean(env, gym.envs.registry)}: sb3-ef registers ids like "
+            "'dmc/cheetah-run-v0' (other packages' ids: import them with --gym-packages)"
+        )
+
+
 def check_train_argv(argv: Sequence[str]) -> argparse.Namespace:
-    """Check the arguments of ``sb3-ef train`` / ``optimize`` (rl-zoo3's plus sb3-ef's)."""
-    return check_zoo_argv(argv, (*TRAIN_OPTIONS, *SB3_EF_TRAIN_OPTIONS), "sb3-ef train")
+    """Check the arguments of ``sb3-ef train`` / ``optimize`` (rl-zoo3's plus sb3-ef's); with ``--resume``, the
+    algorithm and env come from the run and are checked once its command line is read."""
+    args = check_zoo_argv(argv, (*TRAIN_OPTIONS, *SB3_EF_TRAIN_OPTIONS), "sb3-ef train")
+    if args.resume is None:
+        check_algo_and_env(args)
+        checkpoint_options = {
+            "--checkpoint-buffer": args.checkpoint_buffer,
+            "--keep-checkpoints": args.keep_checkpoints,
+        }
+        given = [flag for flag, value in checkpoint_options.items() if value is not None]
+        if given and (args.save_freq is None or args.save_freq < 1):
+            raise UsageError(f"{' and '.join(given)}: options of the --save-freq checkpoints, give --save-freq N too")
+    return args
 
 
 def check_enjoy_argv(argv: Sequence[str]) -> argparse.Namespace:
     """Check the arguments of ``sb3-ef enjoy``."""
-    return check_zoo_argv(argv, ENJOY_OPTIONS, "sb3-ef enjoy")
+    args = check_zoo_argv(argv, ENJOY_OPTIONS, "sb3-ef enjoy")
+    check_algo_and_env(args)
+    return args
+
+
+def _long_name(option: Option) -> str:
+    """The option's ``--name`` (argparse names its ``dest`` after it)."""
+    return next(name for name in option.names if name.startswith("--"))
+
+
+def _dest(option: Option) -> str:
+    return _long_name(option)[2:].replace("-", "_")
+
+
+def _as_argv(args: argparse.Namespace, options: Sequence[Option]) -> list[str]:
+    """The command line that parses to ``args`` (a namespace of :func:`build_parser`; ``None``: not given)."""
+    argv: list[str] = []
+    for option in options:
+        value = getattr(args, _dest(option))
+        if value is None:
+            continue
+        name = option.names[0]  # rl-zoo3's own spelling (-i, -n, -f, -params)
+        if option.kind == "flag":
+            argv.append(name)
+        else:
+            argv += [name, *(value if isinstance(value, list) else [str(value)])]
+    return argv
+
+
+def _merged_pairs(recorded: list[str] | None, given: list[str]) -> list[str]:
+    """``key:value`` items of ``recorded`` with those of ``given`` over them, key by key."""
+    pairs = {item.partition(":")[0]: item for item in recorded or ()}
+    pairs.update({item.partition(":")[0]: item for item in given})
+    return list(pairs.values())
+
+
+def merge_train_argv(recorded: Sequence[str], given: Sequence[str]) -> list[str]:
+    """The train arguments of a resumed run: every option of ``recorded`` that ``given`` does not set, and ``given``'s
+    options; ``key:value`` lists (``--hyperparams``, ``--env-kwargs``, ``--eval-env-kwargs``) are merged key by key,
+    so ``--hyperparams learning_rate:1e-4`` changes that key only. Flags cannot be unset."""
+    options = (*TRAIN_OPTIONS, *SB3_EF_TRAIN_OPTIONS)
+    parser = build_parser(options, "sb3-ef train --resume")
+    merged, given_args = parser.parse_args(list(recorded)), parser.parse_args(list(given))
+    for option in options:
+        dest = _dest(option)
+        value = getattr(given_args, dest)
+        if value is not None:
+            pairs = option.kind == "pairs"
+            setattr(merged, dest, _merged_pairs(getattr(merged, dest), value) if pairs else value)
+    return _as_argv(merged, options)
 
 
 class _ParserBuilt(Exception):

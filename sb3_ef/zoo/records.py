@@ -1,9 +1,14 @@
-"""Turn rl-zoo3 runs into the evaluation CSVs that ``sb3-ef analyze results`` reads.
+"""Evaluation CSVs of rl-zoo3 runs, in the format ``sb3-ef analyze results`` reads (:mod:`sb3_ef.analysis.records`).
 
-rl-zoo3's EvalCallback writes ``evaluations.npz`` (steps, per-episode returns, successes when the env reports
-them) in each run folder ``<logs>/<algo>/<env>_<run>/``; the run's ``<env>/args.yml`` holds the env id and seed.
-Each run becomes one CSV ``<out>/<Algo>/<env>_<run>.csv`` in the format of :mod:`sb3_ef.analysis.records`, where
-``<Algo>`` is the algorithm's class name (``drqv2_ef`` -> ``DrQv2EF``): the name
+``sb3-ef train`` records each evaluation as it happens (:func:`run_records_path`, :func:`finish_run`): a run folder
+``<logs>/<algo>/<env>_<n>/`` holds ``<env>.csv``, one row per evaluation and each step once (a resumed run drops
+the rows after its checkpoint before it evaluates them again), and ``<env>/result.json`` once the run has reached
+its total step count, as ``sb3-ef benchmark`` marks a finished run (``analyze results --finished-only``).
+
+Runs trained otherwise (rl-zoo3's own ``train``) can be exported from the ``evaluations.npz`` rl-zoo3's
+EvalCallback writes into each run folder (steps, per-episode returns, successes when the env reports them; the
+run's ``<env>/args.yml`` holds the env id and seed). Each run becomes one CSV ``<out>/<Algo>/<env>_<run>.csv``,
+where ``<Algo>`` is the algorithm's class name (``drqv2_ef`` -> ``DrQv2EF``): the name
 :class:`~sb3_ef.analysis.records.EvalRecorderCallback` writes, so runs of both kinds make one algorithm.
 
     python -m sb3_ef.zoo.records logs results     # results/DrQv2EF/dmc-cheetah-run-v0_1.csv, ...
@@ -13,16 +18,56 @@ Each run becomes one CSV ``<out>/<Algo>/<env>_<run>.csv`` in the format of :mod:
 from __future__ import annotations
 
 import argparse
+import csv
 import glob
+import io
+import json
 import os
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 import yaml
 from rl_zoo3 import utils
 
-from sb3_ef.analysis.records import append_records, record_row
+from sb3_ef.analysis.records import RECORD_COLUMNS, RUN_RESULT_FILE, append_records, record_row
+from sb3_ef.common.files import write_text_atomically
 from sb3_ef.zoo.registration import register_algorithms
+
+
+def run_records_path(save_path: str | os.PathLike, env_name: str) -> Path:
+    """The evaluation CSV of the rl-zoo3 run folder ``save_path`` of env ``env_name`` (its folder form)."""
+    return Path(save_path) / f"{env_name}.csv"
+
+
+def run_result_path(save_path: str | os.PathLike, env_name: str) -> Path:
+    """The file that marks the run finished: ``<env>/result.json``, in the folder named like its CSV."""
+    return Path(save_path) / env_name / RUN_RESULT_FILE
+
+
+def truncate_run_records(path: Path, last_step: int) -> None:
+    """Keep the rows of the evaluation CSV ``path`` up to ``last_step`` (rewritten atomically; no file: nothing)."""
+    if not path.is_file():
+        return
+    with open(path, newline="") as file:
+        rows = [row for row in csv.DictReader(file) if int(row["step"]) <= last_step]
+    text = io.StringIO()
+    writer = csv.DictWriter(text, fieldnames=RECORD_COLUMNS, lineterminator="\r\n")  # as csv writes by default
+    writer.writeheader()
+    writer.writerows(rows)
+    write_text_atomically(path, text.getvalue())
+
+
+def finish_run(save_path: str | os.PathLike, env_name: str, steps: int) -> None:
+    """Mark the run finished at ``steps``: its ``result.json`` with the steps and the last recorded mean return
+    (``null`` without an evaluation), written atomically."""
+    records = run_records_path(save_path, env_name)
+    rows = []
+    if records.is_file():
+        with open(records, newline="") as file:
+            rows = list(csv.DictReader(file))
+    result = {"status": "finished", "steps": steps, "final_return": float(rows[-1]["return"]) if rows else None}
+    write_text_atomically(run_result_path(save_path, env_name), json.dumps(result, indent=1))
 
 
 def algorithm_name(zoo_key: str) -> str:

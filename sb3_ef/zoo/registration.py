@@ -37,6 +37,14 @@ def algorithm_classes() -> dict[str, type]:
     }
 
 
+def benchmark_classes() -> dict[str, type]:
+    """`sb3-ef benchmark` key -> algorithm class: rl-zoo3's (:func:`algorithm_classes`) and ``dreamerv3``, which
+    sheeprl trains (``sb3_ef.dreamerv3``; the class imports without sheeprl, and needs it to build a model)."""
+    from sb3_ef.dreamerv3 import DreamerV3
+
+    return {**algorithm_classes(), "dreamerv3": DreamerV3}
+
+
 def config_namespace() -> dict[str, Any]:
     """Names a zoo config string may use, e.g. ``replay_buffer_class: SequenceReplayBuffer`` or, for the SB3 hosts
     on frames smaller than NatureCNN's 36x36, ``features_extractor_class=DrQv2Encoder`` in ``policy_kwargs``."""

@@ -15,6 +15,9 @@ algorithm:
   (:class:`~sb3_ef.common.evaluation.StepSeededEvalCallback`), so a continued run evaluates on the episodes of the
   uninterrupted one; a run started without ``--seed`` saves the seed rl-zoo3 drew with its arguments, for
   ``--resume``;
+- each evaluation is also recorded in ``<run>/<env>.csv`` (the format of :mod:`sb3_ef.analysis.records`; a
+  continued run first drops the rows after its checkpoint, so each step appears once), and ``<env>/result.json``
+  marks the run finished once it reaches its total (:mod:`sb3_ef.zoo.records`);
 - a run that fails before training starts removes the folders it created (run folder, and log folders that did
   not exist before);
 - progress is printed every 10 s of wall time (:class:`~sb3_ef.zoo.progress.ProgressLogCallback`); ``-P``'s bar
@@ -41,9 +44,11 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback, ProgressBarCallback
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_ef.analysis.records import EvalRecorderCallback
 from sb3_ef.common.checkpoints import Checkpoint, ResumableCheckpointCallback, checkpoint_for, load_checkpoint
 from sb3_ef.common.evaluation import StepSeededEvalCallback
 from sb3_ef.zoo.progress import ProgressLogCallback
+from sb3_ef.zoo.records import finish_run, run_records_path, run_result_path, truncate_run_records
 
 #: File in ``<run>/<env>/`` holding the sb3-ef train arguments of the run (read by ``--resume``).
 ARGV_FILE = "train_argv.json"
@@ -153,10 +158,23 @@ class ResumingExperimentManager(ExperimentManager):
                     verbose=callback.verbose,
                 )
             elif isinstance(callback, EvalCallback):
+                callback.callback = self._recorder(callback.eval_env)  # rl-zoo3 sets no callback_after_eval
                 step_seeded = StepSeededEvalCallback.replacing(callback, self.seed)
                 if self.continues_folder:
                     continue_evaluations(step_seeded)
                 self.callbacks[index] = step_seeded
+
+    def _recorder(self, eval_env: VecEnv) -> EvalRecorderCallback:
+        """The recorder of the run's evaluation CSV; a continued run's rows after its checkpoint are dropped (they
+        are evaluated again) and the run is no longer marked finished."""
+        path = run_records_path(self.save_path, self.env_name)
+        if self.continues_folder:
+            assert self.checkpoint is not None
+            truncate_run_records(path, self.checkpoint.step)
+            run_result_path(self.save_path, self.env_name).unlink(missing_ok=True)
+        repeat = eval_env.get_attr("action_repeat")[0] if eval_env.has_attr("action_repeat") else 1
+        algo = ALGOS[self.algo].__name__  # the class name, as every record writer names an algorithm
+        return EvalRecorderCallback(path, algo=algo, task=self.env_name.gym_id, seed=self.seed, action_repeat=repeat)
 
     def create_envs(self, n_envs: int, eval_env: bool = False, no_log: bool = False) -> VecEnv:
         if self.continues_folder:
@@ -184,16 +202,17 @@ class ResumingExperimentManager(ExperimentManager):
 
     def learn(self, model: BaseAlgorithm) -> None:
         """rl-zoo3's ``learn`` (which stops at Ctrl-C); a continued model trains up to ``n_timesteps`` steps in all,
-        its counters kept. A run stopped early writes a resumable checkpoint when ``--save-freq`` is set."""
+        its counters kept. A run that reaches its total is marked finished; one stopped early writes a resumable
+        checkpoint when ``--save-freq`` is set."""
         total = self.n_timesteps
         self._learn(model)
-        if model.num_timesteps < total:
-            for callback in self.callbacks:
-                if isinstance(callback, ResumableCheckpointCallback):
-                    saved = callback.save()
-                    print(
-                        f"Stopped at step {model.num_timesteps} of {total}: checkpoint {saved.model_path}", flush=True
-                    )
+        if model.num_timesteps >= total:
+            finish_run(self.save_path, self.env_name, model.num_timesteps)
+            return
+        for callback in self.callbacks:
+            if isinstance(callback, ResumableCheckpointCallback):
+                saved = callback.save()
+                print(f"Stopped at step {model.num_timesteps} of {total}: checkpoint {saved.model_path}", flush=True)
 
     def _learn(self, model: BaseAlgorithm) -> None:
         if self.checkpoint is None:

@@ -36,7 +36,7 @@ from sb3_ef.common.checkpoints import Checkpoint, checkpoint_for, latest_checkpo
 from sb3_ef.common.validation import did_you_mean, is_intact
 from sb3_ef.zoo import config
 from sb3_ef.zoo.hyperparams_opt import SAMPLERS
-from sb3_ef.zoo.options import SB3_EF_TRAIN_OPTIONS, check_train_argv, rl_zoo3_parser
+from sb3_ef.zoo.options import SB3_EF_TRAIN_OPTIONS, check_train_argv, merge_train_argv, rl_zoo3_parser
 from sb3_ef.zoo.registration import register_algorithms
 from sb3_ef.zoo.resume import ARGV_FILE, CheckpointOptions, ResumingExperimentManager
 
@@ -60,20 +60,26 @@ def _pre_parser() -> argparse.ArgumentParser:
     parser.add_argument("--env", default="CartPole-v1")
     parser.add_argument("-conf", "--conf-file", default=None)
     parser.add_argument("-params", "--hyperparams", nargs="+", default=[])
+    parser.add_argument("--env-kwargs", nargs="+", default=[])
+    parser.add_argument("--eval-env-kwargs", nargs="+", default=[])
     parser.add_argument("-optimize", "--optimize-hyperparameters", dest="optimize", action="store_true")
     return parser
 
 
-def _override_values(overrides: list[str]) -> dict[str, Any]:
-    """``--hyperparams key:value`` pairs, values evaluated like rl-zoo3 does (in its namespace)."""
+def _override_values(overrides: list[str], option: str = "--hyperparams") -> dict[str, Any]:
+    """``key:value`` pairs of ``option`` (``--hyperparams``, ``--env-kwargs``, ``--eval-env-kwargs``), values
+    evaluated as rl-zoo3 does (in its namespace)."""
     values = {}
     for override in overrides:
         key, _, value = override.partition(":")
         try:
             values[key] = eval(value, vars(utils))
         except Exception as error:  # the user's expression: any exception is a mistake in the command line
+            hint = ""
+            if isinstance(error, NameError) and value.isidentifier():
+                hint = f"; values are Python expressions, so a string needs quotes: {key}:\"'{value}'\""
             raise ValueError(
-                f"--hyperparams {key}: cannot evaluate {value!r} ({type(error).__name__}: {error})"
+                f"{option} {key}: cannot evaluate {value!r} ({type(error).__name__}: {error}){hint}"
             ) from None
     return values
 
@@ -83,6 +89,8 @@ def prepare(argv: Sequence[str]) -> list[str]:
     argv = list(argv)
     known, _ = _pre_parser().parse_known_args(argv)
     register_algorithms()  # our keys and config names exist from here on (the overrides may use them)
+    _override_values(known.env_kwargs, "--env-kwargs")  # rl-zoo3 would raise the evaluation's error as it is
+    _override_values(known.eval_env_kwargs, "--eval-env-kwargs")
     if known.algo not in config.ZOO_ALGORITHMS:
         if known.algo not in utils.ALGOS:
             raise ValueError(
@@ -179,8 +187,9 @@ def resume_point(run_dir: Path, env_folder: str) -> Checkpoint:
 
 
 def resume_argv(run_dir: str, extra: list[str]) -> list[str]:
-    """The train arguments that continue ``run_dir``: the run's own (from ``<env>/train_argv.json``) with
-    ``-i`` pointing at :func:`resume_point`, then ``extra`` (later values win)."""
+    """The train arguments that continue ``run_dir``: the run's own (from ``<env>/train_argv.json``) with ``-i``
+    pointing at :func:`resume_point` and ``extra`` over them (:func:`~sb3_ef.zoo.options.merge_train_argv`: every
+    recorded option that ``extra`` does not set is kept; ``key:value`` lists are merged key by key)."""
     folder = Path(run_dir)
     saved = sorted(folder.glob(f"*/{ARGV_FILE}"))
     if not folder.is_dir() or len(saved) != 1:
@@ -189,15 +198,21 @@ def resume_argv(run_dir: str, extra: list[str]) -> list[str]:
             f"({'not a folder' if not folder.is_dir() else f'{len(saved)} such files'})"
         )
     model_path = resume_point(folder, saved[0].parent.name).model_path
-    argv = _without_options(json.loads(saved[0].read_text()), {"-i": True, "--trained-agent": True})
-    return [*argv, "-i", str(model_path), *extra]
+    return merge_train_argv(json.loads(saved[0].read_text()), ["-i", str(model_path), *extra])
 
 
-def _check_trained_agent(argv: list[str]) -> None:
-    """Name a ``-i`` value that is not a model zip (rl-zoo3 only asserts it)."""
+def trained_agent(argv: list[str]) -> str | None:
+    """The ``-i`` model zip of ``argv`` (the last one given), or ``None``; a value that is not a readable model zip
+    is named (rl-zoo3 only asserts it)."""
+    trained = None
     for arg, value in itertools.pairwise(argv):
-        if arg in ("-i", "--trained-agent") and not (value.endswith(".zip") and os.path.isfile(value)):
-            raise ValueError(f"{arg} expects the path of a saved model .zip, got {value!r}")
+        if arg in ("-i", "--trained-agent"):
+            if not (value.endswith(".zip") and os.path.isfile(value)):
+                raise ValueError(f"{arg} expects the path of a saved model .zip, got {value!r}")
+            if not is_intact(value):
+                raise ValueError(f"{arg} {value!r} is damaged (not a readable model zip)")
+            trained = value
+    return trained
 
 
 def run_with_argv(function: Callable[[], None], argv: Sequence[str], prog: str) -> None:
@@ -223,8 +238,13 @@ def main(argv: Sequence[str] | None = None) -> None:
     options, _ = _sb3_ef_parser().parse_known_args(argv)
     if options.resume is not None:
         argv = resume_argv(options.resume, _without_options(argv, {"--resume": True}))
+        check_train_argv(argv)  # the run's algorithm and env id
         options, _ = _sb3_ef_parser().parse_known_args(argv)  # the run's recorded sb3-ef options, and the new ones
-    _check_trained_agent(argv)
+    trained = trained_agent(argv)
+    if trained is not None and not options.checkpoint_buffer and checkpoint_for(trained).replay_buffer_path:
+        # New checkpoints without the buffer would replace (and prune) the ones that hold it.
+        print(f"{trained} has a replay buffer beside it: the run's checkpoints include it (--checkpoint-buffer)")
+        argv, options.checkpoint_buffer = [*argv, "--checkpoint-buffer"], True  # recorded for --resume
     zoo_argv = prepare(_without_options(argv, {"--checkpoint-buffer": False, "--keep-checkpoints": True}))
     manager = functools.partial(
         ResumingExperimentManager,

@@ -97,10 +97,23 @@ def _block(**changes) -> dict:
         ({"grids": [_block(checkpoint_freq=15)]}, "checkpoint_freq (15) must be a multiple of eval_freq (10)"),
         ({"grids": [_block(eval_freq=40)]}, "eval_freq (40) exceeds n_timesteps (20)"),
         ({"grids": [_block(seeds=[0, "1"])]}, "'seeds' must be a positive count or a non-empty list of ints"),
-        ({"grids": [_block(algorithms={"drqv2": {"lr": 1}})]}, "Algorithm 'drqv2': unknown key(s) ['lr']"),
-        ({"grids": [_block(evaluation=1)]}, "unknown key(s) ['evaluation']"),
+        (
+            {"grids": [_block(algorithms={"drqv2": {"lr": 1}})]},
+            "Algorithm 'drqv2': unknown key(s) 'lr'; expected algo, conf_file",
+        ),
+        ({"grids": [_block(evaluation=1)]}, "grids[0]: unknown key(s) 'evaluation' (keys of a block: algorithms,"),
+        ({"grids": [_block(eval_frq=10)]}, "unknown key(s) 'eval_frq' (did you mean 'eval_freq'?)"),
+        ({"grids": [{"algorithms": ["drqv2"]}]}, "grids[0]: missing key(s) eval_freq, seeds, tasks (keys of"),
+        ({"grids": [_block(tasks=["dmc/cartpole-balanse"])]}, "(did you mean 'dmc/cartpole-balance-v0'"),
+        ({"grids": [_block(algorithms=["drqv2_fe"])]}, "algo 'drqv2_fe' (did you mean 'drqv2_ef'"),
+        ({"grids": [_block(hyperparams=5)]}, "'hyperparams' must be a mapping of names to values, got 5"),
+        ({"grids": [_block(tasks=5)]}, "'tasks' must be a list of gymnasium ids, got 5"),
+        (
+            {"grids": [_block(algorithms={"drqv2": {"env_kwargs": [1]}})]},
+            "Algorithm 'drqv2': 'env_kwargs' must be a mapping of names to values, got [1]",
+        ),
         ({"grids": [_block(), _block()]}, "Run drqv2/toy-agent-v0_s0 occurs twice"),
-        ({"grids": [_block()], "grid": []}, "unknown top-level key(s) ['grid']"),
+        ({"grids": [_block()], "grid": []}, "unknown top-level key(s) 'grid' (did you mean 'grids'?)"),
         ({"grid": [_block()]}, "non-empty list 'grids'"),
     ],
 )
@@ -137,6 +150,7 @@ def test_paper_grid_covers_the_papers_tasks_at_its_budgets_with_expected_hours(t
         "tdmpc2_ef": dmc,
         "sear": dmc | metaworld,
         "curl": dmc,
+        "dreamerv3": dmc,
     }
     assert {run.seed for run in runs} == set(range(5))
     for run in runs:

@@ -162,3 +162,29 @@ def test_pretrain_streaming_options_are_checked(option, value, match, capsys):
     with pytest.raises(SystemExit):
         main(["pretrain", "unused", "unused", option, value])
     assert f"argument {option}: {match}" in capsys.readouterr().err
+
+
+def test_predict_names_an_rl_zip_a_truncated_model_and_zero_steps(tmp_path, capsys):
+    from stable_baselines3 import PPO
+
+    from sb3_ef.offline.predict import predict_episode
+
+    data, run = tmp_path / "data", tmp_path / "run"
+    collect("toy/agent-v0", data, episodes=2, size=32, progress_bar=False, masks=False)
+    tiny_pretrain(data, run, context=2, steps=1, batch_size=2)
+    PPO("MlpPolicy", "CartPole-v1", n_steps=64, batch_size=32).save(tmp_path / "agent.zip")
+    (tmp_path / "cut.pt").write_bytes((run / "model.pt").read_bytes()[:2000])
+    for model, message in [
+        ("agent.zip", r"agent.zip' is a Stable-Baselines3 model zip .*: pass the OUT/model.pt or OUT/checkpoint.pt"),
+        ("cut.pt", r"cut.pt' is not a readable checkpoint of sb3-ef pretrain \(damaged, truncated"),
+    ]:
+        assert main(["predict", str(tmp_path / model), str(tmp_path / "pred"), "--dataset", str(data)]) == 2
+        err = capsys.readouterr().err
+        assert re.search(rf"^sb3-ef predict: error: .*{message}", err) and "Traceback" not in err, err
+    with pytest.raises(SystemExit):
+        main(["predict", str(run / "model.pt"), str(tmp_path / "pred"), "--dataset", str(data), "--steps", "0"])
+    assert "argument --steps: expected a positive integer, got 0" in capsys.readouterr().err
+    model, _ = load_pretrained(run / "model.pt")
+    with pytest.raises(ValueError, match=r"steps must be a positive number of frames to predict \(--steps\), got 0"):
+        predict_episode(model, FolderDataset(data)[0], tmp_path / "pred", steps=0)
+    assert not (tmp_path / "pred").exists()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from fractions import Fraction
 
 import numpy as np
@@ -41,6 +42,7 @@ def test_lossless_v3_round_trip_is_exact_across_files(tmp_path):
         "data/chunk-000/file-001.parquet",
         "meta/episodes/chunk-000/file-000.parquet",
         "meta/info.json",
+        "meta/stats.json",
         "meta/tasks.parquet",
         "videos/observation.image/chunk-000/file-000.mp4",
         "videos/observation.image/chunk-000/file-001.mp4",
@@ -239,5 +241,9 @@ def test_pretrain_and_predict_read_a_lerobot_dataset_end_to_end(tmp_path, capsys
     predict = ["predict", str(tmp_path / "run/model.pt"), str(tmp_path / "pred"), "--dataset", str(tmp_path / "ds")]
     assert main([*predict, "--episode", "2", "--image-size", "32"]) == 0
     assert (tmp_path / "pred/prediction.png").is_file()
-    with pytest.raises(SystemExit, match=r"--image-key applies to RLDS folders only; .*ds is a LeRobot dataset"):
-        main(["pretrain", str(tmp_path / "ds"), str(tmp_path / "run2"), "--image-key", "observation/image"])
+    assert main(["pretrain", str(tmp_path / "ds"), str(tmp_path / "run2"), "--image-key", "observation/image"]) == 2
+    error = capsys.readouterr().err
+    assert re.search(
+        r"^sb3-ef pretrain: error: --image-key applies to RLDS folders only; .*ds is a LeRobot dataset", error
+    )
+    assert not (tmp_path / "run2").exists()

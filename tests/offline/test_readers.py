@@ -174,3 +174,33 @@ def test_truncated_tfrecord_is_an_episode_error_naming_the_record(tmp_path):
     path.write_bytes(path.read_bytes()[:-100])
     with pytest.raises(EpisodeError, match=r"a.tfrecord: record 0 is truncated \(expected \d+ data bytes"):
         open_dataset(path)
+
+
+def test_a_folder_mixing_frame_sizes_raises_when_iterated_or_indexed(tmp_path):
+    write_episode(tmp_path / "a.npz", square_episode(size=32))
+    write_episode(tmp_path / "b.npz", square_episode(size=16))
+    dataset = FolderDataset(tmp_path)
+    with pytest.raises(
+        EpisodeError, match=r"b.npz \(episode 1\): frames of shape \(3, 16, 16\) .* differ from .*a.npz"
+    ):
+        dataset.lengths()  # from the file headers, before any frame is decompressed
+    with pytest.raises(EpisodeError, match=r"b.npz \(episode 1\): frames \(3, 16, 16\) and 2-d actions differ from"):
+        list(dataset)
+    reversed_order = FolderDataset(tmp_path)
+    reversed_order[1]
+    with pytest.raises(EpisodeError, match=r"a.npz \(episode 0\): frames \(3, 32, 32\) .* differ from .*b.npz"):
+        reversed_order[0]
+
+
+def test_a_single_npy_array_named_npz_is_named(tmp_path):
+    np.save(tmp_path / "array.npy", np.zeros((4, 3, 8, 8), np.uint8))
+    os.rename(tmp_path / "array.npy", tmp_path / "episode_0.npz")
+    with pytest.raises(EpisodeError, match=r"episode_0.npz \(episode 0\): a single .npy array, not an .npz archive"):
+        FolderDataset(tmp_path)[0]
+
+
+def test_a_bad_bair_image_size_is_named(tmp_path):
+    path = tmp_path / "a.tfrecord"
+    write_records(path, [_bair_record(np.zeros((4, 3, 64, 64), np.uint8), np.zeros((4, 4), np.float32))])
+    with pytest.raises(ValueError, match=r"image_size must be a positive number of pixels \(frames of N x N\), got 0"):
+        BAIRDataset(path, image_size=0)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import io
 import json
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,7 +13,7 @@ from PIL import Image
 
 from sb3_ef.offline.episodes import EpisodeError, make_episode
 from sb3_ef.offline.readers import open_dataset
-from sb3_ef.offline.rlds import RLDSDataset
+from sb3_ef.offline.rlds import OXE_LAYOUTS, RLDSDataset
 from sb3_ef.offline.tfrecord import serialize_example, write_records
 from tests.helpers.offline import square_episode
 
@@ -129,3 +131,56 @@ def test_a_record_that_is_no_example_is_named(tmp_path):
     write_records(shard, [b"\x0a\xff\x01" + b"\x00" * 10])  # valid CRCs, a message claiming 255 bytes
     with pytest.raises(EpisodeError, match=r"\(episode 0\): not a valid tf.train.Example \(ValueError: field 1 needs"):
         RLDSDataset(root)[0]
+
+
+def test_a_folder_whose_shards_are_empty_is_refused_and_an_empty_shard_is_named(tmp_path):
+    root = tmp_path / "d"
+    write_tfds_folder(root, "d", [[square_episode(steps=3)], []])
+    empty = root / "d-train.tfrecord-00001-of-00002"
+    assert empty.stat().st_size == 0
+    with pytest.warns(UserWarning, match=r"Empty TFRecord files \(0 bytes, no episode\) skipped: .*00001-of-00002"):
+        assert len(RLDSDataset(root)) == 1
+    (root / "d-train.tfrecord-00000-of-00002").write_bytes(b"")
+    with pytest.raises(EpisodeError, match=r"No records in .*: 2 of 2 TFRecord files are empty \(0 bytes"):
+        open_dataset(root)
+
+
+def test_droid_layouts_the_dataset_action_or_octo_and_openvla_cartesian_velocity(tmp_path):
+    episode = square_episode(steps=5)
+    velocity = np.linspace(-1, 1, 6 * 6, dtype=np.float32).reshape(6, 6)
+    gripper = np.linspace(0, 1, 6, dtype=np.float32)[:, None]  # DROID: 0 open, 1 closed
+    root = tmp_path / "droid" / "1.0.0"
+    root.mkdir(parents=True)
+    (root / "features.json").write_text("{}")
+    features = {
+        "steps/observation/exterior_image_1_left": [encode(frame, "PNG") for frame in episode.frames],
+        "steps/action": np.c_[velocity[:, :6], gripper].ravel(),  # 7 numbers per step
+        "steps/action_dict/cartesian_velocity": velocity.ravel(),
+        "steps/action_dict/gripper_position": gripper.ravel(),
+        "steps/is_first": np.r_[1, np.zeros(5, np.int64)],
+        "steps/is_last": np.r_[np.zeros(5, np.int64), 1],
+    }
+    write_records(root / "droid-train.tfrecord-00000-of-00001", [serialize_example(features)])
+    dataset = RLDSDataset(root)
+    assert dataset.layout == "droid" and dataset[0].action_dim == 7
+    read = RLDSDataset(root, layout="droid_cartesian")[0]
+    np.testing.assert_allclose(read.actions, np.c_[velocity, 1 - gripper][:5])  # the last action is dropped
+    by_keys = RLDSDataset(root, action_keys=["1-action_dict/gripper_position"])[0]
+    np.testing.assert_allclose(by_keys.actions, 1 - gripper[:5])
+    with pytest.raises(EpisodeError, match=r"no action feature \['1-action_dict/gripper_closed'\]"):
+        RLDSDataset(root, action_keys=["1-action_dict/gripper_closed"])[0]
+
+
+@pytest.mark.parametrize("image_size", [0, -64])
+def test_a_bad_rlds_image_size_is_named(tmp_path, image_size):
+    root = tmp_path / "d"
+    write_tfds_folder(root, "d", [[square_episode(steps=3)]])
+    with pytest.raises(ValueError, match=rf"image_size must be a positive number of pixels .*, got {image_size}"):
+        RLDSDataset(root, image_size=image_size)
+
+
+def test_the_docs_list_every_layout_with_its_image_size_and_gripper():
+    docs = (Path(__file__).parents[2] / "docs" / "offline.md").read_text()
+    for name, (image_key, _) in OXE_LAYOUTS.items():
+        row = re.search(rf"^\| `{name}`[^|]*\| `{image_key}` \| (\d+) x (\d+) \|[^|]+\|([^|]+)\|$", docs, re.M)
+        assert row and row.group(3).strip(), f"{name}: no docs row with the image size and the gripper convention"

@@ -81,3 +81,18 @@ def test_unpacked_float_lists_are_decoded_too():
     features = b"\x0a" + bytes([len(entry)]) + entry
     example = b"\x0a" + bytes([len(features)]) + features
     np.testing.assert_array_equal(parse_example(example)["x"], [1.5, -2.0])
+
+
+def test_a_flipped_length_field_is_called_corrupt_not_truncated(tmp_path):
+    path = tmp_path / "a.tfrecord"
+    write_records(path, [b"hello world", b"second"])
+    raw = bytearray(path.read_bytes())
+    raw[5] ^= 0x01  # a high bit of the first record's length: it now claims terabytes
+    path.write_bytes(bytes(raw))
+    with pytest.raises(ValueError, match=r"record 0 \(byte 0\) has a corrupt length field .*: the file is damaged"):
+        list(read_records(path))
+    raw[5] ^= 0x01
+    raw[0] ^= 0x01  # 10 instead of 11 bytes: the next record would start inside this one
+    path.write_bytes(bytes(raw))
+    with pytest.raises(ValueError, match=r"record 0 \(byte 0\) has a corrupt length field"):
+        list(read_records(path))

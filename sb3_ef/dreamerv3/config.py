@@ -1,0 +1,198 @@
+"""sheeprl's configuration of a Dreamer-v3 run, composed from its own Hydra files and sb3-ef's arguments.
+
+The algorithm's settings start from sheeprl's ``exp=dreamer_v3`` experiment with the model preset
+``algo=dreamer_v3_<model_size>``; :class:`~sb3_ef.dreamerv3.DreamerV3`'s named arguments set the training recipe,
+``sheeprl_overrides`` any other key of sheeprl's configuration (``{"algo.horizon": 15}``), and the run's session
+(env, Fabric, callbacks, folders, steps, checkpoints) is set here and cannot be overridden.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+#: The sheeprl release this package drives (its configuration keys and checkpoint contents).
+SHEEPRL_VERSION = "0.8.4"
+#: sheeprl's Dreamer-v3 model presets (``sheeprl/configs/algo/dreamer_v3_<size>.yaml``).
+MODEL_SIZES = ("XS", "S", "M", "L", "XL")
+#: The key of the frames in sheeprl's observation dictionaries.
+FRAME_KEY = "rgb"
+#: Keys (and the sections below them) that the run sets itself, with the argument that sets them instead.
+SESSION_KEYS = {
+    "seed": "seed",
+    "algo.total_steps": "learn(total_timesteps)",
+    "algo.per_rank_batch_size": "batch_size",
+    "algo.per_rank_sequence_length": "sequence_length",
+    "algo.replay_ratio": "replay_ratio",
+    "algo.learning_starts": "learning_starts",
+    "algo.cnn_keys": "the env (frames only)",
+    "algo.mlp_keys": "the env (frames only)",
+    "algo.run_test": "learn's evaluation",
+    "buffer.size": "buffer_size",
+    "buffer.checkpoint": "the run (replay buffers are checkpointed)",
+    "env": "env",
+    "checkpoint": "learn's checkpoint_freq / keep_checkpoints",
+    "fabric.accelerator": "device",
+    "fabric.devices": "device",
+    "fabric.num_nodes": "the run (one device)",
+    "fabric.strategy": "the run (one device)",
+    "fabric.callbacks": "the run (evaluation and checkpoints)",
+    "log_root": "work_dir",
+    "root_dir": "work_dir",
+    "run_name": "work_dir",
+    "model_manager": "the run (no MLflow)",
+    "dry_run": "the run",
+}
+
+
+def require_sheeprl() -> Any:
+    """Import sheeprl, or raise an ImportError that names the extra to install."""
+    try:
+        return importlib.import_module("sheeprl")
+    except ImportError as error:
+        raise ImportError(
+            f"DreamerV3 runs sheeprl's Dreamer-v3 (sheeprl=={SHEEPRL_VERSION}); install it with: "
+            "pip install -e .[dreamerv3]  (or pip install sb3-ef[dreamerv3])"
+        ) from error
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """The algorithm's settings (:class:`~sb3_ef.dreamerv3.DreamerV3`'s arguments, in sheeprl's terms)."""
+
+    model_size: str = "S"
+    replay_ratio: float = 0.5
+    batch_size: int = 16
+    sequence_length: int = 64
+    buffer_size: int = 1_000_000
+    learning_starts: int = 1024
+    sheeprl_overrides: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.model_size not in MODEL_SIZES:
+            raise ValueError(f"model_size must be one of {MODEL_SIZES}, got {self.model_size!r}")
+        if isinstance(self.replay_ratio, bool) or not isinstance(self.replay_ratio, (int, float)):
+            raise ValueError(f"replay_ratio must be a number of gradient steps per env step, got {self.replay_ratio!r}")
+        if self.replay_ratio <= 0:
+            raise ValueError(f"replay_ratio must be > 0 gradient steps per env step, got {self.replay_ratio}")
+        for name, least in (("batch_size", 1), ("sequence_length", 1), ("buffer_size", 1), ("learning_starts", 0)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < least:
+                raise ValueError(f"{name} must be an integer >= {least}, got {value!r}")
+        if self.buffer_size < self.sequence_length:
+            raise ValueError(
+                f"buffer_size ({self.buffer_size}) must hold one sequence of sequence_length ({self.sequence_length})"
+            )
+        overrides = self.sheeprl_overrides
+        if not isinstance(overrides, Mapping) or not all(isinstance(key, str) for key in overrides):
+            raise ValueError(f"sheeprl_overrides must map dotted sheeprl keys to values, got {overrides!r}")
+        for key in overrides:
+            for session_key, argument in SESSION_KEYS.items():
+                if key == session_key or key.startswith(session_key + "."):
+                    raise ValueError(f"sheeprl_overrides: {key!r} is set by DreamerV3 from {argument}, not here")
+
+
+def _set(cfg: Any, key: str, value: Any) -> None:
+    """Set an existing key of sheeprl's configuration; an unknown one is an error (a typo would be ignored)."""
+    from omegaconf import OmegaConf
+
+    parent_key, _, leaf = key.rpartition(".")
+    parent = OmegaConf.select(cfg, parent_key) if parent_key else cfg
+    if parent is None or not OmegaConf.is_dict(parent) or leaf not in parent:
+        raise ValueError(f"sheeprl_overrides: {key!r} is not a key of sheeprl's Dreamer-v3 configuration")
+    OmegaConf.update(cfg, key, value, merge=False)
+
+
+def compose_config(recipe: Recipe) -> Any:
+    """sheeprl's Dreamer-v3 configuration with ``recipe`` applied (an OmegaConf ``DictConfig``; session keys are
+    set by :func:`set_session`)."""
+    require_sheeprl()
+    from hydra import compose, initialize_config_module
+
+    with initialize_config_module("sheeprl.configs", version_base="1.3"):
+        cfg = compose("config", overrides=["exp=dreamer_v3", "env=default", f"algo=dreamer_v3_{recipe.model_size}"])
+    for key, value in {
+        "algo.per_rank_batch_size": recipe.batch_size,
+        "algo.per_rank_sequence_length": recipe.sequence_length,
+        "algo.replay_ratio": float(recipe.replay_ratio),
+        "algo.learning_starts": recipe.learning_starts,
+        "algo.cnn_keys.encoder": [FRAME_KEY],
+        "algo.mlp_keys.encoder": [],
+        "algo.run_test": False,
+        "buffer.size": recipe.buffer_size,
+        "buffer.checkpoint": True,
+        "metric.log_level": 0,
+        "model_manager.disabled": True,
+    }.items():
+        _set(cfg, key, value)
+    for key, value in recipe.sheeprl_overrides.items():
+        _set(cfg, key, value)
+    return cfg
+
+
+@dataclass(frozen=True)
+class Session:
+    """What one call of ``learn`` sets: the env and callback tokens (:mod:`sb3_ef.dreamerv3.live`), where the run
+    writes, how long it trains and how it checkpoints, on which device."""
+
+    env_token: str
+    callback_token: str
+    task: str
+    frame_size: int
+    seed: int
+    total_steps: int
+    checkpoint_every: int
+    keep_last: int | None
+    work_dir: str
+    run_name: str
+    device: str
+    resume_from: str | None = None
+
+
+def fabric_device(device: str) -> tuple[str, Any]:
+    """Lightning's ``accelerator`` and ``devices`` for a torch device string (``auto``, ``cpu``, ``cuda:1``)."""
+    kind, _, index = device.partition(":")
+    if kind not in ("auto", "cpu", "cuda", "mps") or (index and not index.isdigit()):
+        raise ValueError(f"device must be 'auto', 'cpu', 'cuda', 'cuda:<index>' or 'mps', got {device!r}")
+    return kind, [int(index)] if index else 1
+
+
+def set_session(cfg: Any, session: Session) -> None:
+    """Set the session keys of ``cfg`` (also after sheeprl's resume merged the checkpoint's configuration in)."""
+    from omegaconf import OmegaConf, open_dict
+
+    accelerator, devices = fabric_device(session.device)
+    with open_dict(cfg):
+        cfg.seed = session.seed
+        cfg.dry_run = False
+        cfg.log_root = session.work_dir
+        cfg.root_dir = "sheeprl"
+        cfg.run_name = session.run_name
+        cfg.algo.total_steps = session.total_steps
+        cfg.env = OmegaConf.merge(
+            cfg.env,
+            {
+                "id": session.task,
+                "num_envs": 1,
+                "sync_env": True,
+                "screen_size": session.frame_size,
+                "action_repeat": 1,  # the env repeats its actions itself
+                "grayscale": False,
+                "capture_video": False,
+                "max_episode_steps": None,  # the env reports its time limits
+                "wrapper": {"_target_": "sb3_ef.dreamerv3.env.live_env", "token": session.env_token},
+            },
+        )
+        cfg.checkpoint.every = session.checkpoint_every
+        cfg.checkpoint.keep_last = session.keep_last
+        cfg.checkpoint.save_last = True
+        cfg.checkpoint.resume_from = session.resume_from
+        cfg.fabric.accelerator = accelerator
+        cfg.fabric.devices = devices
+        cfg.fabric.num_nodes = 1
+        cfg.fabric.strategy = "auto"
+        cfg.fabric.callbacks = [
+            {"_target_": "sb3_ef.dreamerv3.callbacks.live_callback", "token": session.callback_token}
+        ]

@@ -1,0 +1,373 @@
+"""``DreamerV3``: sheeprl's Dreamer-v3 behind a Stable-Baselines3-style interface (learn / predict / save / load).
+
+Dreamer-v3 itself is sheeprl's (``sheeprl.algos.dreamer_v3``, its world model, actor-critic, replay buffer and
+training loop): this class composes sheeprl's configuration, hands it the env, runs its training entry point in
+this process, and acts with sheeprl's player. What differs from SB3's algorithms follows from that:
+
+- ``learn`` runs no SB3 callbacks (sheeprl's loop calls none); it evaluates and checkpoints through
+  ``evaluation`` / ``checkpoint_freq`` instead (:mod:`sb3_ef.dreamerv3.callbacks`);
+- ``learn(n, reset_num_timesteps=False)`` continues from the newest checkpoint, with its replay buffer, as
+  sheeprl's resume does (the env starts a new episode there); a trained model does not restart its step count
+  (``learn`` with ``reset_num_timesteps=True`` is refused once it has trained);
+- the env is one gymnasium env of stacked frames (sb3-ef's); Dreamer-v3 reads the newest frame of each observation.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import tempfile
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch as th
+
+from sb3_ef.common.env_checks import FRAME_CHANNELS
+from sb3_ef.common.files import atomic_path
+from sb3_ef.dreamerv3 import live
+from sb3_ef.dreamerv3.callbacks import Evaluation, RunCallback, read_latest
+from sb3_ef.dreamerv3.config import (
+    SHEEPRL_VERSION,
+    Recipe,
+    Session,
+    compose_config,
+    fabric_device,
+    require_sheeprl,
+)
+from sb3_ef.dreamerv3.env import NewestFrame, check_frame_size, task_id
+from sb3_ef.dreamerv3.player import Player, forked_rng
+from sb3_ef.dreamerv3.training import resolved_config, run
+
+#: The policy name a zoo entry gives (Dreamer-v3 has one network design: sheeprl's, sized by ``model_size``).
+POLICY = "CnnPolicy"
+#: The files of a saved model.
+_SETTINGS, _CONFIG, _WEIGHTS = "dreamerv3.json", "config.yaml", "checkpoint.ckpt"
+
+
+class DreamerV3:
+    """Dreamer-v3 (Hafner et al., 2023), trained by sheeprl on an sb3-ef pixel env.
+
+    :param policy: ``"CnnPolicy"`` (the only one: the networks are sheeprl's).
+    :param env: one gymnasium env of stacked uint8 RGB frames, channels-first, square, of a power-of-2 size
+        (``make_env(..., size=64)``), Box actions; ``None`` only when loading a model to act with.
+    :param model_size: sheeprl's preset ``XS``, ``S`` (the authors' DMC-vision model), ``M``, ``L`` or ``XL``.
+    :param replay_ratio: gradient steps per env (agent) step; the authors' ``train_ratio`` divided by
+        ``batch_size * sequence_length``.
+    :param batch_size: sequences per gradient step.
+    :param sequence_length: steps per sequence.
+    :param buffer_size: replay capacity in steps.
+    :param learning_starts: random-action steps before training (sheeprl also waits for one whole sequence).
+    :param sheeprl_overrides: other keys of sheeprl's configuration, dotted (``{"algo.horizon": 15}``).
+    :param work_dir: where sheeprl writes its runs, checkpoints and memory-mapped replay buffer (default: a new
+        temporary folder).
+    :param seed: the run's seed (sheeprl seeds Python, NumPy, torch and the env with it); default a random one.
+    :param device: ``auto``, ``cpu``, ``cuda`` or ``cuda:<index>``.
+    :param verbose: 1 prints a line per evaluation.
+    """
+
+    def __init__(
+        self,
+        policy: str,
+        env: gym.Env | None,
+        model_size: str = "S",
+        replay_ratio: float = 0.5,
+        batch_size: int = 16,
+        sequence_length: int = 64,
+        buffer_size: int = 1_000_000,
+        learning_starts: int = 1024,
+        sheeprl_overrides: dict[str, Any] | None = None,
+        work_dir: str | os.PathLike | None = None,
+        seed: int | None = None,
+        device: str = "auto",
+        verbose: int = 0,
+    ):
+        if policy != POLICY:
+            raise ValueError(
+                f"DreamerV3's policy is {POLICY!r} (sheeprl's networks, sized by model_size), got {policy!r}"
+            )
+        self.recipe = Recipe(
+            model_size, replay_ratio, batch_size, sequence_length, buffer_size, learning_starts,
+            dict(sheeprl_overrides or {}),
+        )  # fmt: skip
+        fabric_device(device)  # checks the device string
+        require_sheeprl()
+        self.cfg = compose_config(self.recipe)  # checks every override key now
+        self.env = None if env is None else self._checked_env(env)
+        self.work_dir = Path(work_dir) if work_dir is not None else Path(tempfile.mkdtemp(prefix="sb3_ef_dreamerv3_"))
+        self.seed = int(np.random.randint(2**31 - 1)) if seed is None else int(seed)
+        self.device = device
+        self.verbose = verbose
+        self.num_timesteps = 0
+        self.resolved: Any = None  # the last run's resolved sheeprl configuration
+        self._state: dict[str, Any] | None = None  # the newest weights (a checkpoint's state, no replay buffer)
+        self._checkpoint: str | None = None  # the newest checkpoint on disk, with its replay buffer
+        self._buffer_in_checkpoint = True
+        self._player: Player | None = None
+        self._saved_action_space: gym.spaces.Box | None = None
+
+    @staticmethod
+    def _checked_env(env: Any) -> gym.Env:
+        if not isinstance(env, gym.Env):
+            raise ValueError(
+                f"DreamerV3 takes one gymnasium env (sheeprl vectorises it itself), got {type(env).__name__}; "
+                "rl-zoo3's `sb3-ef train` gives a VecEnv: run dreamerv3 through `sb3-ef benchmark` instead"
+            )
+        NewestFrame(env)  # checks the frames and actions
+        return env
+
+    @property
+    def settings(self) -> dict[str, Any]:
+        """The constructor arguments that rebuild this model (without env, work folder and device)."""
+        recipe = self.recipe
+        return {
+            "policy": POLICY, "model_size": recipe.model_size, "replay_ratio": recipe.replay_ratio,
+            "batch_size": recipe.batch_size, "sequence_length": recipe.sequence_length,
+            "buffer_size": recipe.buffer_size, "learning_starts": recipe.learning_starts,
+            "sheeprl_overrides": dict(recipe.sheeprl_overrides), "seed": self.seed, "verbose": self.verbose,
+        }  # fmt: skip
+
+    @property
+    def frame_shape(self) -> tuple[int, int, int]:
+        """``(3, h, w)``: the frames Dreamer-v3 reads."""
+        if self.env is None:
+            raise ValueError("DreamerV3 has no env: pass one to load() to train")
+        _, height, width = self.env.observation_space.shape  # type: ignore[misc]
+        return FRAME_CHANNELS, height, width
+
+    def learn(
+        self,
+        total_timesteps: int,
+        callback: None = None,
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+        evaluation: Evaluation | None = None,
+        checkpoint_freq: int | None = None,
+        keep_checkpoints: int | None = None,
+        log_prefix: str | None = None,
+    ) -> DreamerV3:
+        """Train ``total_timesteps`` agent steps (more, with ``reset_num_timesteps=False``, from the newest
+        checkpoint); evaluate every ``evaluation.freq`` steps; checkpoint every ``checkpoint_freq`` steps (a
+        multiple of ``evaluation.freq``; default: at the end only) keeping the newest ``keep_checkpoints``; print a
+        progress line per evaluation after ``log_prefix`` (and with ``verbose=1``)."""
+        if callback is not None or progress_bar:
+            raise ValueError(
+                "DreamerV3 trains inside sheeprl's loop, which runs no SB3 callbacks or progress bar: pass "
+                "learn(..., evaluation=Evaluation(...), checkpoint_freq=...) instead"
+            )
+        if isinstance(total_timesteps, bool) or not isinstance(total_timesteps, int) or total_timesteps < 1:
+            raise ValueError(f"total_timesteps must be a positive integer, got {total_timesteps!r}")
+        if self.env is None:
+            raise ValueError("DreamerV3 has no env to train on: pass env= to the constructor or to load()")
+        if reset_num_timesteps and self._checkpoint is not None:
+            raise ValueError(
+                f"DreamerV3 has trained {self.num_timesteps} steps: continue with learn(n, reset_num_timesteps=False) "
+                "(sheeprl's resume counts on from the checkpoint's step); a new run needs a new model"
+            )
+        resume = None if reset_num_timesteps else self._checkpoint
+        start = self.num_timesteps if resume is not None else 0
+        total = start + total_timesteps
+        every = self._checkpoint_every(total, evaluation, checkpoint_freq)
+        callback_ = RunCallback(
+            self.work_dir, self.settings, self.frame_shape, self.action_space, evaluation, keep_checkpoints,
+            save_every=checkpoint_freq or total, total_steps=total,
+        )  # fmt: skip
+        (self.work_dir / "sheeprl" / "train").mkdir(parents=True, exist_ok=True)  # sheeprl's runs, version_<n>
+        with live.registered(self.env) as env_token, live.registered(callback_) as callback_token:
+            session = Session(
+                env_token, callback_token, task_id(self.env), self.frame_shape[1], self.seed, total, every,
+                keep_checkpoints, str(self.work_dir), "train", self.device, resume,
+            )  # fmt: skip
+            self.resolved = resolved_config(self.cfg.copy(), session, self._buffer_in_checkpoint)
+            callback_.config, callback_.start_step = self.resolved, start
+            callback_.log_prefix = log_prefix if log_prefix is not None else ("" if self.verbose >= 1 else None)
+            run(self.resolved)
+        if callback_.last_state is None:
+            raise RuntimeError("sheeprl ended without a final checkpoint (checkpoint.save_last)")
+        self._state, self._player = callback_.last_state, None
+        self.num_timesteps = int(self._state["iter_num"])
+        if callback_.last_checkpoint is not None:
+            self._checkpoint, self._buffer_in_checkpoint = callback_.last_checkpoint, True
+        return self
+
+    @staticmethod
+    def _checkpoint_every(total: int, evaluation: Evaluation | None, checkpoint_freq: int | None) -> int:
+        """sheeprl's ``checkpoint.every``: the evaluations happen at its calls."""
+        if checkpoint_freq is not None:
+            if isinstance(checkpoint_freq, bool) or not isinstance(checkpoint_freq, int) or checkpoint_freq < 1:
+                raise ValueError(f"checkpoint_freq must be a positive integer, got {checkpoint_freq!r}")
+            if evaluation is not None and checkpoint_freq % evaluation.freq:
+                raise ValueError(
+                    f"checkpoint_freq ({checkpoint_freq}) must be a multiple of evaluation.freq ({evaluation.freq})"
+                )
+        if evaluation is not None:
+            return evaluation.freq
+        return checkpoint_freq or total
+
+    @classmethod
+    def resume(cls, work_dir: str | os.PathLike, env: gym.Env, device: str = "auto") -> DreamerV3 | None:
+        """The model of the run in ``work_dir`` at its latest complete checkpoint (``learn(n,
+        reset_num_timesteps=False)`` continues it), or ``None`` when the run has no checkpoint yet."""
+        latest = read_latest(work_dir)
+        if latest is None:
+            return None
+        model = cls(env=env, work_dir=work_dir, device=device, **latest["settings"])
+        model._checkpoint, model.num_timesteps = latest["checkpoint"], int(latest["step"])
+        return model
+
+    def _weights(self) -> dict[str, Any]:
+        if self._state is None:
+            if self._checkpoint is None:
+                raise ValueError("DreamerV3 has no weights yet: call learn() or load() first")
+            self._state = th.load(self._checkpoint, map_location="cpu", weights_only=False)
+            self._state.pop("rb", None)
+        return self._state
+
+    def _config(self) -> Any:
+        if self.resolved is None:
+            if self._checkpoint is None:
+                raise ValueError("DreamerV3 has no weights yet: call learn() or load() first")
+            from omegaconf import OmegaConf
+            from sheeprl.utils import fs
+            from sheeprl.utils.utils import dotdict
+
+            stored = fs.load_yaml(fs.run_config(self._checkpoint))
+            self.resolved = dotdict(OmegaConf.to_container(stored, resolve=True))
+        return self.resolved
+
+    @property
+    def action_space(self) -> gym.spaces.Box:
+        """The env's action space (the actions :meth:`predict` returns)."""
+        if self.env is not None:
+            return self.env.action_space  # type: ignore[return-value]
+        if self._saved_action_space is None:
+            raise ValueError("DreamerV3 has no env and no saved action space: pass env=")
+        return self._saved_action_space
+
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = False,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+        """The action(s) for one observation ``(3 * k, h, w)`` or a batch ``(n, 3 * k, h, w)`` of stacked uint8
+        frames (the newest frame is read), and the player's memory after it, to pass back as ``state`` at the next
+        step (as SB3's recurrent policies do). ``state=None`` starts every env's episode; ``episode_start`` marks
+        the envs whose episode starts at this observation; ``deterministic`` takes the policy's mode."""
+        batch = np.asarray(observation)
+        single = batch.ndim == 3
+        batch = batch[np.newaxis] if single else batch
+        if batch.ndim != 4 or batch.dtype != np.uint8 or batch.shape[1] % FRAME_CHANNELS:
+            raise ValueError(
+                "DreamerV3.predict expects stacked uint8 RGB frames of shape (3 * k, h, w) or (n, 3 * k, h, w), got "
+                f"an array of shape {batch.shape} and dtype {batch.dtype}"
+            )
+        frames = batch[:, -FRAME_CHANNELS:]
+        player = self._acting_player(len(frames), frames.shape[1:])
+        if state is None:
+            player.reset()
+        else:
+            player.set_recurrent_state(state)
+        if episode_start is not None:
+            starts = np.flatnonzero(np.asarray(episode_start, dtype=bool).reshape(-1))
+            if len(starts):
+                player.reset(starts.tolist())
+        actions = player.act(frames, greedy=deterministic)
+        return (actions[0] if single else actions), player.recurrent_state()
+
+    def _acting_player(self, n_envs: int, frame_shape: tuple[int, ...]) -> Player:
+        check_frame_size(frame_shape[1], frame_shape[2])
+        player = self._player
+        if player is None or player.frame_shape != frame_shape:
+            from lightning.fabric import Fabric
+
+            config = self._config()
+            accelerator, devices = fabric_device(self.device)
+            fabric = Fabric(accelerator=accelerator, devices=devices, precision=config.fabric.precision)
+            shape = (FRAME_CHANNELS, int(frame_shape[1]), int(frame_shape[2]))
+            with forked_rng(fabric.device):  # building draws initial weights: predict's samples stay the same
+                player = Player(fabric, config, shape, self.action_space, self._weights(), n_envs)
+            self._player = player
+        if player.player.num_envs != n_envs:
+            player.player.num_envs = n_envs
+            player.reset()
+        return player
+
+    def save(self, path: str | os.PathLike) -> None:
+        """Write the model (settings, sheeprl's configuration, weights and optimiser states; no replay buffer) to
+        one zip file, atomically."""
+        config = self._config()
+        space = self.action_space
+        info = {
+            "algorithm": type(self).__name__,
+            "sheeprl": SHEEPRL_VERSION,
+            "settings": self.settings,
+            "num_timesteps": self.num_timesteps,
+            "action_space": {"low": space.low.tolist(), "high": space.high.tolist(), "dtype": str(space.dtype)},
+        }
+        weights = io.BytesIO()
+        th.save(self._weights(), weights)
+        from omegaconf import OmegaConf
+
+        with atomic_path(path) as temporary, zipfile.ZipFile(temporary, "w") as archive:
+            archive.writestr(_SETTINGS, json.dumps(info, indent=1))
+            archive.writestr(_CONFIG, OmegaConf.to_yaml(OmegaConf.create(dict(config.as_dict()))))
+            archive.writestr(_WEIGHTS, weights.getvalue())
+
+    @classmethod
+    def load(
+        cls,
+        path: str | os.PathLike,
+        env: gym.Env | None = None,
+        device: str = "auto",
+        work_dir: str | os.PathLike | None = None,
+    ) -> DreamerV3:
+        """A model written by :meth:`save`. Without ``env`` it acts (:meth:`predict`); with one,
+        ``learn(n, reset_num_timesteps=False)`` continues it (with a new replay buffer: sheeprl fills it, acting
+        with the loaded policy for ``learning_starts`` steps, before training again)."""
+        from omegaconf import OmegaConf
+        from sheeprl.utils.utils import dotdict
+
+        from sb3_ef.common.files import write_atomically
+
+        info, config, weights = _read_saved(path)
+        if info.get("algorithm") != cls.__name__:
+            raise ValueError(f"{path} was saved by {info.get('algorithm')!r}, not {cls.__name__}")
+        model = cls(env=env, work_dir=work_dir, device=device, **info["settings"])
+        space = info["action_space"]
+        model._saved_action_space = gym.spaces.Box(
+            np.array(space["low"], dtype=space["dtype"]), np.array(space["high"], dtype=space["dtype"])
+        )
+        # A sheeprl run folder (config.yaml beside checkpoint/), from which sheeprl's resume continues
+        step = int(info["num_timesteps"])
+        folder = model.work_dir / "loaded"
+        (folder / "checkpoint").mkdir(parents=True, exist_ok=True)
+        write_atomically(folder / _CONFIG, lambda file: file.write(config))
+        checkpoint = folder / "checkpoint" / f"ckpt_{step}_0.ckpt"
+        write_atomically(checkpoint, lambda file: file.write(weights))
+        model._checkpoint, model._buffer_in_checkpoint, model.num_timesteps = str(checkpoint), False, step
+        model._state = th.load(io.BytesIO(weights), map_location="cpu", weights_only=False)
+        model.resolved = dotdict(OmegaConf.to_container(OmegaConf.create(config.decode()), resolve=True))
+        return model
+
+
+def _read_saved(path: str | os.PathLike) -> tuple[dict[str, Any], bytes, bytes]:
+    """The settings, sheeprl configuration and weights of a file written by :meth:`DreamerV3.save`."""
+    if not Path(path).is_file():
+        raise FileNotFoundError(f"No saved DreamerV3 model at {path}")
+    try:
+        with zipfile.ZipFile(path) as archive:
+            names = set(archive.namelist())
+            if not {_SETTINGS, _CONFIG, _WEIGHTS} <= names or archive.testzip() is not None:
+                raise ValueError(
+                    f"{path} is not a DreamerV3 model: expected the files {[_SETTINGS, _CONFIG, _WEIGHTS]} of "
+                    f"DreamerV3.save(), got {sorted(names)}"
+                )
+            info = json.loads(archive.read(_SETTINGS))
+            return info, archive.read(_CONFIG), archive.read(_WEIGHTS)
+    except (zipfile.BadZipFile, EOFError) as error:
+        raise ValueError(f"{path} is not a DreamerV3 model: not a complete zip archive ({error})") from error

@@ -1,0 +1,65 @@
+"""What Dreamer-v3 sees of an sb3-ef env: the newest RGB frame of its stacked observation.
+
+sb3-ef's envs (``make_env``, the toy env) emit ``(3 * frame_stack, size, size)`` uint8 frames, channels-first,
+oldest first. Dreamer-v3 keeps its own memory (the recurrent state of its world model) and reads one frame per
+step, so :class:`NewestFrame` passes on ``obs[-3:]``: the ``(3, size, size)`` uint8 RGB frame of the current step,
+channels-first, as sheeprl's pixel observations are. Actions, rewards, ``terminated`` / ``truncated`` (time limits)
+and infos pass through unchanged; action repeat is the env's own (``make_env``'s ``action_repeat``).
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from sb3_ef.common.env_checks import FRAME_CHANNELS, check_box_actions, check_stacked_frames
+from sb3_ef.dreamerv3 import live
+
+
+def task_id(env: gym.Env) -> str:
+    """The env's name for sheeprl (its ``env.id``, which a resumed run must share): the gymnasium id, ``/`` as
+    ``-``, or the class name of an env made without ``gym.make``."""
+    name = env.spec.id if env.spec is not None else type(env.unwrapped).__name__
+    return name.replace("/", "-")
+
+
+def check_frame_size(height: int, width: int) -> None:
+    """Dreamer-v3's encoder halves square frames down to 4x4: the size must be a power of 2 (16, 32, 64, ...)."""
+    if height != width or height < 8 or height & (height - 1):
+        raise ValueError(
+            f"DreamerV3 needs square frames whose size is a power of 2 (e.g. make_env(..., size=64)), "
+            f"got {height}x{width}"
+        )
+
+
+class NewestFrame(gym.ObservationWrapper):
+    """The newest RGB frame of an env of stacked frames (see the module docstring).
+
+    :param env: an env whose observations are stacked uint8 RGB frames, channels-first, with Box actions.
+    """
+
+    def __init__(self, env: gym.Env):
+        _, height, width = check_stacked_frames(env.observation_space, "DreamerV3")
+        check_box_actions(env.action_space, "DreamerV3")
+        check_frame_size(height, width)
+        super().__init__(env)
+        self.observation_space = spaces.Box(0, 255, (FRAME_CHANNELS, height, width), np.uint8)
+
+    def observation(self, observation: np.ndarray) -> np.ndarray:
+        return observation[-FRAME_CHANNELS:]
+
+
+class _KeptOpen(gym.Wrapper):
+    """An env whose ``close`` leaves it open: sheeprl closes its envs at the end of training, but the env belongs
+    to the caller (as with SB3, who closes it)."""
+
+    def close(self) -> None:
+        pass
+
+
+def live_env(token: str) -> gym.Env:
+    """Hydra target of sheeprl's ``env.wrapper``: the registered env (:mod:`sb3_ef.dreamerv3.live`), newest frame
+    first, left open by sheeprl."""
+    env = live.lookup(token)
+    return _KeptOpen(NewestFrame(env))

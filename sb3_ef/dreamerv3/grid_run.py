@@ -1,0 +1,112 @@
+"""A ``dreamerv3`` row of ``sb3-ef benchmark``: the run's files and resume rule are those of every other row
+(:mod:`sb3_ef.grid.run`), the training is sheeprl's.
+
+Files below the results folder ``out`` (``<run_id>`` is ``<label>/<task>_s<seed>``)::
+
+    out/<run_id>.csv                        evaluation records, as every row writes them
+    out/<run_id>/checkpoints/               sheeprl's runs (checkpoints, replay buffer) and latest.json
+    out/<run_id>/model.zip                  the final model (DreamerV3.save: no replay buffer)
+    out/<run_id>/result.json                written last: the run is finished
+
+A run that finds ``checkpoints/latest.json`` resumes from the checkpoint it names, after dropping the evaluation
+rows past that checkpoint's step; one that finds none starts again.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import time
+
+from sb3_ef.analysis.records import RECORD_COLUMNS
+from sb3_ef.common.evaluation import EVAL_SEED_OFFSET
+from sb3_ef.grid.grid import RunSpec, constructor_kwargs
+from sb3_ef.grid.run import (
+    RunPaths,
+    RunResult,
+    build_env,
+    read_records,
+    read_result,
+    store_result,
+    truncate_records,
+)
+
+#: The zoo keys the runner sets itself.
+RUNNER_SET = ("work_dir", "seed", "device")
+
+
+def execute_dreamerv3_run(
+    spec: RunSpec,
+    out: str | os.PathLike,
+    threads: int = 1,
+    device: str = "auto",
+    keep_checkpoints: int | None = 2,
+    node: str | None = None,
+) -> RunResult:
+    """Train one ``dreamerv3`` run to ``spec.n_timesteps`` agent steps, evaluating every ``spec.eval_freq`` steps
+    and checkpointing every ``spec.checkpoint_freq``, resuming from its latest checkpoint; the arguments are
+    :func:`sb3_ef.grid.run.execute_run`'s."""
+    import torch as th
+
+    from sb3_ef.dreamerv3 import DreamerV3, Evaluation
+
+    paths = RunPaths.of(out, spec)
+    finished = read_result(paths)
+    if finished is not None:
+        return finished
+    given = sorted(set(RUNNER_SET) & set(spec.hyperparams))
+    if given:
+        raise ValueError(f"{spec.run_id}: {given} are set by the benchmark runner, not by the hyperparameters")
+    th.set_num_threads(threads)
+    start = time.perf_counter()
+    env = build_env(spec, seed=spec.seed)
+    eval_env = build_env(spec, seed=spec.seed + EVAL_SEED_OFFSET)
+    model = DreamerV3.resume(paths.checkpoints, env, device=device)
+    if model is None:
+        paths.records.unlink(missing_ok=True)
+        shutil.rmtree(paths.checkpoints, ignore_errors=True)  # a run killed before its first checkpoint
+        kwargs = constructor_kwargs(dict(spec.hyperparams))
+        model = DreamerV3(env=env, seed=spec.seed, device=device, work_dir=paths.checkpoints, **kwargs)
+        resumed_from: int | None = None
+    else:
+        resumed_from = model.num_timesteps
+        truncate_records(paths.records, resumed_from)
+    evaluation = Evaluation(
+        eval_env,
+        freq=spec.eval_freq,
+        n_episodes=spec.eval_episodes,
+        records=paths.records,
+        algo=DreamerV3.__name__ if spec.label == spec.algo else spec.label,
+        task=spec.task,
+        seed=spec.seed,
+        action_repeat=spec.action_repeat,
+    )
+    remaining = spec.n_timesteps - model.num_timesteps
+    if remaining > 0:
+        print(f"[{spec.run_id}] Training from step {model.num_timesteps} to {spec.n_timesteps}", flush=True)
+        model.learn(
+            remaining,
+            reset_num_timesteps=resumed_from is None,
+            evaluation=evaluation,
+            checkpoint_freq=spec.checkpoint_freq,
+            keep_checkpoints=keep_checkpoints,
+            log_prefix=f"[{spec.run_id}] ",
+        )
+    model.save(paths.model)
+    env.close()
+    eval_env.close()
+    records = read_records(paths.records)
+    result = RunResult(
+        run_id=spec.run_id,
+        status="done",
+        steps=model.num_timesteps,
+        duration_s=time.perf_counter() - start,
+        final_return=records[-1]["return"] if records else None,
+        resumed_from=resumed_from,
+        records=[{key: row[key] for key in RECORD_COLUMNS} for row in records],
+        node=node,
+    )
+    store_result(paths, result)
+    if keep_checkpoints is not None:
+        shutil.rmtree(paths.checkpoints, ignore_errors=True)
+    return result

@@ -1,0 +1,61 @@
+"""Ctrl-C in the offline commands: the work done so far is saved, one line says what was kept, exit status 130.
+
+``collect`` and ``pretrain`` catch ``KeyboardInterrupt`` where they can save their state (the episodes recorded, a
+checkpoint) and raise :class:`Interrupted` with a line that says what was kept; :func:`exit_on_interrupt` turns
+either into that line on stderr and exit status 130 (128 + SIGINT, as shells report it), without a traceback.
+:func:`sigint_deferred` keeps Ctrl-C out of steps that must not be cut (a video encoder's packets, an optimiser
+step).
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+#: The exit status of a command stopped by Ctrl-C (128 + SIGINT).
+INTERRUPTED_STATUS = 130
+
+
+class Interrupted(KeyboardInterrupt):
+    """A ``KeyboardInterrupt`` after the state was saved; its message says what was kept and how to continue."""
+
+
+@contextmanager
+def exit_on_interrupt(command: str) -> Iterator[None]:
+    """Run the block; on Ctrl-C print ``<command>: interrupted[: what was kept]`` and exit with status 130."""
+    try:
+        yield
+    except KeyboardInterrupt as interrupt:
+        detail = f": {interrupt}" if isinstance(interrupt, Interrupted) and str(interrupt) else ""
+        print(f"\n{command}: interrupted{detail}", file=sys.stderr, flush=True)
+        raise SystemExit(INTERRUPTED_STATUS) from None
+
+
+@contextmanager
+def sigint_deferred() -> Iterator[None]:
+    """Run the block to its end even if Ctrl-C comes meanwhile: the SIGINT is held and delivered after the block
+    (as ``KeyboardInterrupt``, or to the handler that was installed). Outside the main thread, where SIGINT is never
+    delivered, the block just runs."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    received: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda number, _frame: received.append(number))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if received:
+            _deliver(previous)
+
+
+def _deliver(handler: Any) -> None:
+    """Hand a held SIGINT to ``handler`` (Python's default raises ``KeyboardInterrupt``; SIG_IGN drops it)."""
+    if handler is signal.default_int_handler or handler in (signal.SIG_DFL, None):
+        raise KeyboardInterrupt
+    if callable(handler):
+        handler(signal.SIGINT, None)
