@@ -18,16 +18,14 @@ import os
 import shutil
 import time
 
-from sb3_ef.analysis.records import RECORD_COLUMNS
 from sb3_ef.common.evaluation import EVAL_SEED_OFFSET
 from sb3_ef.grid.grid import RunSpec, constructor_kwargs
 from sb3_ef.grid.run import (
     RunPaths,
     RunResult,
     build_env,
-    read_records,
+    finish_run,
     read_result,
-    store_result,
     truncate_records,
 )
 
@@ -95,18 +93,4 @@ def execute_dreamerv3_run(
     model.save(paths.model)
     env.close()
     eval_env.close()
-    records = read_records(paths.records)
-    result = RunResult(
-        run_id=spec.run_id,
-        status="done",
-        steps=model.num_timesteps,
-        duration_s=time.perf_counter() - start,
-        final_return=records[-1]["return"] if records else None,
-        resumed_from=resumed_from,
-        records=[{key: row[key] for key in RECORD_COLUMNS} for row in records],
-        node=node,
-    )
-    store_result(paths, result)
-    if keep_checkpoints is not None:
-        shutil.rmtree(paths.checkpoints, ignore_errors=True)
-    return result
+    return finish_run(spec, paths, model.num_timesteps, start, resumed_from, node, keep_checkpoints)

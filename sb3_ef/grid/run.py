@@ -212,11 +212,25 @@ def execute_run(
     model.save(paths.model)  # without the replay buffer (SB3 excludes it)
     env.close()
     eval_env.close()
+    return finish_run(spec, paths, model.num_timesteps, start, resumed_from, node, keep_checkpoints)
+
+
+def finish_run(
+    spec: RunSpec,
+    paths: RunPaths,
+    steps: int,
+    start: float,
+    resumed_from: int | None,
+    node: str | None,
+    keep_checkpoints: int | None,
+) -> RunResult:
+    """Record a run that reached its steps: its result (with its evaluation rows) written last, then its
+    checkpoints removed unless all are kept (``keep_checkpoints=None``)."""
     records = read_records(paths.records)
     result = RunResult(
         run_id=spec.run_id,
         status="done",
-        steps=model.num_timesteps,
+        steps=steps,
         duration_s=time.perf_counter() - start,
         final_return=records[-1]["return"] if records else None,
         resumed_from=resumed_from,
