@@ -9,13 +9,12 @@ model fed the actions of other samples.
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 import torch as th
 from torch import nn
 
 from sb3_ef.ef import EgoForesight
-from sb3_ef.envs.toy import ToyAgentEnv
+from tests.helpers.learning import toy_babbling_windows
 
 HORIZON = 4
 EPISODE = 30
@@ -23,25 +22,8 @@ RED, GREEN = 0, 1
 
 
 def collect_windows(size: int, episodes: int, seed: int) -> dict[str, th.Tensor]:
-    """Babble (random +-1 actions) in the toy world and cut every full EF window out of each episode."""
-    env = ToyAgentEnv(size=size, max_episode_steps=EPISODE)
-    rng = np.random.default_rng(seed)
-    windows: dict[str, list[np.ndarray]] = {key: [] for key in ("obs", "actions", "frames", "agent", "distractor")}
-    for episode in range(episodes):
-        obs, _ = env.reset(seed=seed * 1000 + episode)
-        observations, agent, distractor = [obs], [env.agent_mask()], [env.distractor_mask()]
-        actions = np.where(rng.random((EPISODE, 2)) < 0.5, -1.0, 1.0).astype(np.float32)
-        for action in actions:
-            observations.append(env.step(action)[0])
-            agent.append(env.agent_mask())
-            distractor.append(env.distractor_mask())
-        for t in range(EPISODE - HORIZON + 1):
-            windows["obs"].append(observations[t])
-            windows["actions"].append(actions[t : t + HORIZON])
-            windows["frames"].append(np.stack([o[-3:] for o in observations[t + 1 : t + HORIZON + 1]]))
-            windows["agent"].append(np.stack(agent[t : t + HORIZON + 1]))
-            windows["distractor"].append(np.stack(distractor[t : t + HORIZON + 1]))
-    return {key: th.as_tensor(np.stack(values)) for key, values in windows.items()}
+    """Every full EF window of toy-world babbling episodes (masks of steps t .. t + H)."""
+    return toy_babbling_windows(size, episodes, seed, HORIZON, EPISODE)
 
 
 def make_model(size: int) -> tuple[nn.Module, EgoForesight]:

@@ -17,31 +17,15 @@ from sb3_ef.analysis.saliency import decoder_saliency
 from sb3_ef.ef import EgoForesight
 from sb3_ef.ef.latent import MomentumTarget, draw_other_steps, stacked_observations_at
 from sb3_ef.ef.probe import probe_step
-from sb3_ef.envs.toy import ToyAgentEnv
+from tests.helpers.learning import toy_babbling_windows
 
 HORIZON, EPISODE, SIZE, AGENT_DIM, FEATURES, BATCH = 4, 30, 16, 8, 64, 32
 
 
 def collect(episodes: int, seed: int) -> dict[str, th.Tensor]:
     """Babbling windows: the context, H actions, H future frames, and the agent / distractor masks at t and t+H."""
-    env = ToyAgentEnv(size=SIZE, max_episode_steps=EPISODE)
-    rng = np.random.default_rng(seed)
-    data: dict[str, list] = {"obs": [], "actions": [], "frames": [], "agent": [], "distractor": []}
-    for episode in range(episodes):
-        obs, _ = env.reset(seed=seed * 1000 + episode)
-        observations, agent, distractor = [obs], [env.agent_mask()], [env.distractor_mask()]
-        actions = np.where(rng.random((EPISODE, 2)) < 0.5, -1.0, 1.0).astype(np.float32)
-        for action in actions:
-            observations.append(env.step(action)[0])
-            agent.append(env.agent_mask())
-            distractor.append(env.distractor_mask())
-        for t in range(EPISODE - HORIZON + 1):
-            data["obs"].append(observations[t])
-            data["actions"].append(actions[t : t + HORIZON])
-            data["frames"].append(np.stack([o[-3:] for o in observations[t + 1 : t + HORIZON + 1]]))
-            data["agent"].append(np.stack([agent[t], agent[t + HORIZON]]))
-            data["distractor"].append(np.stack([distractor[t], distractor[t + HORIZON]]))
-    return {key: th.as_tensor(np.stack(values)) for key, values in data.items()}
+    windows = toy_babbling_windows(SIZE, episodes, seed, HORIZON, EPISODE)
+    return {**windows, "agent": windows["agent"][:, [0, -1]], "distractor": windows["distractor"][:, [0, -1]]}
 
 
 def encode(encoder: nn.Module, obs: th.Tensor) -> th.Tensor:
