@@ -76,23 +76,28 @@ def _check_crop(size: int, height: int, width: int, name: str) -> None:
         )
 
 
-def random_crop(*images: th.Tensor, size: int, generator: th.Generator | None = None) -> tuple[th.Tensor, ...]:
+def random_crop(
+    *images: th.Tensor, size: int, generator: th.Generator | None = None, last_offset: bool = True
+) -> tuple[th.Tensor, ...]:
     """Crop a random ``size`` x ``size`` window of each sample (CURL's augmentation: 84x84 windows of 100x100 frames).
 
     The window's corner is uniform over every position that fits (``0 .. height - size`` rows, ``0 .. width - size``
-    columns), drawn per sample. Tensors passed together get the *same* window per sample; call twice for two
+    columns), drawn per sample; ``last_offset=False`` leaves out the last of them (``0 .. height - size - 1``, as
+    CURL's authors draw it). Tensors passed together get the *same* window per sample; call twice for two
     independent crops (CURL's query and key).
 
     :param images: tensors of shape (batch, channels, height, width), all with the same batch, height and width.
     :param size: side of the crop, at most the frame's height and width.
     :param generator: optional torch generator for reproducible crops.
+    :param last_offset: whether the corner may take the last offset that fits.
     :return: the cropped tensors (batch, channels, size, size), in the order given.
     """
     batch, height, width = _check_batch(images, "random_crop")
     _check_crop(size, height, width, "random_crop")
     device = images[0].device
-    top = _draw(0, height - size + 1, (batch, 1), device, generator)
-    left = _draw(0, width - size + 1, (batch, 1), device, generator)
+    end = 1 if last_offset else 0
+    top = _draw(0, max(height - size + end, 1), (batch, 1), device, generator)
+    left = _draw(0, max(width - size + end, 1), (batch, 1), device, generator)
     window = th.arange(size, device=device)[None, :]
     rows, cols = top + window, left + window
     batch_index = th.arange(batch, device=device)[:, None, None]

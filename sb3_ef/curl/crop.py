@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import torch as th
 
+from sb3_ef.common.augmentation import random_crop
+
 
 def check_crop_size(crop_size: object, height: int, width: int, who: str) -> int:
     """``crop_size`` if it is an int in ``[1, min(height, width)]``, else a ``ValueError`` naming both sizes."""
@@ -20,22 +22,14 @@ def random_crops(images: th.Tensor, size: int, generator: th.Generator | None = 
 
     The corner is drawn as the authors' ``random_crop`` draws it (``np.random.randint(0, height - size)``): rows and
     columns in ``0 .. height - size - 1``, so 0..15 for 84 of 100, never the last offset that would fit; frames as
-    large as the crop are returned whole (the authors' draw is undefined there). The corners are drawn on the
-    generator's device (the model's generator lives on the CPU) and the windows gathered on the images' device.
+    large as the crop are returned whole (the authors' draw is undefined there). The windows are
+    :func:`~sb3_ef.common.augmentation.random_crop`'s without its last offset.
     """
     if images.dim() != 4:
         raise ValueError(f"CURL crops (batch, channels, height, width) frames, got shape {tuple(images.shape)}")
-    batch, _, height, width = images.shape
+    _, _, height, width = images.shape
     check_crop_size(size, height, width, "CURL")
     if (height, width) == (size, size):
         return images
-    draw_device = generator.device if generator is not None else images.device
-    corners = [
-        th.randint(0, max(extent - size, 1), (batch, 1), device=draw_device, generator=generator).to(images.device)
-        for extent in (height, width)
-    ]
-    window = th.arange(size, device=images.device)[None, :]
-    rows, cols = corners[0] + window, corners[1] + window
-    batch_index = th.arange(batch, device=images.device)[:, None, None]
-    # (batch, size, size, channels) after indexing the spatial axes, then channels-first again.
-    return images.permute(0, 2, 3, 1)[batch_index, rows[:, :, None], cols[:, None, :]].permute(0, 3, 1, 2).contiguous()
+    (cropped,) = random_crop(images, size=size, generator=generator, last_offset=False)
+    return cropped
