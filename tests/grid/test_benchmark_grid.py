@@ -143,9 +143,12 @@ def test_paper_grid_covers_the_papers_tasks_at_its_budgets_with_expected_hours(t
         by_algorithm.setdefault(run.label, set()).add(run.task)
     dmc = {f"dmc/{task}-v0" for task in DMC_PAPER_TASKS}
     metaworld = {f"metaworld/{task}-v0" for task in METAWORLD_PAPER_TASKS}
+    suite = ("ball-in-cup-catch", "cartpole-swingup", "cheetah-run", "finger-spin", "reacher-easy", "walker-walk")
+    distracting = {f"dmc-distracting/{task}-v0" for task in suite}
     assert by_algorithm == {
-        "drqv2": dmc | metaworld,
-        "drqv2_ef": dmc | metaworld,
+        "drqv2": dmc | metaworld | distracting,
+        "drqv2_ef": dmc | metaworld | distracting,
+        "drqv2_ef_latent": distracting,
         "tdmpc2": dmc,
         "tdmpc2_ef": dmc,
         "sear": dmc | metaworld,
@@ -154,9 +157,10 @@ def test_paper_grid_covers_the_papers_tasks_at_its_budgets_with_expected_hours(t
     }
     assert {run.seed for run in runs} == set(range(5))
     for run in runs:
+        on_dmc = run.task.startswith(("dmc/", "dmc-distracting/"))
         frames = run.n_timesteps * run.action_repeat
-        assert frames == (1_000_000 if run.task.startswith("dmc/") else 2_500_000), run.run_id
-        assert run.eval_freq * run.action_repeat == (10_000 if run.task.startswith("dmc/") else 5_000)
+        assert frames == (1_000_000 if on_dmc else 2_500_000), run.run_id
+        assert run.eval_freq * run.action_repeat == (10_000 if on_dmc else 5_000)
         assert run.eval_episodes == 10 and run.steps_per_second is not None
     # The dry-run table sums n_timesteps / steps_per_second over the runs.
     expected = sum(run.n_timesteps / run.steps_per_second for run in runs) / 3600
