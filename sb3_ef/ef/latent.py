@@ -224,8 +224,16 @@ class MomentumTarget(nn.Module):
         return self.projection(self.features(observations))
 
     @th.no_grad()
+    def copy_from(self, encoder: nn.Module, projection: nn.Module) -> None:
+        """Set the copies to the online ``encoder`` and ``projection`` (after their weights were loaded)."""
+        self._move(encoder, projection, 1.0)
+
+    @th.no_grad()
     def update(self, encoder: nn.Module, projection: nn.Module) -> None:
         """Move the copies towards the online ``encoder`` and ``projection`` (the modules they were copied from)."""
+        self._move(encoder, projection, self.tau)
+
+    def _move(self, encoder: nn.Module, projection: nn.Module, tau: float) -> None:
         for online, copied, names, what in (
             (encoder, self.encoder, self._encoder_names, "encoder"),
             (projection, self.projection, self._projection_names, "projection"),
@@ -236,7 +244,7 @@ class MomentumTarget(nn.Module):
                     f"The target {what} was copied from a module with parameters {names[:3]}..., got one with "
                     f"{list(parameters)[:3]}...: pass the host's {what} the target was built from"
                 )
-            polyak_update([parameters[n] for n in names], [copied.get_buffer(n) for n in names], self.tau)
+            polyak_update([parameters[n] for n in names], [copied.get_buffer(n) for n in names], tau)
         buffers = dict(encoder.named_buffers())
         for name in self._encoder_buffers:
             self.encoder.get_buffer(name).copy_(buffers[name])

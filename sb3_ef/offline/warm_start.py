@@ -45,7 +45,8 @@ def load_ef(model: Any, pretrained: str | os.PathLike | OfflineEF) -> Any:
     The pretrained model must have been trained with the host's encoder (``--encoder drqv2`` for DrQv2EF,
     ``tdmpc2`` for TDMPC2EF) with its settings (``features_dim``, ``num_channels``), ``context`` equal to the
     agent's frame stack, the same frame size and action size, and an EF built like the agent's (``agent_dim``,
-    ``ef_kwargs``). Only weights move; the optimisers, critic, actor and world-model heads stay as they were.
+    ``ef_kwargs``). Only weights move; the optimisers, critic, actor and world-model heads stay as they were. Latent
+    EF's momentum target is set to the copied encoder and projection.
 
     :param model: a DrQv2EF or TDMPC2EF (``model.policy`` holds the networks).
     :param pretrained: a ``model.pt`` / ``checkpoint.pt`` written by ``pretrain``, or an :class:`OfflineEF`.
@@ -77,4 +78,7 @@ def load_ef(model: Any, pretrained: str | os.PathLike | OfflineEF) -> Any:
     with th.no_grad():
         encoder.load_state_dict(pretrained_net.state_dict())
         model.ef.load_state_dict(source.ef.state_dict())
+    target = model.auxiliary.target_encoder
+    if target is not None:  # latent EF: its momentum target restarts from the warm-started encoder and projection
+        target.copy_from(encoder, model.ef.head.projection)
     return model

@@ -46,6 +46,21 @@ def test_drqv2_ef_starts_from_a_pretrain_run_with_exactly_its_weights(tmp_path):
     assert all(th.equal(v, critic_before[k]) for k, v in model.policy.critic.state_dict().items())
 
 
+def test_latent_ef_target_restarts_from_the_warm_started_encoder(tmp_path):
+    """Latent EF's momentum target holds the copied encoder and projection, not the random ones it was built from."""
+    latent = {**EF_KWARGS, "target": "latent"}
+    episodes = [square_episode(steps=14, size=32, seed=seed) for seed in range(3)]
+    tiny_pretrain(episodes, tmp_path, ef_kwargs=latent)
+    policy_kwargs = {"net_arch": [16], "trunk_dim": 8, "features_dim": 64, "agent_dim": 8, "ef_kwargs": latent}
+    model = DrQv2EF("CnnPolicy", ToyAgentEnv(size=32), buffer_size=200, policy_kwargs=policy_kwargs, babbling_steps=0)
+    target = model.auxiliary.target_encoder
+    built_with = {key: value.clone() for key, value in target.encoder.state_dict().items()}
+    load_ef(model, tmp_path / MODEL)
+    assert any(not th.equal(value, built_with[key]) for key, value in model.policy.encoder.state_dict().items())
+    assert_same_weights(model.policy.encoder, target.encoder)
+    assert_same_weights(model.ef.head.projection, target.projection)
+
+
 def test_tdmpc2_ef_takes_the_world_model_encoder_and_ef():
     source = OfflineEF(OfflineEFConfig("tdmpc2", (3, 64, 64), 2, 3, 5, 16, {"num_channels": 4}, EF_KWARGS))
     with th.no_grad():
