@@ -32,6 +32,10 @@ prediction of a hand-made figure-eight trajectory from a context with the hammer
 the predicted frames in three rows).
 
     MUJOCO_GL=egl OMP_NUM_THREADS=1 python benchmarks/disentanglement.py body-schema --seeds 0 1 2 --out DIR
+
+``--target latent`` trains latent EF instead (``ef_kwargs=dict(target="latent")``): its errors and saliency are
+those of the probe decoder that ``pretrain`` trains beside it on detached features (docs/ef.md), so they say what
+the features hold, not what a decoder trained end to end would draw.
 """
 
 from __future__ import annotations
@@ -247,7 +251,11 @@ def run_experiment(experiment: str, seed: int, args: argparse.Namespace) -> dict
             holdout=0,
             checkpoint_every=max(1, args.updates // 4),
             encoder_kwargs={"features_dim": args.features_dim},
-            ef_kwargs={"decoder_channels": args.decoder_channels, "rollout_hidden_dims": (256, 256)},
+            ef_kwargs={
+                "decoder_channels": args.decoder_channels,
+                "rollout_hidden_dims": (256, 256),
+                "target": args.target,
+            },
             seed=seed,
             progress_bar=False,
             tensorboard=False,
@@ -388,6 +396,12 @@ def add_body_schema_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--agent-dim", type=int, default=32)
     parser.add_argument("--decoder-channels", type=int, default=32)
     parser.add_argument("--lr", type=float, default=1e-3)
+    parser.add_argument(
+        "--target",
+        choices=["pixel", "latent"],
+        default="pixel",
+        help="EF's target: the future frame, or its features (scored through the probe decoder, trained alongside)",
+    )
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--out", default="benchmarks/body_schema")
     parser.add_argument("--figure-eight-steps", type=int, default=30, help="held-tool probe, figures/figure8_s*.png")
