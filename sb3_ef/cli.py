@@ -7,7 +7,8 @@ training options with sb3-ef's and ``sb3-ef analyze --help`` the analysis ones. 
 the command's heavy imports (torch, rl-zoo3), so a mistyped option is reported at once. A user error (bad argument,
 missing file, missing package or rendering backend) is printed as one line, ``sb3-ef <command>: error: ...``, with
 exit status 2; set ``SB3_EF_TRACEBACK=1`` to see the traceback instead. Ctrl-C that reaches this level (a command
-stops and saves its work itself where it can) is one line too, ``sb3-ef <command>: interrupted``, exit status 130.
+stops and saves its work itself where it can) is one line too, ``sb3-ef <command>: interrupted[: what was kept]``,
+exit status 130 (``sb3_ef.common.interrupt``).
 """
 
 from __future__ import annotations
@@ -19,12 +20,11 @@ import sys
 from collections.abc import Sequence
 from typing import NamedTuple
 
+from sb3_ef.common.interrupt import INTERRUPTED_STATUS, interrupted_line
 from sb3_ef.envs.backend import RenderingBackendError
 
 #: Exceptions that report a mistake in the command line or the installation, not a bug.
 USER_ERRORS = (ValueError, OSError, ImportError, RenderingBackendError)
-#: Exit status after Ctrl-C (128 + SIGINT), as shells report it.
-INTERRUPTED = 130
 
 
 def _function(target: str):
@@ -110,11 +110,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         message = " ".join(str(error).split()) or type(error).__name__
         print(f"sb3-ef {argv[0]}: error: {message}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as interrupt:
         if os.environ.get("SB3_EF_TRACEBACK") == "1":
             raise
-        print(f"sb3-ef {argv[0]}: interrupted", file=sys.stderr)
-        return INTERRUPTED
+        # on a line of its own, after a progress bar's
+        print(f"\n{interrupted_line(f'sb3-ef {argv[0]}', interrupt)}", file=sys.stderr, flush=True)
+        return INTERRUPTED_STATUS
 
 
 if __name__ == "__main__":

@@ -9,17 +9,14 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import sys
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
+from sb3_ef.common.interrupt import Interrupted
 from sb3_ef.grid.grid import BACKENDS
 
 if TYPE_CHECKING:
     from sb3_ef.grid.grid import RunSpec
-
-#: Exit status after Ctrl-C (128 + SIGINT), as shells report it.
-INTERRUPTED = 130
 
 
 def at_least(minimum: int | float, kind: Callable[[str], int | float] = int) -> Callable[[str], int | float]:
@@ -71,7 +68,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``sb3-ef benchmark``; returns 1 when a run failed, 130 after Ctrl-C, else 0."""
+    """Entry point of ``sb3-ef benchmark``; returns 1 when a run failed, else 0. Ctrl-C raises
+    :class:`~sb3_ef.common.interrupt.Interrupted` saying what was kept."""
     args = build_parser().parse_args(argv)
     from sb3_ef.grid.grid import load_grid, read_grid_file
 
@@ -81,12 +79,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return _run(args, load_grid(args.grid))
     except KeyboardInterrupt:
-        print(
-            f"sb3-ef benchmark: interrupted: finished runs are kept in {args.out}; rerun the same command to skip "
-            "them and resume the others from their last checkpoint",
-            file=sys.stderr,
-        )
-        return INTERRUPTED
+        raise Interrupted(
+            f"finished runs are kept in {args.out}; rerun the same command to skip them and resume the others from "
+            "their last checkpoint"
+        ) from None
 
 
 def _run(args: argparse.Namespace, runs: list[RunSpec]) -> int:

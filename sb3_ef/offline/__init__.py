@@ -46,7 +46,7 @@ _PUBLIC = {
     "predict_frames": "sb3_ef.offline.predict",
     "predict_episode": "sb3_ef.offline.predict",
     "load_ef": "sb3_ef.offline.warm_start",
-    "Interrupted": "sb3_ef.offline.interrupt",
+    "Interrupted": "sb3_ef.common.interrupt",
 }
 
 __all__ = list(_PUBLIC)

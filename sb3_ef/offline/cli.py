@@ -13,8 +13,6 @@ import os
 from collections.abc import Callable
 from typing import Any, TypeVar
 
-from sb3_ef.offline.interrupt import exit_on_interrupt
-
 N = TypeVar("N", int, float)
 
 
@@ -79,22 +77,21 @@ def collect_main(argv: list[str] | None = None) -> int:
     args = collect_parser().parse_args(argv)
     from sb3_ef.offline.collect import collect
 
-    with exit_on_interrupt("sb3-ef collect"):
-        paths = collect(
-            args.env,
-            args.out,
-            episodes=args.episodes,
-            size=args.size,
-            action_repeat=args.action_repeat,
-            mode=args.mode,
-            policy=args.policy,
-            algo=args.algo,
-            seed=args.seed,
-            fast_render=not args.slow_render,
-            masks=not args.no_masks,
-            file_format=args.format,
-            progress_bar=not args.no_progress,
-        )
+    paths = collect(
+        args.env,
+        args.out,
+        episodes=args.episodes,
+        size=args.size,
+        action_repeat=args.action_repeat,
+        mode=args.mode,
+        policy=args.policy,
+        algo=args.algo,
+        seed=args.seed,
+        fast_render=not args.slow_render,
+        masks=not args.no_masks,
+        file_format=args.format,
+        progress_bar=not args.no_progress,
+    )
     if args.format == "lerobot":
         with open(os.path.join(args.out, "meta", "info.json")) as file:
             count = json.load(file)["total_episodes"]
@@ -192,8 +189,7 @@ def pretrain_main(argv: list[str] | None = None) -> int:
     holdout = args.holdout if args.holdout < 1 else int(args.holdout)
     options = reader_options(args)
     dataset = open_dataset(args.dataset, args.context + args.horizon, **options) if options else args.dataset
-    with exit_on_interrupt("sb3-ef pretrain"):
-        _, scores = _pretrain(pretrain, dataset, args, holdout)
+    _, scores = _pretrain(pretrain, dataset, args, holdout)
     print(json.dumps({key: value for key, value in scores.items() if not isinstance(value, list)}, indent=2))
     return 0
 

@@ -20,6 +20,7 @@ import numpy as np
 
 from sb3_ef.common.env_checks import FRAME_CHANNELS
 from sb3_ef.common.files import write_text_atomically
+from sb3_ef.common.interrupt import Interrupted, sigint_deferred
 from sb3_ef.ef.babbling import babble, check_babbling
 from sb3_ef.offline.episodes import (
     HDF5_SUFFIXES,
@@ -30,7 +31,6 @@ from sb3_ef.offline.episodes import (
     read_episode_file,
     write_episode,
 )
-from sb3_ef.offline.interrupt import Interrupted, sigint_deferred
 from sb3_ef.offline.progress import make_progress_bar
 
 #: ``collect``'s file formats: one ``.npz`` / ``.h5`` file per episode, or a LeRobot v3.0 dataset folder.
@@ -123,7 +123,7 @@ def collect(
     A rerun into the same folder (with the same settings) keeps what is there and records the rest: intact
     NPZ / HDF5 episodes are kept (a damaged one is recorded again, with a warning), a LeRobot dataset is continued.
     Ctrl-C keeps the finished episodes (a LeRobot dataset of them) and raises
-    :class:`~sb3_ef.offline.interrupt.Interrupted`.
+    :class:`~sb3_ef.common.interrupt.Interrupted`.
 
     :param env_name: ``dmc/<domain>-<task>``, ``metaworld/<task>`` or another registered sb3-ef env (``toy/agent-v0``).
     :param mode: babbling mode when no ``policy`` is given (``"sign"`` as in the paper, or ``"clamped_uniform"``).

@@ -21,9 +21,9 @@ from typing import Any
 import numpy as np
 
 from sb3_ef.common.files import atomic_path, temporary_path, write_text_atomically
+from sb3_ef.common.interrupt import sigint_deferred
 from sb3_ef.offline import lerobot_stats
 from sb3_ef.offline.episodes import Episode
-from sb3_ef.offline.interrupt import sigint_deferred
 from sb3_ef.offline.lerobot_format import (
     INFO,
     MASK_KEY,

@@ -4,7 +4,7 @@ experiment: held-out episodes, TensorBoard scalars and image grids, resumable ch
 Files are written whole or not at all (:mod:`sb3_ef.common.files`). A resumed run must have the model
 configuration and the training settings (learning rate, batch size, shift, held-out split) of the checkpoint it
 continues; Ctrl-C saves a checkpoint at the last finished update and raises
-:class:`~sb3_ef.offline.interrupt.Interrupted`.
+:class:`~sb3_ef.common.interrupt.Interrupted`.
 """
 
 from __future__ import annotations
@@ -21,11 +21,11 @@ import torch as th
 from sb3_ef.analysis.prediction import frame_grid, to_uint8_frames
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.files import write_atomically, write_text_atomically
+from sb3_ef.common.interrupt import Interrupted, sigint_deferred
 from sb3_ef.ef.latent import latent_window_losses
 from sb3_ef.offline.dataset import EpisodeDataset
 from sb3_ef.offline.episodes import Episode, EpisodeError
 from sb3_ef.offline.evaluate import evaluate, predict_windows
-from sb3_ef.offline.interrupt import Interrupted, sigint_deferred
 from sb3_ef.offline.model import OfflineEF, OfflineEFConfig, load_pretrained, read_checkpoint
 from sb3_ef.offline.progress import make_progress_bar
 from sb3_ef.offline.readers import open_dataset

@@ -79,5 +79,5 @@ def test_ctrl_c_at_the_top_level_is_one_line(capsys, monkeypatch):
 
     monkeypatch.delenv("SB3_EF_TRACEBACK", raising=False)
     monkeypatch.setattr("sb3_ef.upgrade.main", interrupted)
-    assert cli.main(["upgrade", "old.zip", "new.zip"]) == cli.INTERRUPTED == 130
-    assert capsys.readouterr().err == "sb3-ef upgrade: interrupted\n"
+    assert cli.main(["upgrade", "old.zip", "new.zip"]) == cli.INTERRUPTED_STATUS == 130
+    assert capsys.readouterr().err == "\nsb3-ef upgrade: interrupted\n"

@@ -1,16 +1,15 @@
-"""Ctrl-C in the offline commands: the work done so far is saved, one line says what was kept, exit status 130.
+"""Ctrl-C: the work done so far is saved, one line says what was kept, exit status 130.
 
-``collect`` and ``pretrain`` catch ``KeyboardInterrupt`` where they can save their state (the episodes recorded, a
-checkpoint) and raise :class:`Interrupted` with a line that says what was kept; :func:`exit_on_interrupt` turns
-either into that line on stderr and exit status 130 (128 + SIGINT, as shells report it), without a traceback.
-:func:`sigint_deferred` keeps Ctrl-C out of steps that must not be cut (a video encoder's packets, an optimiser
-step).
+A command that can save its state on Ctrl-C (``collect``'s episodes, ``pretrain``'s checkpoint, ``benchmark``'s
+finished runs) catches ``KeyboardInterrupt`` there and raises :class:`Interrupted` with a line that says what was
+kept; the ``sb3-ef`` console script prints ``sb3-ef <command>: interrupted[: what was kept]`` on stderr and exits
+with :data:`INTERRUPTED_STATUS` (128 + SIGINT, as shells report it), without a traceback. :func:`sigint_deferred`
+keeps Ctrl-C out of steps that must not be cut (a video encoder's packets, an optimiser step).
 """
 
 from __future__ import annotations
 
 import signal
-import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -24,15 +23,10 @@ class Interrupted(KeyboardInterrupt):
     """A ``KeyboardInterrupt`` after the state was saved; its message says what was kept and how to continue."""
 
 
-@contextmanager
-def exit_on_interrupt(command: str) -> Iterator[None]:
-    """Run the block; on Ctrl-C print ``<command>: interrupted[: what was kept]`` and exit with status 130."""
-    try:
-        yield
-    except KeyboardInterrupt as interrupt:
-        detail = f": {interrupt}" if isinstance(interrupt, Interrupted) and str(interrupt) else ""
-        print(f"\n{command}: interrupted{detail}", file=sys.stderr, flush=True)
-        raise SystemExit(INTERRUPTED_STATUS) from None
+def interrupted_line(command: str, interrupt: KeyboardInterrupt) -> str:
+    """``<command>: interrupted``, then ``: <what was kept>`` if ``interrupt`` is an :class:`Interrupted` saying it."""
+    detail = f": {interrupt}" if isinstance(interrupt, Interrupted) and str(interrupt) else ""
+    return f"{command}: interrupted{detail}"
 
 
 @contextmanager
