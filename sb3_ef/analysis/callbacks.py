@@ -11,6 +11,8 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_ef.analysis.prediction import ForesightModel
 from sb3_ef.analysis.report import foresight_report, record_rollout
+from sb3_ef.common.acting import EpisodeActor
+from sb3_ef.ef.probe import fit_probe
 
 _NOT_TEXT = ("stdout", "log", "json", "csv")
 
@@ -40,6 +42,9 @@ class ForesightLoggerCallback(BaseCallback):
     :param seed: reset seed, so every log starts from the same state (None: a fresh state each time).
     :param threshold_rule, num_std, fraction: passed to :func:`~sb3_ef.analysis.masks.threshold_saliency`.
     :param patch_size: saliency patch size in pixels.
+    :param probe_steps: latent EF (``ef_kwargs=dict(target="latent")``) decodes through its probe decoder: before
+        each log it is fitted this many more steps on the replay buffer (:func:`~sb3_ef.ef.probe.fit_probe`, which
+        leaves what training draws as it was).
     """
 
     def __init__(
@@ -53,6 +58,7 @@ class ForesightLoggerCallback(BaseCallback):
         num_std: float = 1.0,
         fraction: float = 0.1,
         patch_size: int = 4,
+        probe_steps: int = 200,
         verbose: int = 0,
     ):
         super().__init__(verbose=verbose)
@@ -60,8 +66,12 @@ class ForesightLoggerCallback(BaseCallback):
             raise TypeError(
                 f"Expected a single gymnasium.Env (e.g. sb3_ef.make_env(...)), got {type(eval_env).__name__}"
             )
-        if log_freq < 1 or (steps is not None and steps < 1):
-            raise ValueError(f"log_freq and steps must be >= 1, got log_freq={log_freq}, steps={steps}")
+        if log_freq < 1 or (steps is not None and steps < 1) or probe_steps < 1:
+            raise ValueError(
+                f"log_freq, steps and probe_steps must be >= 1, got log_freq={log_freq}, steps={steps}, "
+                f"probe_steps={probe_steps}"
+            )
+        self.probe_steps = probe_steps
         self.eval_env, self.log_freq, self.steps, self.seed = eval_env, log_freq, steps, seed
         self.deterministic, self.patch_size = deterministic, patch_size
         self.threshold_kwargs = _ThresholdKwargs(threshold_rule=threshold_rule, num_std=num_std, fraction=fraction)
@@ -84,9 +94,12 @@ class ForesightLoggerCallback(BaseCallback):
     def log_foresight(self) -> dict[str, float]:
         """Play, predict, compute saliency, log images and scores now; return the logged scalars."""
         model = cast(ForesightModel, self.model)  # the EF contract, checked in _init_callback
+        if model.ef.target == "latent":
+            fit_probe(self.model, steps=self.probe_steps, seed=self.n_calls)
+        actor = EpisodeActor(self.model, self.deterministic)
         rollout = record_rollout(
             self.eval_env,
-            lambda observation, _: self.model.predict(observation, deterministic=self.deterministic)[0],
+            lambda observation, _: actor(observation),
             steps=self.steps or model.ef.horizon,
             seed=self.seed,
         )

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 import gymnasium as gym
 import numpy as np
 
+from sb3_ef.common.acting import EpisodeActor
 from sb3_ef.common.files import write_text_atomically
 
 if TYPE_CHECKING:
@@ -231,7 +232,8 @@ def analyze_model(
         sequence = figure_eight_actions(steps, model.action_space.shape[0])
         act = lambda _observation, step: sequence[step]  # noqa: E731
     else:
-        act = lambda observation, _step: model.predict(observation, deterministic=True)[0]  # noqa: E731
+        actor = EpisodeActor(model)
+        act = lambda observation, _step: actor(observation)  # noqa: E731
     try:
         report = foresight_report(model, record_rollout(env, act, steps, seed=seed))
     finally:

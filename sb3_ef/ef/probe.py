@@ -15,6 +15,7 @@ from typing import Any
 import torch as th
 
 from sb3_ef.common.augmentation import random_shift
+from sb3_ef.common.buffers import SequenceReplayBuffer
 from sb3_ef.ef.foresight import EgoForesight
 
 
@@ -58,9 +59,10 @@ def fit_probe(
     """Train the probe decoder of ``model.ef`` (latent EF) on windows of its replay buffer; returns the losses.
 
     The encoder's features (``model.encode``, in eval mode) and the rollout are computed without gradient, and only
-    the decoder's parameters move (its own Adam): the model's weights, optimisers and random streams are left as they
-    were. k and the shifts are drawn from a generator seeded by ``seed``; the buffer's sampling draws from NumPy's
-    global generator, as SB3's buffers do.
+    the decoder's parameters move (its own Adam): the model's weights, optimisers and random streams, and the
+    batches its buffer hands to training, are left as they were. The windows (through the buffer's
+    :meth:`~sb3_ef.common.buffers.SequenceReplayBuffer.side_sampler`), k and the shifts are drawn from generators
+    seeded by ``seed``; the frames are the stored ones (no host augmentation; ``pad`` adds a random shift).
 
     :param model: an EF host built with ``ef_kwargs=dict(target="latent")`` (``model.ef``, ``model.encode``,
         ``model.replay_buffer``), after training.
@@ -78,8 +80,14 @@ def fit_probe(
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise ValueError(f"{name} must be a positive int, got {value!r}")
     buffer = replay_buffer if replay_buffer is not None else getattr(model, "replay_buffer", None)
-    if buffer is None or not hasattr(buffer, "size") or buffer.size() == 0:
-        raise ValueError("fit_probe samples a replay buffer with transitions: train the model first or pass one")
+    if not isinstance(buffer, SequenceReplayBuffer):
+        raise ValueError(
+            f"fit_probe samples EF windows from a SequenceReplayBuffer, got {type(buffer).__name__}: train the "
+            "model first or pass one as replay_buffer"
+        )
+    if buffer.size() == 0:
+        raise ValueError("fit_probe samples a replay buffer with transitions, got an empty one: train the model first")
+    sampler = buffer.side_sampler(seed)
     optimizer = th.optim.Adam(ef.decoder.parameters(), lr=learning_rate)
     generator = th.Generator(device=buffer.device).manual_seed(seed)
     policy = getattr(model, "policy", None)
@@ -90,7 +98,7 @@ def fit_probe(
     losses = []
     try:
         for _ in range(steps):
-            batch = buffer.sample(batch_size)
+            batch = sampler.sample(batch_size, buffer.device, None)
             k = ef.draw_steps(batch.future_mask, generator=generator)
             rows = th.arange(k.shape[0], device=k.device)
             context, frame = random_shift(

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_ef.common.acting import EpisodeActor
 from sb3_ef.common.env_checks import FRAME_CHANNELS
 from sb3_ef.common.files import write_text_atomically
 from sb3_ef.common.interrupt import Interrupted, sigint_deferred
@@ -79,11 +80,12 @@ class _Recorder:
 
         self.seed, self.mode = settings["seed"], settings["mode"]
         self.rng = np.random.default_rng(self.seed)
-        size, frame_stack, self.model = settings["size"], 1, None
+        size, frame_stack, self.actor = settings["size"], 1, None
         if settings["policy"] is not None:
-            self.model = load_ef_model(settings["policy"], settings["algo"])
-            size = self.model.frame_shape[-1]
-            frame_stack = self.model.observation_space.shape[0] // FRAME_CHANNELS
+            model = load_ef_model(settings["policy"], settings["algo"])
+            size = model.frame_shape[-1]
+            frame_stack = model.observation_space.shape[0] // FRAME_CHANNELS
+            self.actor = EpisodeActor(model)
         self.env = _make_env(
             settings["env_name"], size, frame_stack, settings["action_repeat"], settings["fast_render"], **env_kwargs
         )
@@ -91,12 +93,14 @@ class _Recorder:
         self.action_dim = int(np.prod(self.env.action_space.shape))
 
     def _act(self, observation: np.ndarray) -> np.ndarray:
-        if self.model is not None:
-            return self.model.predict(observation, deterministic=True)[0]
+        if self.actor is not None:
+            return self.actor(observation)
         return babble(self.rng, self.env.action_space.shape, self.mode)
 
     def episode(self, index: int, source: str, masks: bool) -> Episode:
         self.rng = np.random.default_rng([self.seed, index])
+        if self.actor is not None:
+            self.actor.reset()
         return record_episode(self.env, self._act, seed=self.seed + index, source=source, masks=masks)
 
 

@@ -1,5 +1,6 @@
 import numpy as np
 import pytest
+import torch as th
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.logger import configure
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
@@ -75,3 +76,30 @@ def test_callback_during_training_of_both_hosts(tmp_path, algorithm):
     assert [event.step for event in accumulator.Images("foresight/saliency")] == [4, 8]
     precision = [event.value for event in accumulator.Scalars("foresight/mask_precision")]
     assert len(precision) == 2 and all(np.isnan(value) or 0 <= value <= 1 for value in precision)
+
+
+def test_latent_ef_is_drawn_through_its_probe_and_training_draws_as_without_the_callback(tmp_path):
+    from test_analysis_cli import TINY_DRQV2
+
+    from sb3_ef import DrQv2EF
+    from sb3_ef.envs.toy import ToyAgentEnv
+
+    def trained(callback):
+        policy_kwargs = {**TINY_DRQV2, "ef_kwargs": {**TINY_DRQV2.get("ef_kwargs", {}), "target": "latent"}}
+        model = DrQv2EF(
+            "CnnPolicy", ToyAgentEnv(size=32), buffer_size=100, batch_size=4, learning_starts=6, ef_horizon=3,
+            babbling_steps=0, policy_kwargs=policy_kwargs, seed=0, device="cpu", tensorboard_log=str(tmp_path),
+        )  # fmt: skip
+        model.learn(8, callback=callback)
+        return model
+
+    logged = trained(ForesightLoggerCallback(ToyAgentEnv(size=32), log_freq=4, steps=4, probe_steps=3))
+    plain = trained(None)
+    assert int(logged.ef.probe_steps) == 6 and int(plain.ef.probe_steps) == 0
+    accumulator = EventAccumulator(str(sorted(tmp_path.iterdir())[0])).Reload()  # the logged run's
+    assert [event.step for event in accumulator.Images("foresight/saliency")] == [4, 8]
+    state, plain_state = logged.policy.state_dict(), plain.policy.state_dict()
+    rest = [key for key in state if "decoder" not in key and not key.endswith("probe_steps")]
+    assert len(rest) < len(state)
+    for key in rest:  # everything but the probe trained as without the callback
+        assert th.equal(state[key], plain_state[key]), key

@@ -244,6 +244,22 @@ def test_pickle_round_trip(tmp_path, use_memmap):
     check_against_reference(loaded, streams)
 
 
+@pytest.mark.parametrize("prefetch", [False, True])
+def test_a_side_sampler_draws_its_own_batches_and_leaves_the_buffers_stream(prefetch):
+    buffer = make_buffer(2, 3, 20, n_steps=2, gamma=GAMMA, horizon=3, prefetch=prefetch)
+    streams = Streams(2, 3, 6, "distinct", True, seed=3)
+    for _ in range(30):
+        streams.step(buffer)
+    buffer.sample(8)  # with prefetch, the next batch is now pending
+    twin = pickle.loads(pickle.dumps(buffer, protocol=pickle.HIGHEST_PROTOCOL))
+    side = buffer.side_sampler(seed=1)
+    first, again = side.sample(64, buffer.device, None), buffer.side_sampler(seed=1).sample(64, buffer.device, None)
+    np.testing.assert_array_equal(first.observations.numpy(), again.observations.numpy())  # seeded
+    for _ in range(3):
+        side.sample(16, buffer.device, None)
+    assert_same_samples(twin, buffer)  # the buffer's own stream draws what it would have drawn
+
+
 def assert_same_samples(first: SequenceReplayBuffer, second: SequenceReplayBuffer) -> None:
     """Both buffers draw from generators in the same state (a pickle carries the generator's state)."""
     expected = first.sample(64)

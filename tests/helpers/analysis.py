@@ -17,6 +17,7 @@ class FakeForesight(nn.Module):
     def __init__(self, feature_dim: int = 12, action_dim: int = 2, agent_dim: int = 4, size: int = SIZE):
         super().__init__()
         self.agent_dim, self.action_dim, self.size, self.horizon = agent_dim, action_dim, size, 3
+        self.target = "pixel"  # it decodes frames, as pixel EF
         self.dynamics = nn.Linear(agent_dim + action_dim, agent_dim)
         self.agent_pixels = nn.Linear(agent_dim, 3 * REGION * REGION)
         self.scene_pixels = nn.Linear(feature_dim - agent_dim, 3 * size * size)

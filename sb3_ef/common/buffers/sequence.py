@@ -288,6 +288,15 @@ class SequenceReplayBuffer(ReplayBuffer):
             raise ValueError("SequenceReplayBuffer expects uint8 images that are not normalised (norm_obs=False)")
         return self._sampler.sample(batch_size, self.device, env)
 
+    def side_sampler(self, seed: int) -> BatchSampler:
+        """A sampler of this buffer's transitions with a generator of its own, seeded by ``seed``, and no prefetch:
+        batches read through it (``side_sampler(seed).sample(batch_size, buffer.device, None)``, e.g. to fit a
+        probe) leave the batches training draws from :meth:`sample` as they were."""
+        sampler = self._sampler
+        return BatchSampler(
+            self._storage, self._rings, self.n_steps, self.gamma, self.horizon, sampler.mask_size, False, seed
+        )
+
     # ------------------------------------------------------- SB3's array layout
     def _sb3_rows(self) -> np.ndarray:
         key = (self._rings.version, self.pos)
