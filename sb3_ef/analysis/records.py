@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import csv
+import io
 import os
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
+
+from sb3_ef.common.files import write_text_atomically
 
 RECORD_COLUMNS = ("algo", "task", "seed", "step", "frame", "return", "success")
 #: The file a finished run writes into the folder named like its CSV (``run.csv`` -> ``run/result.json``), as
@@ -35,14 +38,29 @@ def record_row(
     }
 
 
+def _check_rows(rows: list[dict[str, object]]) -> None:
+    for row in rows:
+        if set(row) != set(RECORD_COLUMNS):
+            raise ValueError(f"Expected record columns {RECORD_COLUMNS}, got {tuple(row)}")
+
+
+def write_records(path: str | os.PathLike, rows: list[dict[str, object]]) -> None:
+    """Write an evaluation CSV of ``rows`` whole, replacing ``path`` only once it is complete."""
+    _check_rows(rows)
+    text = io.StringIO(newline="")
+    writer = csv.DictWriter(text, fieldnames=RECORD_COLUMNS)
+    writer.writeheader()
+    writer.writerows(rows)
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    write_text_atomically(path, text.getvalue())
+
+
 def append_records(path: str | os.PathLike, rows: list[dict[str, object]]) -> None:
     """Append rows to an evaluation CSV, writing the header only when the file is new or empty.
 
     An existing file with a different header is refused, never overwritten.
     """
-    for row in rows:
-        if set(row) != set(RECORD_COLUMNS):
-            raise ValueError(f"Expected record columns {RECORD_COLUMNS}, got {tuple(row)}")
+    _check_rows(rows)
     path = os.fspath(path)
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     new_file = not os.path.exists(path) or os.path.getsize(path) == 0

@@ -24,8 +24,9 @@ from typing import TYPE_CHECKING, Any, TypedDict
 
 import gymnasium as gym
 
-from sb3_ef.analysis.records import RECORD_COLUMNS, RUN_RESULT_FILE, EvalRecorderCallback, append_records
+from sb3_ef.analysis.records import RECORD_COLUMNS, RUN_RESULT_FILE, EvalRecorderCallback, write_records
 from sb3_ef.common.evaluation import EVAL_SEED_OFFSET, StepSeededEvalCallback
+from sb3_ef.common.files import write_text_atomically
 from sb3_ef.grid.grid import MAKE_ENV_SUITES, RunSpec, constructor_kwargs
 
 if TYPE_CHECKING:
@@ -88,11 +89,9 @@ def store_result(paths: RunPaths, result: RunResult) -> None:
     if paths.result.is_file():
         return
     if not paths.records.is_file():
-        append_records(paths.records, result.records)
+        write_records(paths.records, result.records)
     paths.folder.mkdir(parents=True, exist_ok=True)
-    temporary = paths.result.with_suffix(".tmp")
-    temporary.write_text(json.dumps(asdict(result), indent=1))
-    temporary.replace(paths.result)  # atomic: a result file is always complete
+    write_text_atomically(paths.result, json.dumps(asdict(result), indent=1))
 
 
 def read_records(path: Path) -> list[dict[str, Any]]:
@@ -107,11 +106,14 @@ def read_records(path: Path) -> list[dict[str, Any]]:
 
 
 def truncate_records(path: Path, last_step: int) -> None:
-    """Keep only the evaluation rows up to ``last_step`` (those a resumed run will not repeat)."""
-    kept = [row for row in read_records(path) if row["step"] <= last_step]
-    path.unlink(missing_ok=True)
-    if kept:
-        append_records(path, kept)
+    """Keep only the evaluation rows up to ``last_step`` (those a resumed run will not repeat); the file is
+    replaced whole, so a kill leaves the old rows or the kept ones."""
+    rows = read_records(path)
+    kept = [row for row in rows if row["step"] <= last_step]
+    if not kept:
+        path.unlink(missing_ok=True)
+    elif len(kept) < len(rows):
+        write_records(path, kept)
 
 
 def build_env(spec: RunSpec, seed: int) -> gym.Env:
