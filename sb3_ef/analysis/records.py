@@ -5,6 +5,8 @@ from __future__ import annotations
 import csv
 import io
 import os
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
@@ -53,6 +55,28 @@ def write_records(path: str | os.PathLike, rows: list[dict[str, object]]) -> Non
     writer.writerows(rows)
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     write_text_atomically(path, text.getvalue())
+
+
+def read_records(path: str | os.PathLike) -> list[dict[str, Any]]:
+    """The rows of an evaluation CSV (empty if it does not exist), with step, frame and return parsed."""
+    if not os.path.isfile(path):
+        return []
+    with open(path, newline="") as file:
+        rows = list(csv.DictReader(file))
+    return [
+        {**row, "step": int(row["step"]), "frame": int(row["frame"]), "return": float(row["return"])} for row in rows
+    ]
+
+
+def truncate_records(path: str | os.PathLike, last_step: int) -> None:
+    """Keep only the evaluation rows up to ``last_step`` (those a resumed run will not repeat); the file is replaced
+    whole, so a kill leaves the old rows or the kept ones (no row kept: the file is removed)."""
+    rows = read_records(path)
+    kept = [row for row in rows if row["step"] <= last_step]
+    if not kept:
+        Path(path).unlink(missing_ok=True)
+    elif len(kept) < len(rows):
+        write_records(path, kept)
 
 
 def append_records(path: str | os.PathLike, rows: list[dict[str, object]]) -> None:

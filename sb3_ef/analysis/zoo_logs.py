@@ -119,8 +119,9 @@ def _evaluations(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]
     return timesteps, results, successes
 
 
-def zoo_run_records(run_folder: str | os.PathLike) -> pd.DataFrame:
-    """The evaluation records of one rl-zoo3 run folder ``<logs>/<algo>/<env>_<n>/`` (see the module docstring)."""
+def zoo_run_records(run_folder: str | os.PathLike, action_repeat: int | None = None) -> pd.DataFrame:
+    """The evaluation records of one rl-zoo3 run folder ``<logs>/<algo>/<env>_<n>/`` (see the module docstring);
+    ``action_repeat`` replaces the run's recorded one."""
     pandas = require("pandas")
     from sb3_ef.analysis.records import RECORD_COLUMNS, record_row
 
@@ -132,7 +133,7 @@ def zoo_run_records(run_folder: str | os.PathLike) -> pd.DataFrame:
     args = recorded_args(run_folder)
     task = str(args.get("env") or env_id_of_folder(match["env"]))
     seed = args.get("seed", int(match["run"]))
-    repeat = action_repeat_of(task, recorded_env_kwargs(run_folder))
+    repeat = action_repeat_of(task, recorded_env_kwargs(run_folder)) if action_repeat is None else action_repeat
     algo = algorithm_name(run_folder.parent.name)
     rows = [
         record_row(algo, task, seed, int(step), repeat, float(np.mean(returns)),

@@ -13,7 +13,6 @@ dropped first, so the records never hold an evaluation twice.
 
 from __future__ import annotations
 
-import csv
 import json
 import os
 import shutil
@@ -24,7 +23,14 @@ from typing import TYPE_CHECKING, Any, TypedDict
 
 import gymnasium as gym
 
-from sb3_ef.analysis.records import RECORD_COLUMNS, RUN_RESULT_FILE, EvalRecorderCallback, write_records
+from sb3_ef.analysis.records import (
+    RECORD_COLUMNS,
+    RUN_RESULT_FILE,
+    EvalRecorderCallback,
+    read_records,
+    truncate_records,
+    write_records,
+)
 from sb3_ef.common.evaluation import EVAL_SEED_OFFSET, StepSeededEvalCallback
 from sb3_ef.common.files import write_text_atomically
 from sb3_ef.grid.grid import MAKE_ENV_SUITES, RunSpec, constructor_kwargs
@@ -92,28 +98,6 @@ def store_result(paths: RunPaths, result: RunResult) -> None:
         write_records(paths.records, result.records)
     paths.folder.mkdir(parents=True, exist_ok=True)
     write_text_atomically(paths.result, json.dumps(asdict(result), indent=1))
-
-
-def read_records(path: Path) -> list[dict[str, Any]]:
-    """The rows of an evaluation CSV (empty if it does not exist), with numbers parsed."""
-    if not path.is_file():
-        return []
-    with open(path, newline="") as file:
-        rows = list(csv.DictReader(file))
-    return [
-        {**row, "step": int(row["step"]), "frame": int(row["frame"]), "return": float(row["return"])} for row in rows
-    ]
-
-
-def truncate_records(path: Path, last_step: int) -> None:
-    """Keep only the evaluation rows up to ``last_step`` (those a resumed run will not repeat); the file is
-    replaced whole, so a kill leaves the old rows or the kept ones."""
-    rows = read_records(path)
-    kept = [row for row in rows if row["step"] <= last_step]
-    if not kept:
-        path.unlink(missing_ok=True)
-    elif len(kept) < len(rows):
-        write_records(path, kept)
 
 
 def build_env(spec: RunSpec, seed: int) -> gym.Env:

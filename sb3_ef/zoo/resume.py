@@ -44,11 +44,11 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback, ProgressBarCallback
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_ef.analysis.records import EvalRecorderCallback
+from sb3_ef.analysis.records import EvalRecorderCallback, truncate_records
 from sb3_ef.common.checkpoints import Checkpoint, ResumableCheckpointCallback, checkpoint_for, load_checkpoint
 from sb3_ef.common.evaluation import StepSeededEvalCallback
 from sb3_ef.zoo.progress import ProgressLogCallback
-from sb3_ef.zoo.records import finish_run, run_records_path, run_result_path, truncate_run_records
+from sb3_ef.zoo.records import finish_run, run_records_path, run_result_path
 
 #: File in ``<run>/<env>/`` holding the sb3-ef train arguments of the run (read by ``--resume``).
 ARGV_FILE = "train_argv.json"
@@ -170,7 +170,7 @@ class ResumingExperimentManager(ExperimentManager):
         path = run_records_path(self.save_path, self.env_name)
         if self.continues_folder:
             assert self.checkpoint is not None
-            truncate_run_records(path, self.checkpoint.step)
+            truncate_records(path, self.checkpoint.step)
             run_result_path(self.save_path, self.env_name).unlink(missing_ok=True)
         repeat = eval_env.get_attr("action_repeat")[0] if eval_env.has_attr("action_repeat") else 1
         algo = ALGOS[self.algo].__name__  # the class name, as every record writer names an algorithm

@@ -15,10 +15,11 @@ from pathlib import Path
 import pytest
 import yaml
 
+from sb3_ef.analysis.records import read_records
 from sb3_ef.cli import main as sb3_ef_main
 from sb3_ef.dreamerv3.callbacks import read_latest
 from sb3_ef.grid import grid_runs, load_grid, run_benchmark
-from sb3_ef.grid.run import RunPaths, execute_run, read_records
+from sb3_ef.grid.run import RunPaths, execute_run
 
 TINY_GRID = Path(__file__).parent / "tiny_grid.yml"
 REPO = Path(__file__).parents[2]

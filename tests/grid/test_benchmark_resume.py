@@ -5,8 +5,9 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
+from sb3_ef.analysis.records import read_records
 from sb3_ef.grid import load_grid
-from sb3_ef.grid.run import RunPaths, execute_run, read_records
+from sb3_ef.grid.run import RunPaths, execute_run
 
 TINY_GRID = Path(__file__).parent / "tiny_grid.yml"
 

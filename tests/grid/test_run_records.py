@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from sb3_ef.analysis.records import append_records, record_row
-from sb3_ef.grid.run import read_records, truncate_records
+from sb3_ef.analysis.records import append_records, read_records, record_row, truncate_records
 
 
 def rows(steps):
