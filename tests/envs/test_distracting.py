@@ -157,6 +157,33 @@ def test_static_background_shows_one_frame_and_dynamic_plays_back_and_forth(davi
         dynamic.close()
 
 
+def test_fast_render_draws_the_sky_at_four_texels_per_pixel_and_otherwise_at_the_models_size(davis_dir):
+    fast = distracting(davis_dir, "background")
+    full = make_env(f"dmc-distracting/{TASK}", size=SIZE, background_dir=davis_dir, distraction="background", seed=0)
+    try:
+        for env, side in ((fast, 4 * SIZE), (full, 800)):  # 800: DMC's skybox face
+            play(env, 1)
+            model = env.unwrapped.mujoco_state[0]
+            assert model.tex_width[0] == model.tex_height[0] == side
+            shown_frame(video_textures(davis_dir, env), sky(env))  # a frame of the videos, at that size
+    finally:
+        fast.close()
+        full.close()
+
+
+def test_the_smaller_sky_draws_the_frames_the_full_size_one_does(davis_dir, monkeypatch):
+    small = distracting(davis_dir, "background", dynamic=True)
+    monkeypatch.setattr("sb3_ef.envs.distracting.env.FAST_TEXELS_PER_PIXEL", 100)  # capped: the model's 800
+    large = distracting(davis_dir, "background", dynamic=True)
+    try:
+        assert large.unwrapped.mujoco_state[0].tex_width[0] == 800
+        difference = np.abs(play(small, 3)[0].astype(int) - play(large, 3)[0].astype(int))
+        assert difference.mean() < 1.0  # of 255: texture sampling only
+    finally:
+        small.close()
+        large.close()
+
+
 def test_color_stays_in_the_difficulty_range_and_drifts_only_when_dynamic(davis_dir):
     plain = make_env(f"dmc/{TASK}", size=SIZE)
     original = plain.unwrapped.mujoco_state[0].mat_rgba.copy()

@@ -25,15 +25,27 @@ class BackgroundDistraction:
     :param videos: folders of JPEG frames (:func:`~sb3_ef.envs.distracting.davis.video_folders`).
     :param dynamic: play the video (True) or show one still frame per episode (False).
     :param ground_alpha: alpha of the floor.
+    :param texture_side: side of the sky's face in texels, at most the model's own (800 in DMC); ``None``: the
+        model's. A smaller face costs less to upload at every frame of a playing video.
     """
 
-    def __init__(self, model: mujoco.MjModel, videos: tuple[Path, ...], dynamic: bool, ground_alpha: float) -> None:
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        videos: tuple[Path, ...],
+        dynamic: bool,
+        ground_alpha: float,
+        texture_side: int | None = None,
+    ) -> None:
         self._texture = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TEXTURE, "skybox")
         self._ground = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_MATERIAL, "grid")
         if self._texture < 0 or self._ground < 0:
             raise ValueError("The background distraction needs the 'skybox' texture and 'grid' material of DMC models")
         self.videos, self.dynamic, self.ground_alpha = videos, dynamic, ground_alpha
         self._side = int(model.tex_width[self._texture])
+        if texture_side is not None:
+            self._side = min(self._side, texture_side)
+        model.tex_width[self._texture] = self._side
         model.tex_height[self._texture] = self._side  # one square face, shown on all six
         self._start = int(model.tex_adr[self._texture])
         self._frames = np.zeros((0, self._side * self._side * 3), np.uint8)

@@ -31,6 +31,9 @@ from sb3_ef.envs.distracting.settings import (
 from sb3_ef.envs.dmc import DMCPixelEnv
 from sb3_ef.envs.tasks import DISTRACTING_TASKS
 
+#: With ``fast_render``, the background's texture face has this many texels per frame pixel (capped at the model's).
+FAST_TEXELS_PER_PIXEL = 4
+
 
 class Distraction(Protocol):
     """What the env calls on each distraction: at every reset, then after every simulator step."""
@@ -103,7 +106,10 @@ class DistractingDMCPixelEnv(DMCPixelEnv):
         self._active: list[Distraction] = []
         try:
             if videos is not None:
-                self._background = BackgroundDistraction(model, videos, self.dynamic, GROUND_PLANE_ALPHA[domain])
+                side = FAST_TEXELS_PER_PIXEL * size if fast_render else None
+                self._background = BackgroundDistraction(
+                    model, videos, self.dynamic, GROUND_PLANE_ALPHA[domain], texture_side=side
+                )
                 self._active.append(self._background)
             if "camera" in self.distractions:
                 self._active.append(CameraDistraction(model, self.camera, camera_settings(domain, difficulty, dynamic)))
