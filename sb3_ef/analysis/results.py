@@ -48,7 +48,8 @@ class ResultTables:
 
 
 def _aggregate(records: pd.DataFrame, return_scale: float, reps: int, at: tuple[int, ...]) -> ResultTables:
-    """Scores, ENS (over the tasks every algorithm has), rliable metrics (with even seed counts) and ``returns_at``."""
+    """Scores, ENS and rliable metrics (both over the tasks every algorithm has; rliable with even seed counts there)
+    and ``returns_at``."""
     from sb3_ef.analysis.metrics import (
         efficiency_normalized_score,
         ens_table,
@@ -62,24 +63,26 @@ def _aggregate(records: pd.DataFrame, return_scale: float, reps: int, at: tuple[
     scores = records_to_scores(records, return_scale=return_scale)
     result = ResultTables(scores, {"scores.csv": (scores, False)})
     shared = tasks_with_every_algorithm(scores)
+    compared = scores[scores["task"].isin(shared)]
+    left_out = sorted(set(scores["task"]) - set(shared))
+    if left_out and shared:
+        result.lines.append(
+            f"ENS and rliable over {shared} only; left out, without results of every algorithm: {left_out}"
+        )
     if scores["algo"].nunique() < 2:
         result.lines.append("ENS compares algorithms: skipped with a single algorithm")
     elif not shared:
-        result.lines.append("ENS skipped: no task has results of every algorithm")
+        result.lines.append("ENS and rliable skipped: no task has results of every algorithm")
     else:
-        left_out = sorted(set(scores["task"]) - set(shared))
-        if left_out:
-            result.lines.append(f"ENS over {shared} only; left out, without results of every algorithm: {left_out}")
-        ens_scores = scores[scores["task"].isin(shared)]
-        result.tables["ens_details.csv"] = (ens_table(ens_scores), False)
-        result.ens = efficiency_normalized_score(ens_scores)
+        result.tables["ens_details.csv"] = (ens_table(compared), False)
+        result.ens = efficiency_normalized_score(compared)
         result.tables["ens.csv"] = (result.ens, True)
         result.lines.append(result.ens.to_string())
-    uneven = uneven_seed_counts(scores)
+    uneven = uneven_seed_counts(compared)
     if uneven:
         result.lines.append(f"rliable metrics skipped: they need as many seeds on every task, seeds per task: {uneven}")
-    else:
-        result.rliable = rliable_metrics(scores, reps=reps)
+    elif shared:
+        result.rliable = rliable_metrics(compared, reps=reps)
         result.tables["rliable.csv"] = (result.rliable, False)
         result.lines.append(result.rliable.to_string(index=False))
     if at:
@@ -121,9 +124,9 @@ def analyze_results(
     last step all seeds reached) against the official mean and min-max, with warnings where the units look wrong.
 
     The arguments are checked, the records read and checked and every table computed before ``out`` is created,
-    so bad input writes nothing. A grid part-way through is analysed as far as it allows: ENS over the tasks that
-    every algorithm has results on, rliable metrics only when each algorithm has as many seeds on every task; what
-    is left out is printed.
+    so bad input writes nothing. A grid part-way through, or one whose algorithms ran on different tasks, is
+    analysed as far as it allows: ENS and rliable metrics over the tasks that every algorithm has results on,
+    rliable only when each algorithm has as many seeds on each of those tasks; what is left out is printed.
     """
     from sb3_ef.analysis.metrics import load_records
     from sb3_ef.analysis.plots import plot_ens, plot_intervals, plot_learning_curves, plot_reference_curves

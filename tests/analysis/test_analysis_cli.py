@@ -67,8 +67,23 @@ def test_results_of_a_grid_part_way_through_are_analysed_as_far_as_they_go(tmp_p
     printed = capsys.readouterr().out
     assert "left out, without results of every algorithm: ['dmc/walker-walk']" in printed
     assert set(pd.read_csv(out / "ens_details.csv")["task"]) == {"dmc/reacher-easy", "dmc/cartpole-swingup"}
-    assert "rliable metrics skipped" in printed and "'dmc/walker-walk': 0" in printed
-    assert not (out / "rliable.csv").exists() and (out / "curve_dmc_walker-walk.png").exists()
+    assert (out / "curve_dmc_walker-walk.png").exists()
+    assert "ENS and rliable over ['dmc/cartpole-swingup', 'dmc/reacher-easy'] only" in printed
+    # rliable over the two shared tasks: DrQv2's single walker-walk run (best 0.05) is not among the scores
+    drqv2_iqm = pd.read_csv(out / "rliable.csv").query("algo == 'DrQv2' and metric == 'IQM'")["estimate"].item()
+    assert 0.3 <= drqv2_iqm <= 0.31  # best scores 0.3-0.31 on both shared tasks (slope 1, 300 steps)
+
+
+def test_results_skip_rliable_when_seed_counts_differ_between_shared_tasks(tmp_path, capsys):
+    write_results(tmp_path / "runs")
+    rows = [{"algo": algo, "task": "dmc/walker-walk", "seed": 0, "step": 100, "frame": 200, "return": 50.0,
+             "success": ""} for algo in ("DrQv2", "DrQv2EF")]  # fmt: skip
+    append_records(tmp_path / "runs" / "walker.csv", rows)  # both algorithms, one seed where the others have two
+    out = tmp_path / "out"
+    assert main(["results", str(tmp_path / "runs"), "--out", str(out), "--reps", "20"]) == 0
+    printed = capsys.readouterr().out
+    assert "rliable metrics skipped" in printed and "'dmc/walker-walk': 1" in printed
+    assert not (out / "rliable.csv").exists() and (out / "ens.csv").exists()
 
 
 def test_results_of_finished_runs_only_leave_runs_in_progress_out(tmp_path, capsys):
