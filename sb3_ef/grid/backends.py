@@ -24,7 +24,7 @@ from multiprocessing import get_context
 from typing import Any
 
 from sb3_ef.grid.grid import RunSpec
-from sb3_ef.grid.local_worker import call_in_worker, set_up_worker
+from sb3_ef.grid.local_worker import call_in_worker, set_up_worker, sigint_held_for_workers
 from sb3_ef.grid.run import RunOptions, RunPaths, RunResult, execute_run, store_result
 
 Event = tuple[str, RunSpec, Any]
@@ -78,7 +78,8 @@ class LocalBackend:
                 while queue and len(running) < self.workers:
                     spec = queue.popleft()
                     task = functools.partial(execute_run, spec, self.out, **self.run_kwargs)
-                    running[pool.submit(call_in_worker, task)] = spec
+                    with sigint_held_for_workers():  # the pool starts its workers, and its manager thread, here
+                        running[pool.submit(call_in_worker, task)] = spec
                     yield "start", spec, None
                 done, _ = wait(running, return_when=FIRST_COMPLETED)
                 broken = False

@@ -3,16 +3,19 @@ no worker left, the run's checkpoint kept, and the next invocation resumes from 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
 import sys
 import time
 from collections.abc import Callable
+from multiprocessing import get_context
 from pathlib import Path
 
 import pytest
 
+from sb3_ef.grid.local_worker import set_up_worker, sigint_held_for_workers
 from tests.grid.test_benchmark_orphans import alive, children, wait_for
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads processes from /proc")
@@ -62,6 +65,21 @@ def _interrupt_when(process: subprocess.Popen, ready: Callable[[str], bool]) -> 
 def test_ctrl_c_as_a_run_starts_is_one_line_and_a_prompt_exit(tmp_path):
     """Ctrl-C while the run's worker starts (importing torch, building the run); the slow test stops one training."""
     _interrupt_when(_benchmark(tmp_path / "out"), lambda output: "] start " in output)
+
+
+@pytest.mark.parametrize("held", [True, False])
+def test_a_ctrl_c_while_a_worker_starts_python_waits_for_its_set_up(held):
+    """The race a loaded machine shows: SIGINT before the worker's initializer. Held, it is discarded there."""
+    process = get_context("spawn").Process(target=set_up_worker, args=(os.getpid(),))
+    with sigint_held_for_workers() if held else contextlib.nullcontext():
+        process.start()
+    assert process.pid is not None
+    os.kill(process.pid, signal.SIGINT)  # at once: the worker is still starting Python
+    process.join(60)
+    if held:
+        assert process.exitcode == 0
+    else:  # killed by SIGINT, or a KeyboardInterrupt traceback from its start-up
+        assert process.exitcode in (1, -signal.SIGINT)
 
 
 @pytest.mark.slow
