@@ -1,10 +1,7 @@
-"""One episode of robot video with actions, the checks every reader applies, and the folder format's files (one
-``.npz`` or ``.h5`` file per episode), read and written.
+"""One episode of robot video with actions, its checks, and the folder format (one ``.npz`` / ``.h5`` file each).
 
-The episode contract: ``frames`` uint8 (T + 1, 3, H, W), channels-first, frame ``t`` is what the camera saw before
-action ``t``; ``actions`` float32 (T, action_dim); ``masks`` optional bool (T + 1, H, W), the agent's pixels in each
-frame. Readers also accept T frames for T actions (the convention of BAIR's files: the last action has no frame
-after it) and then drop the last action.
+An episode: ``frames`` uint8 (T + 1, 3, H, W), frame ``t`` seen before action ``t``; ``actions`` float32 (T, A);
+``masks`` optional bool (T + 1, H, W), the agent's pixels. T frames for T actions (BAIR's files) drop the last action.
 """
 
 from __future__ import annotations
@@ -19,7 +16,6 @@ import numpy as np
 from sb3_ef.common.env_checks import FRAME_CHANNELS
 from sb3_ef.common.files import atomic_path
 
-#: File suffixes of the folder format.
 NPZ_SUFFIXES = (".npz",)
 HDF5_SUFFIXES = (".h5", ".hdf5")
 
@@ -54,12 +50,8 @@ class Episode:
 def make_episode(
     frames: np.ndarray, actions: np.ndarray, masks: np.ndarray | None = None, source: str = "", min_frames: int = 2
 ) -> Episode:
-    """Check one episode's arrays and return it as an :class:`Episode`.
-
-    :param source: where it comes from (file and episode), quoted in every error.
-    :param min_frames: the fewest frames accepted (context + horizon for training).
-    :raises EpisodeError: naming ``source``, what was expected and what was received.
-    """
+    """Check one episode's arrays and return it as an :class:`Episode`; an ``EpisodeError`` names ``source`` (file
+    and episode), what was expected and what was received. ``min_frames``: context + horizon for training."""
     frames, actions = np.asarray(frames), np.asarray(actions)
     if frames.dtype != np.uint8:
         raise EpisodeError(f"{source}: expected uint8 frames (0-255), got dtype {frames.dtype}")
@@ -73,10 +65,7 @@ def make_episode(
         raise EpisodeError(
             f"{source}: expected T + 1 (or T) frames for T actions, got {len(frames)} frames and {len(actions)} actions"
         )
-    if len(frames) < min_frames:
-        raise EpisodeError(
-            f"{source}: episode of {len(frames)} frames is shorter than context + horizon = {min_frames} frames"
-        )
+    check_length(len(frames), min_frames, source)
     if masks is not None:
         masks = np.asarray(masks)
         if masks.dtype != bool and not np.isin(masks, (0, 1)).all():
@@ -89,9 +78,15 @@ def make_episode(
     return Episode(np.ascontiguousarray(frames), actions.astype(np.float32), masks, source)
 
 
+def check_length(frames: int, min_frames: int, source: str) -> None:
+    if frames < min_frames:
+        raise EpisodeError(
+            f"{source}: episode of {frames} frames is shorter than context + horizon = {min_frames} frames"
+        )
+
+
 def write_episode(path: str | os.PathLike, episode: Episode) -> str:
-    """Write one episode in the folder format: ``.npz`` (compressed) or ``.h5`` / ``.hdf5`` by suffix, whole or not
-    at all (a temporary file renamed once complete: a full disk or Ctrl-C leaves no cut file)."""
+    """Write one episode as ``.npz`` (compressed) or ``.h5`` / ``.hdf5`` by suffix, whole or not at all."""
     path = os.fspath(path)
     if not path.endswith(NPZ_SUFFIXES + HDF5_SUFFIXES):
         raise ValueError(f"Expected a path ending in .npz, .h5 or .hdf5, got {path!r}")
@@ -134,8 +129,6 @@ def read_episode_file(path: str | os.PathLike, source: str | None = None, min_fr
 
 
 def _read_npz(path: str, source: str) -> dict[str, np.ndarray]:
-    """The arrays of an ``.npz`` episode; a damaged file, a single ``.npy`` array or a file holding Python objects is
-    an ``EpisodeError``."""
     try:
         with open(path, "rb") as handle:
             archive = np.load(handle, allow_pickle=False)

@@ -1,23 +1,20 @@
 """Training windows from datasets larger than memory: episodes indexed on open, decoded on demand into a bounded pool.
 
-:class:`StreamingWindowSampler` keeps a pool of decoded episodes, as many as fit in ``cache_mb``, and draws every
-batch uniformly over the windows of the pool (as :class:`~sb3_ef.offline.windows.WindowSampler` does over all
-episodes). Before each batch it swaps ``swap`` pool episodes for episodes drawn from the whole dataset in proportion
-to their window counts, so every window is drawn at the same long-run rate while only the pool is in memory; a
-window's neighbours in a batch are more often from the same episode than under fully uniform draws (the price of
-the bound, like a shuffle buffer). When the whole dataset fits, the pool is the dataset and the draws are exactly
-those of ``WindowSampler``. :class:`WindowStream` runs samplers in ``DataLoader`` worker processes.
+:class:`StreamingWindowSampler` draws each batch uniformly over the windows of a pool of decoded episodes (as many
+as fit in ``cache_mb``) and first swaps ``swap`` of them for episodes drawn in proportion to their window counts, so
+every window keeps the same long-run rate; when the dataset fits, the draws are exactly ``WindowSampler``'s.
 """
 
 from __future__ import annotations
 
 from collections.abc import Generator, Iterator, Sequence
+from typing import Any
 
 import numpy as np
 import torch as th
 
 from sb3_ef.offline.dataset import EpisodeDataset
-from sb3_ef.offline.episodes import Episode, EpisodeError
+from sb3_ef.offline.episodes import Episode, check_length
 from sb3_ef.offline.windows import Windows, WindowSampler, window_starts
 
 
@@ -33,11 +30,7 @@ class EpisodeList(EpisodeDataset):
 
     def _read(self, index: int) -> Episode:
         episode = self.episodes[index]
-        if len(episode.frames) < self.min_frames:
-            raise EpisodeError(
-                f"{episode.source}: episode of {len(episode.frames)} frames is shorter than context + horizon = "
-                f"{self.min_frames} frames"
-            )
+        check_length(len(episode.frames), self.min_frames, episode.source)
         return episode
 
     def lengths(self) -> list[int]:
@@ -79,13 +72,11 @@ class StreamingWindowSampler:
         per_frame = episode_bytes(self.first) / len(self.first.frames)
         self.pool_size = max(1, min(len(self.indices), int(cache_mb * 2**20 // (per_frame * np.mean(lengths)))))
         self.streaming = self.pool_size < len(self.indices)
+        pool: Any = range(len(self.indices))
         if self.streaming:
-            first_pool = np.random.default_rng(seed).choice(
-                len(self.indices), self.pool_size, replace=False, p=self.counts / self.counts.sum()
-            )
-        else:
-            first_pool = np.arange(len(self.indices))
-        self.pool = [int(i) for i in first_pool]
+            share = self.counts / self.counts.sum()
+            pool = np.random.default_rng(seed).choice(len(self.indices), self.pool_size, replace=False, p=share)
+        self.pool = [int(i) for i in pool]
         self.sampler = WindowSampler([self._load(i) for i in self.pool], context, horizon, seed)
         self.loaded = len(self.pool)
 
@@ -100,16 +91,15 @@ class StreamingWindowSampler:
 
     def _swap(self) -> None:
         """Replace a random pool episode by one outside the pool, drawn in proportion to its windows."""
-        rng, sampler = self.sampler.rng, self.sampler
+        sampler = self.sampler
         weights = self.counts.astype(float)
         weights[self.pool] = 0
         if weights.sum() == 0:
             return
-        incoming = int(rng.choice(len(self.indices), p=weights / weights.sum()))
-        slot = int(rng.integers(len(self.pool)))
-        episode = self._load(incoming)
-        self.pool[slot] = incoming
-        sampler.episodes[slot] = episode
+        incoming = int(sampler.rng.choice(len(self.indices), p=weights / weights.sum()))
+        slot = int(sampler.rng.integers(len(self.pool)))
+        self.pool[slot], sampler.episodes[slot] = incoming, self._load(incoming)
+        episode = sampler.episodes[slot]
         sampler.starts[slot] = window_starts(episode, self.context, self.horizon)
         sampler.counts[slot] = len(sampler.starts[slot])
         self.loaded += 1
@@ -120,42 +110,24 @@ class StreamingWindowSampler:
 
 
 class WindowStream(th.utils.data.IterableDataset):
-    """Endless batches of windows for a ``DataLoader(stream, batch_size=None, num_workers=n)``: each worker runs
-    its own :class:`StreamingWindowSampler` (seeded ``seed + worker id``, with ``cache_mb / n`` of memory)."""
+    """Endless batches for ``DataLoader(stream, batch_size=None, num_workers=workers)``: each worker samples with its
+    own :class:`StreamingWindowSampler` (``sampler`` its arguments), seeded ``seed + worker id``, with ``cache_mb /
+    workers`` of memory."""
 
-    def __init__(
-        self,
-        dataset: EpisodeDataset,
-        indices: Sequence[int],
-        lengths: Sequence[int],
-        context: int,
-        horizon: int,
-        batch_size: int,
-        cache_mb: float,
-        workers: int,
-        seed: int = 0,
-    ):
+    def __init__(self, batch_size: int, workers: int, **sampler: Any):
         super().__init__()
-        self.arguments = (dataset, list(indices), context, horizon)
-        self.lengths, self.batch_size, self.cache_mb, self.workers, self.seed = (
-            lengths,
-            batch_size,
-            cache_mb,
-            workers,
-            seed,
-        )
+        self.batch_size, self.workers, self.sampler = batch_size, workers, sampler
 
     def __iter__(self) -> Iterator[Windows]:
         info = th.utils.data.get_worker_info()
-        worker = info.id if info is not None else 0
-        sampler = StreamingWindowSampler(
-            *self.arguments,
-            cache_mb=self.cache_mb / max(self.workers, 1),
-            seed=self.seed + worker,
-            lengths=self.lengths,
-        )
-        while True:
-            yield sampler.sample(self.batch_size)
+        arguments = dict(self.sampler, cache_mb=self.sampler["cache_mb"] / max(self.workers, 1))
+        arguments["seed"] += info.id if info is not None else 0
+        return _endless(StreamingWindowSampler(**arguments), self.batch_size)
+
+
+def _endless(sampler: StreamingWindowSampler, batch_size: int) -> Iterator[Windows]:
+    while True:
+        yield sampler.sample(batch_size)
 
 
 def window_batches(
@@ -170,10 +142,9 @@ def window_batches(
     seed: int = 0,
 ) -> Generator[Windows, None, None]:
     """Endless window batches from ``dataset``: in this process, or decoded in ``workers`` worker processes."""
+    sampler = {"dataset": dataset, "indices": list(indices), "context": context, "horizon": horizon}
+    sampler.update(lengths=lengths, cache_mb=cache_mb, seed=seed)
     if workers == 0:
-        sampler = StreamingWindowSampler(dataset, indices, context, horizon, cache_mb, seed=seed, lengths=lengths)
-        while True:
-            yield sampler.sample(batch_size)
-    stream = WindowStream(dataset, indices, lengths, context, horizon, batch_size, cache_mb, workers, seed)
-    loader = th.utils.data.DataLoader(stream, batch_size=None, num_workers=workers, prefetch_factor=2)
-    yield from loader
+        yield from _endless(StreamingWindowSampler(**sampler), batch_size)
+    stream = WindowStream(batch_size, workers, **sampler)
+    yield from th.utils.data.DataLoader(stream, batch_size=None, num_workers=workers, prefetch_factor=2)
