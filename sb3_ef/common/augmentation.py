@@ -1,14 +1,8 @@
-"""Image augmentations (DrQ's random shift, CURL's random and centre crops) and their application to a replay batch."""
+"""Image augmentations: DrQ's random shift, CURL's random and centre crops."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import TYPE_CHECKING
-
 import torch as th
-
-if TYPE_CHECKING:
-    from sb3_ef.common.buffers import SequenceReplayBufferSamples
 
 
 def random_shift(*images: th.Tensor, pad: int = 4, generator: th.Generator | None = None) -> tuple[th.Tensor, ...]:
@@ -26,26 +20,12 @@ def random_shift(*images: th.Tensor, pad: int = 4, generator: th.Generator | Non
     :param generator: optional torch generator for reproducible shifts.
     :return: the shifted tensors, in the order given.
     """
-    if not images:
-        raise ValueError("random_shift needs at least one tensor")
-    batch, _, height, width = images[0].shape
-    for image in images:
-        if image.dim() != 4 or image.shape[0] != batch or image.shape[-2:] != (height, width):
-            raise ValueError(
-                f"random_shift expects (batch, channels, {height}, {width}) tensors with batch {batch}, "
-                f"got shape {tuple(image.shape)}"
-            )
+    batch, height, width = _check_batch(images, "random_shift")
     device = images[0].device
     offsets = _draw(0, 2 * pad + 1, (batch, 2), device, generator) - pad
     rows = (th.arange(height, device=device)[None, :] + offsets[:, :1]).clamp_(0, height - 1)
     cols = (th.arange(width, device=device)[None, :] + offsets[:, 1:]).clamp_(0, width - 1)
-    batch_index = th.arange(batch, device=device)[:, None, None]
-    shifted = []
-    for image in images:
-        # (batch, height, width, channels) after advanced indexing on the spatial axes, then back to channels-first.
-        moved = image.permute(0, 2, 3, 1)[batch_index, rows[:, :, None], cols[:, None, :]]
-        shifted.append(moved.permute(0, 3, 1, 2).contiguous())
-    return tuple(shifted)
+    return _gather(images, rows, cols)
 
 
 def _draw(low: int, high: int, shape: tuple[int, ...], device: th.device, generator: th.Generator | None) -> th.Tensor:
@@ -53,6 +33,17 @@ def _draw(low: int, high: int, shape: tuple[int, ...], device: th.device, genera
     CPU, so that a saved model loads anywhere) and moved: a CPU generator cannot draw on a GPU."""
     draw_device = device if generator is None else generator.device
     return th.randint(low, high, shape, device=draw_device, generator=generator).to(device)
+
+
+def _gather(images: tuple[th.Tensor, ...], rows: th.Tensor, cols: th.Tensor) -> tuple[th.Tensor, ...]:
+    """Each image's pixels at the per-sample row and column indices ``(batch, out_height)`` and ``(batch,
+    out_width)``, by advanced indexing on the spatial axes (any dtype, no padding copies)."""
+    batch_index = th.arange(rows.shape[0], device=rows.device)[:, None, None]
+    # (batch, height, width, channels) after advanced indexing on the spatial axes, then back to channels-first.
+    return tuple(
+        image.permute(0, 2, 3, 1)[batch_index, rows[:, :, None], cols[:, None, :]].permute(0, 3, 1, 2).contiguous()
+        for image in images
+    )
 
 
 def _check_batch(images: tuple[th.Tensor, ...], name: str) -> tuple[int, int, int]:
@@ -63,7 +54,8 @@ def _check_batch(images: tuple[th.Tensor, ...], name: str) -> tuple[int, int, in
     for image in images:
         if image.dim() != 4 or image.shape[0] != batch or image.shape[-2:] != (height, width):
             raise ValueError(
-                f"{name} expects (batch, channels, height, width) tensors with one batch size and frame size, "
+                f"{name} expects (batch, channels, {height}, {width}) tensors with one batch size and frame size "
+                f"(batch {batch}), "
                 f"got shapes {[tuple(image.shape) for image in images]}"
             )
     return batch, height, width
@@ -99,13 +91,7 @@ def random_crop(
     top = _draw(0, max(height - size + end, 1), (batch, 1), device, generator)
     left = _draw(0, max(width - size + end, 1), (batch, 1), device, generator)
     window = th.arange(size, device=device)[None, :]
-    rows, cols = top + window, left + window
-    batch_index = th.arange(batch, device=device)[:, None, None]
-    cropped = []
-    for image in images:
-        moved = image.permute(0, 2, 3, 1)[batch_index, rows[:, :, None], cols[:, None, :]]
-        cropped.append(moved.permute(0, 3, 1, 2).contiguous())
-    return tuple(cropped)
+    return _gather(images, top + window, left + window)
 
 
 def center_crop(images: th.Tensor, size: int) -> th.Tensor:
@@ -115,19 +101,3 @@ def center_crop(images: th.Tensor, size: int) -> th.Tensor:
     _check_crop(size, height, width, "center_crop")
     top, left = (height - size) // 2, (width - size) // 2
     return images[:, :, top : top + size, left : left + size]
-
-
-def augment_frames(
-    batch: SequenceReplayBufferSamples, augment: Callable[..., tuple[th.Tensor, ...]]
-) -> SequenceReplayBufferSamples:
-    """``batch`` with its images augmented by ``augment`` (``random_shift`` or ``random_crop`` with their sizes
-    bound): the observations at t and their future frames in one call (one draw per sample), the next observations
-    in a second."""
-    horizon = batch.future_frames.shape[1]
-    observations, future_frames = augment(batch.observations, batch.future_frames.flatten(1, 2))
-    (next_observations,) = augment(batch.next_observations)
-    return batch._replace(
-        observations=observations,
-        next_observations=next_observations,
-        future_frames=future_frames.unflatten(1, (horizon, -1)),
-    )

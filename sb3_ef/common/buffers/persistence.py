@@ -10,12 +10,31 @@ with ``dones`` = terminations and no ``timeouts``, no masks, and SB3's ``pos`` a
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import torch as th
 
-if TYPE_CHECKING:
-    from sb3_ef.common.buffers.sequence import SequenceReplayBuffer
+from sb3_ef.common.buffers.episodes import EpisodeRings
+from sb3_ef.common.buffers.sampling import BatchSampler
+from sb3_ef.common.buffers.storage import FrameStorage
+
+
+class PersistedBuffer(Protocol):
+    """What pickling reads and rebuilds of a sequence buffer (:class:`~sb3_ef.common.buffers.SequenceReplayBuffer`):
+    its parts, where they live, and how it builds them."""
+
+    _rings: EpisodeRings
+    _storage: FrameStorage
+    _sampler: BatchSampler
+    _device: th.device
+    storage_request: str | th.device
+    storage_device: th.device
+
+    @property
+    def device(self) -> th.device: ...
+
+    def _build_parts(self, prefetch: bool | None, seed: int = 0) -> None: ...
+
 
 #: Attributes rebuilt at load rather than pickled.
 _PARTS = ("_rings", "_storage", "_sampler", "_sb3_rows_cache")
@@ -31,7 +50,7 @@ _RING_FIELDS = {
 _STEP_FIELDS = {"_actions": "actions", "_rewards": "rewards", "_dones": "dones", "_timeouts": "timeouts"}
 
 
-def buffer_state(buffer: SequenceReplayBuffer) -> dict[str, Any]:
+def buffer_state(buffer: PersistedBuffer) -> dict[str, Any]:
     """The pickled state: the buffer's own attributes, the bookkeeping, the sampler's generator and prefetched draw,
     and the written part of the storage (``_stored``, None when nothing was written)."""
     state = {name: value for name, value in buffer.__dict__.items() if name not in _PARTS}
@@ -53,7 +72,7 @@ def buffer_state(buffer: SequenceReplayBuffer) -> dict[str, Any]:
     return state
 
 
-def restore_buffer(buffer: SequenceReplayBuffer, state: dict[str, Any]) -> None:
+def restore_buffer(buffer: PersistedBuffer, state: dict[str, Any]) -> None:
     """Rebuild the buffer from :func:`buffer_state`'s dict: its parts where they belong on this machine (a fresh
     memmap file when ``memmap_dir`` is set), then the written data copied in."""
     if "_stored" not in state:

@@ -2,14 +2,32 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import partial
 from typing import Any
 
+import torch as th
 from stable_baselines3.common.vec_env import VecNormalize
 
-from sb3_ef.common.augmentation import augment_frames, random_shift
+from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers.sampling import SequenceReplayBufferSamples
 from sb3_ef.common.buffers.sequence import SequenceReplayBuffer
+
+
+def augment_frames(
+    batch: SequenceReplayBufferSamples, augment: Callable[..., tuple[th.Tensor, ...]]
+) -> SequenceReplayBufferSamples:
+    """``batch`` with its images augmented by ``augment`` (``random_shift`` or ``random_crop`` with their sizes
+    bound): the observations at t and their future frames in one call (one draw per sample), the next observations
+    in a second."""
+    horizon = batch.future_frames.shape[1]
+    observations, future_frames = augment(batch.observations, batch.future_frames.flatten(1, 2))
+    (next_observations,) = augment(batch.next_observations)
+    return batch._replace(
+        observations=observations,
+        next_observations=next_observations,
+        future_frames=future_frames.unflatten(1, (horizon, -1)),
+    )
 
 
 class ShiftedSequenceReplayBuffer(SequenceReplayBuffer):
