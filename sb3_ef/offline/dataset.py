@@ -1,15 +1,17 @@
-"""``EpisodeDataset``: the interface every episode reader implements, and the checks all readers share.
+"""``EpisodeDataset``: the interface every episode reader implements, and the checks and decoding they share.
 
-A dataset's episodes must share one frame shape and one action size (a model is trained on one). Each reader only
-reads episode ``i`` (``_read``); ``dataset[i]`` adds the index check and compares the episode with the first one
-read from the dataset, so that a folder mixing 64x64 and 32x32 episodes raises when the odd one is read.
+A reader reads episode ``i`` (``_read``); ``dataset[i]`` checks the index and that the episode has the frame shape
+and action size of the first one read (a model trains on one of each).
 """
 
 from __future__ import annotations
 
+import io
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
 from typing import Any, Literal, overload
+
+import numpy as np
 
 from sb3_ef.offline.episodes import Episode, EpisodeError
 
@@ -23,6 +25,20 @@ def check_like(episode: Episode, first: Episode) -> Episode:
             "share one frame shape and action size; readers with image_size= resize them)"
         )
     return episode
+
+
+def decode_image(data: bytes, image_size: int | None, error: str) -> np.ndarray:
+    """A JPEG / PNG as uint8 (3, H, W), resized to ``image_size`` squared when given; ``error`` is the message of
+    the ``EpisodeError`` raised when Pillow cannot read it."""
+    from PIL import Image
+
+    try:
+        image = Image.open(io.BytesIO(data)).convert("RGB")
+    except Exception as exception:
+        raise EpisodeError(error) from exception
+    if image_size:
+        image = image.resize((image_size, image_size), Image.Resampling.BILINEAR)
+    return np.asarray(image).transpose(2, 0, 1)
 
 
 @overload
@@ -44,13 +60,8 @@ def check_image_size(image_size: Any, optional: bool = True) -> int | None:
 
 
 class EpisodeDataset(ABC):
-    """A sequence of episodes: ``len(dataset)``, ``dataset[i]`` and iteration, each read on demand.
-
-    Subclasses implement ``__len__`` and ``_read(index)`` (read and check one episode with
-    :func:`~sb3_ef.offline.episodes.make_episode`).
-
-    :param min_frames: the fewest frames an episode may have (context + horizon); shorter ones raise.
-    """
+    """Episodes read on demand: ``len(dataset)``, ``dataset[i]`` and iteration. Subclasses implement ``__len__`` and
+    ``_read(index)`` (checked by :func:`~sb3_ef.offline.episodes.make_episode`); shorter than ``min_frames`` raises."""
 
     def __init__(self, min_frames: int = 2):
         self.min_frames = min_frames
@@ -77,6 +88,5 @@ class EpisodeDataset(ABC):
             yield self[index]
 
     def lengths(self) -> list[int]:
-        """Frames per episode, to index the dataset for streaming. Readers that know them from metadata or headers
-        override this; here every episode is read once (and let go)."""
+        """Frames per episode, to index the dataset for streaming (here by reading each episode once)."""
         return [len(episode.frames) for episode in self]

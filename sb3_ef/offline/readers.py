@@ -1,21 +1,16 @@
-"""Readers of (frames, actions) episodes behind one interface: a folder of NPZ / HDF5 files, a Minari dataset, and
-BAIR's robot-pushing TFRecords (``softmotion30_44k``), all yielding :class:`~sb3_ef.offline.episodes.Episode`.
-
-``open_dataset`` picks the reader from the source: ``minari:<dataset id>``, a LeRobot dataset folder
-(:mod:`sb3_ef.offline.lerobot`), an RLDS / TFDS folder or ``rlds:<path>`` (:mod:`sb3_ef.offline.rlds`), a
-``.tfrecord`` file or a folder of them (BAIR), or a folder of ``.npz`` / ``.h5`` episodes.
-"""
+"""Episode readers of a folder of NPZ / HDF5 files, a Minari dataset and BAIR's robot-pushing TFRecords
+(``softmotion30_44k``), and ``open_dataset``, which picks the reader (these, LeRobot's or RLDS's) from the source."""
 
 from __future__ import annotations
 
 import glob
-import io
 import os
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
-from sb3_ef.offline.dataset import EpisodeDataset, check_image_size, check_like
+from sb3_ef.offline.dataset import EpisodeDataset, check_image_size, check_like, decode_image
 from sb3_ef.offline.episodes import (
     HDF5_SUFFIXES,
     NPZ_SUFFIXES,
@@ -34,8 +29,7 @@ RLDS_PREFIX = "rlds:"
 
 
 class FolderDataset(EpisodeDataset):
-    """One episode per ``.npz`` / ``.h5`` / ``.hdf5`` file of a folder (sorted by name) with the arrays ``frames``
-    (uint8 (T + 1, 3, H, W)), ``actions`` ((T, action_dim)) and optionally ``masks`` (bool (T + 1, H, W))."""
+    """One episode per ``.npz`` / ``.h5`` / ``.hdf5`` file of a folder, sorted by name."""
 
     def __init__(self, directory: str | os.PathLike, min_frames: int = 2):
         super().__init__(min_frames)
@@ -52,8 +46,7 @@ class FolderDataset(EpisodeDataset):
         return len(self.paths)
 
     def lengths(self) -> list[int]:
-        """Frames per episode from the array headers (no frame is decompressed); the files' frame shapes and action
-        sizes are compared there too, so that a folder mixing them is refused before training starts."""
+        """Frames per episode from the array headers, whose shapes must agree (refused before training starts)."""
         lengths, first = [], None
         for index, path in enumerate(self.paths):
             source = f"{path} (episode {index})"
@@ -76,11 +69,8 @@ class FolderDataset(EpisodeDataset):
 
 
 class MinariDataset(EpisodeDataset):
-    """Episodes of a local Minari dataset whose observations are images (or a dict holding one).
-
-    Images may be channels-last (T + 1, H, W, 3), Minari's and Gymnasium's usual layout, or channels-first
-    (T + 1, 3, H, W), or frame-stacked channels-first (T + 1, 3 * k, H, W) as sb3-ef envs emit (the newest frame
-    is kept). Agent masks are read from the step infos under ``mask_key`` when present.
+    """Episodes of a local Minari dataset of image observations (or a dict holding one): channels-last, channels-first
+    or frame-stacked (the newest frame kept); agent masks from the step infos under ``mask_key`` when present.
 
     :param dataset_id: the Minari id, e.g. ``"metaworld/hammer/babbling-v0"``.
     :param observation_key: the image entry of dict observations (default: ``"pixels"`` or ``"image"``).
@@ -112,19 +102,18 @@ class MinariDataset(EpisodeDataset):
             if key not in observations:
                 raise EpisodeError(f"{source}: no image entry {key!r} in observations {sorted(observations)}")
             observations = observations[key]
-        frames = _channels_first(_decode_encoded_frames(observations), source)
+        frames = _channels_first(_decode_encoded_frames(observations, source), source)
         infos = data.infos if isinstance(data.infos, dict) else {}
         return make_episode(frames, data.actions, infos.get(self.mask_key), source, self.min_frames)
 
 
-def _decode_encoded_frames(observations) -> np.ndarray:
+def _decode_encoded_frames(observations: Any, source: str) -> np.ndarray:
     """Minari's HDF5 storage keeps image observations as JPEG bytes and may hand them back undecoded."""
-    observations = np.asarray(observations) if not isinstance(observations, np.ndarray) else observations
+    observations = np.asarray(observations)
     if observations.dtype != object:
         return observations
-    from PIL import Image
-
-    return np.stack([np.asarray(Image.open(io.BytesIO(bytes(frame))).convert("RGB")) for frame in observations])
+    error = f"{source}: an observation is neither an image array nor a JPEG / PNG"
+    return np.stack([decode_image(bytes(frame), None, error) for frame in observations])
 
 
 def _channels_first(images: np.ndarray, source: str) -> np.ndarray:
@@ -139,17 +128,13 @@ def _channels_first(images: np.ndarray, source: str) -> np.ndarray:
 
 
 class BAIRDataset(EpisodeDataset):
-    """BAIR robot pushing (``softmotion30_44k``) TFRecords: one ``tf.train.Example`` per episode, per step ``t`` the
-    features ``{t}/{camera}/encoded`` (the frame: raw RGB bytes of ``image_size`` x ``image_size``, as published,
-    or a JPEG / PNG), ``{t}/action`` (4 floats) and ``{t}/endeffector_pos`` (3 floats, kept out of the episode).
-
-    The published files hold 30 frames and 30 actions per episode; the last action is dropped (no frame follows it).
-    Read without TensorFlow (:mod:`sb3_ef.offline.tfrecord`).
+    """BAIR robot pushing (``softmotion30_44k``) TFRecords, read without TensorFlow: one ``tf.train.Example`` per
+    episode with, per step ``t``, ``{t}/{camera}/encoded`` (raw RGB bytes of ``image_size`` squared, or a JPEG / PNG)
+    and ``{t}/action``; the last of the 30 actions has no frame after it and is dropped.
 
     :param paths: TFRecord files, or one folder searched for ``*.tfrecord(s)``.
     :param camera: ``"image_aux1"`` (the 64x64 view used for video prediction) or ``"image_main"``.
-    :param verify: check each record's CRC-32C when it is read (in C when ``google-crc32c`` or ``crc32c`` is
-        installed: a small cost next to decoding).
+    :param verify: check each record's CRC-32C when it is read.
     """
 
     def __init__(
@@ -207,17 +192,9 @@ class BAIRDataset(EpisodeDataset):
         data = value[0]
         size = self.image_size
         if len(data) == size * size * 3:
-            image = np.frombuffer(data, dtype=np.uint8).reshape(size, size, 3)
-        else:
-            from PIL import Image
-
-            try:
-                image = np.asarray(Image.open(io.BytesIO(data)).convert("RGB"))
-            except Exception as error:
-                raise EpisodeError(
-                    f"{source}: image is neither {size}x{size}x3 raw bytes nor a JPEG/PNG ({len(data)} bytes)"
-                ) from error
-        return image.transpose(2, 0, 1)
+            return np.frombuffer(data, dtype=np.uint8).reshape(size, size, 3).transpose(2, 0, 1)
+        error = f"{source}: image is neither {size}x{size}x3 raw bytes nor a JPEG/PNG ({len(data)} bytes)"
+        return decode_image(data, None, error)
 
 
 def open_dataset(source: str | os.PathLike, min_frames: int = 2, **kwargs) -> EpisodeDataset:
@@ -243,7 +220,7 @@ def open_dataset(source: str | os.PathLike, min_frames: int = 2, **kwargs) -> Ep
 
 
 def load_episodes(dataset: EpisodeDataset) -> list[Episode]:
-    """Read every episode of ``dataset`` into memory, checked; the episodes must share frame shape and action size."""
+    """Every episode of ``dataset`` in memory, checked to share one frame shape and action size."""
     episodes = list(dataset)
     if not episodes:
         raise EpisodeError("The dataset holds no episodes")

@@ -1,33 +1,27 @@
 """RLDS / TFDS episode shards (Open X-Embodiment and other RLDS datasets) read without TensorFlow.
 
-A prepared TFDS dataset folder (``<name>/<version>/``) holds ``dataset_info.json``, ``features.json`` and shards
-``<name>-<split>.tfrecord-00000-of-00016``: TFRecord files whose records are ``tf.train.Example`` s, one per episode.
-TFDS flattens the nested episode with ``/`` and stacks the steps: ``steps/observation/image`` is a bytes list with
-one JPEG / PNG per step, ``steps/action`` (or ``steps/action/world_vector`` etc. when the action is a dict) a float
-list of steps x size, ``steps/is_first`` / ``steps/is_last`` int64 lists. Step ``t`` pairs observation ``t`` with
-action ``t``; the last step's action has no frame after it and is dropped (as LeRobot's and BAIR's).
+A TFDS folder (``<name>/<version>/``) holds ``features.json`` and shards ``<name>-<split>.tfrecord-00000-of-00016``
+of one ``tf.train.Example`` per episode, its steps stacked under ``/``-joined names: ``steps/observation/image`` one
+JPEG / PNG per step, ``steps/action`` (or its dict's parts) floats of steps x size. The last action is dropped.
 """
 
 from __future__ import annotations
 
 import glob
-import io
 import os
 import re
 from collections.abc import Sequence
 
 import numpy as np
 
-from sb3_ef.offline.dataset import EpisodeDataset, check_image_size
+from sb3_ef.offline.dataset import EpisodeDataset, check_image_size, decode_image
 from sb3_ef.offline.episodes import Episode, EpisodeError, make_episode
 from sb3_ef.offline.shards import index_records, read_example
 from sb3_ef.offline.tfrecord import Features
 
 STEPS = "steps/"
-#: TFDS shard names: ``<name>-<split>.tfrecord-<i>-of-<n>``.
 SHARD_PATTERN = re.compile(r".+\.tfrecord(-\d{5}-of-\d{5})?$")
-#: Image and action features of common Open X-Embodiment datasets (names as in their ``features.json``, without the
-#: ``steps/`` prefix). A dict action's parts are concatenated in the order given.
+#: Image and action features (without ``steps/``) of common Open X-Embodiment datasets; action parts concatenated.
 _EEF = ("action/world_vector", "action/rotation_delta", "action/gripper_closedness_action")
 _EEF_OPEN = ("action/world_vector", "action/rotation_delta", "action/open_gripper")
 OXE_LAYOUTS: dict[str, tuple[str, tuple[str, ...]]] = {
@@ -47,10 +41,9 @@ OXE_LAYOUTS: dict[str, tuple[str, tuple[str, ...]]] = {
         ("action_dict/cartesian_velocity", "1-action_dict/gripper_position"),
     ),
 }
-#: An action key ``1-<feature>`` is one minus that feature: DROID's gripper position (0 open, 1 closed) as the
-#: openness Octo and OpenVLA train on (1 open, 0 closed).
+#: ``1-<feature>`` is one minus it: DROID's gripper position (1 closed) as the openness Octo and OpenVLA train on.
 ONE_MINUS = "1-"
-#: Tried in turn when no layout is named: most datasets converted to RLDS use one of these.
+#: Tried in turn when no layout is named.
 IMAGE_KEYS = (
     "observation/image",
     "observation/rgb",
@@ -86,10 +79,8 @@ def is_rlds_folder(path: str | os.PathLike) -> bool:
 
 
 class RLDSDataset(EpisodeDataset):
-    """Episodes of RLDS / TFDS TFRecord shards: one image feature and the action(s) of each step.
-
-    Records are indexed on open from their length fields; ``dataset[i]`` reads record ``i`` (CRC-checked when
-    ``verify``), decodes its images with Pillow and concatenates its action features.
+    """Episodes of RLDS / TFDS TFRecord shards: one image feature and the action(s) of each step, record ``i``
+    read (CRC-checked when ``verify``) and decoded on ``dataset[i]``.
 
     :param paths: a TFDS dataset folder (``<name>/<version>``), or shard files.
     :param layout: an ``OXE_LAYOUTS`` name (default: the folder's dataset name when it is one, else auto-detected).
@@ -186,19 +177,13 @@ class RLDSDataset(EpisodeDataset):
             values = features.get(STEPS + flag)
             if isinstance(values, np.ndarray) and len(values) == len(images) and not values[position]:
                 raise EpisodeError(f"{source}: expected steps/{flag} set on the {('first', 'last')[position]} step")
-        frames = np.stack([self._decode(data, f"{source} step {step}") for step, data in enumerate(images)])
-        return make_episode(frames, np.concatenate(actions, axis=1), None, source, self.min_frames)
-
-    def _decode(self, data: bytes, source: str) -> np.ndarray:
-        from PIL import Image
-
-        try:
-            image = Image.open(io.BytesIO(data)).convert("RGB")
-        except Exception as error:
-            raise EpisodeError(f"{source}: the image is not a JPEG / PNG ({len(data)} bytes)") from error
-        if self.image_size:
-            image = image.resize((self.image_size, self.image_size), Image.Resampling.BILINEAR)
-        return np.asarray(image).transpose(2, 0, 1)
+        frames = [
+            decode_image(
+                data, self.image_size, f"{source} step {step}: the image is not a JPEG / PNG ({len(data)} bytes)"
+            )
+            for step, data in enumerate(images)
+        ]
+        return make_episode(np.stack(frames), np.concatenate(actions, axis=1), None, source, self.min_frames)
 
 
 def _dataset_name(path: str) -> str | None:
