@@ -1,5 +1,6 @@
 """Files written whole or not at all: a write goes to a temporary file beside the target, is flushed to disk and
-renamed over the target, so that a full disk, a kill or Ctrl-C leaves the previous file (or none), never a cut one."""
+renamed over the target, and the rename is flushed to disk with the folder, so that a full disk, a kill, Ctrl-C or a
+power cut leaves the previous file (or none), never a cut one."""
 
 from __future__ import annotations
 
@@ -25,10 +26,23 @@ def _fsync(path: Path) -> None:
         os.fsync(file.fileno())
 
 
+def _fsync_folder(folder: Path) -> None:
+    """Flush ``folder``'s entries (a rename in it) to disk; a no-op where folders cannot be opened (Windows)."""
+    try:
+        descriptor = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(descriptor)
+    finally:
+        os.close(descriptor)
+
+
 @contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path to write ``path``'s content to (by any library); on success it is flushed to disk and
-    renamed to ``path``; on any error, or an interrupt, it is removed and ``path`` is left as it was."""
+    renamed to ``path``, and the rename flushed with ``path``'s folder; on any error, or an interrupt, it is removed
+    and ``path`` is left as it was."""
     path = Path(path)
     temporary = temporary_path(path)
     try:
@@ -38,6 +52,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     except BaseException:
         temporary.unlink(missing_ok=True)
         raise
+    _fsync_folder(path.parent)
 
 
 def write_atomically(path: str | os.PathLike, write: Callable[[Any], Any]) -> None:

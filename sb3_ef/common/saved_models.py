@@ -1,5 +1,6 @@
-"""What a saved model file says about itself, read once before SB3 loads it: which algorithm saved it, and whether
-this class can load it. Imports no torch, so that the command line can use it before the heavy imports."""
+"""Saved model files: written whole or not at all (:func:`save_model_atomically`), and what a file says about itself,
+read once before SB3 loads it: which algorithm saved it, and whether this class can load it. Imports no torch, so
+that the command line can use it before the heavy imports."""
 
 from __future__ import annotations
 
@@ -7,8 +8,11 @@ import io
 import json
 import os
 import zipfile
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import IO, Any
+
+from sb3_ef.common.files import write_atomically
 
 #: Module of a saved policy class -> the sb3-ef algorithms that save it.
 POLICY_OWNERS = {
@@ -21,6 +25,31 @@ POLICY_OWNERS = {
 }
 #: Attributes that only the model files of sb3-ef 0.1.0's Ego-Foresight variants hold without an ``algorithm`` entry.
 LEGACY_EF_ATTRIBUTES = ("ef_horizon", "_ef_generator", "ef_learning_rate")
+
+
+def model_zip_path(path: str | os.PathLike) -> Path:
+    """Where SB3's ``save`` writes ``path``: as given when it has a suffix, else with ``.zip`` added."""
+    path = Path(path)
+    return path if path.suffix else path.with_name(f"{path.name}.zip")
+
+
+def save_model_atomically(
+    save: Callable[..., None],
+    path: str | os.PathLike | io.BufferedIOBase,
+    exclude: Iterable[str] | None = None,
+    include: Iterable[str] | None = None,
+) -> None:
+    """SB3's ``save`` (``save``, e.g. ``super().save``, called with ``exclude`` and ``include``) onto a temporary file
+    beside the model's path (:func:`model_zip_path`), flushed to disk and renamed over it, so that a full disk, a
+    kill or Ctrl-C leaves the previous model (or none), never a cut one. A file object is written to directly."""
+    if not isinstance(path, (str, os.PathLike)):
+        save(path, exclude, include)
+        return
+    target = model_zip_path(path)
+    if target.is_dir():
+        raise IsADirectoryError(f"Cannot save the model to {str(path)!r}: it is a folder (give a file path)")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    write_atomically(target, lambda file: save(file, exclude, include))  # a file SB3 leaves open on an error
 
 
 def saved_data(path: str | os.PathLike | IO[bytes] | io.BufferedIOBase) -> dict[str, Any] | None:
