@@ -3,8 +3,7 @@
 
 import numpy as np
 import pytest
-
-from sb3_ef.analysis.scripted import SCENARIOS, ScriptedCollector
+from scripted import SCENARIOS, ScriptedCollector
 
 STEPS = 8
 

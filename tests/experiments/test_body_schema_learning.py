@@ -1,6 +1,6 @@
 """The body-schema measures tell an agent from a distractor once EF has learned: on the toy world (a square moved
 by the actions, a square on a random walk) a small offline EF predicts the agent's pixels better than copying and
-puts more h_a saliency on the agent than on the distractor. And the benchmark command runs end to end and scores
+puts more h_a saliency on the agent than on the distractor. And the study's command runs end to end and scores
 a saved model again with the same errors."""
 
 import json
@@ -11,14 +11,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from body_schema import cut_region_windows, evaluate_regions, window_figure
+from scripted import ScriptedEpisode
 
-from sb3_ef.analysis.body_schema import cut_region_windows, evaluate_regions, window_figure
-from sb3_ef.analysis.scripted import ScriptedEpisode
 from sb3_ef.envs.toy import ToyAgentEnv
 from sb3_ef.offline.episodes import make_episode
 from sb3_ef.offline.pretrain import pretrain
 
 ROOT = Path(__file__).resolve().parents[2]
+MEASURE = ROOT / "experiments" / "2026-12-body-schema" / "measure.py"
 
 
 def _toy_episodes(count: int, steps: int, seed: int) -> list[ScriptedEpisode]:
@@ -84,9 +85,9 @@ def test_learned_ef_predicts_the_agent_and_not_the_distractor(tmp_path):
 
 
 @pytest.mark.slow
-def test_benchmark_command_writes_results_table_and_figures(tmp_path):
+def test_study_command_writes_results_table_and_figures(tmp_path):
     out = tmp_path / "out"
-    command = [sys.executable, str(ROOT / "benchmarks" / "disentanglement.py"), "body-schema", "--seeds", "0",
+    command = [sys.executable, str(MEASURE), "run", "--seeds", "0",
                "--experiments", "held-tool", "--size", "32", "--steps", "14", "--train-episodes", "2",
                "--eval-episodes", "1", "--updates", "4", "--saliency-windows", "2", "--context", "2",
                "--horizon", "4", "--out", str(out)]  # fmt: skip
@@ -100,7 +101,7 @@ def test_benchmark_command_writes_results_table_and_figures(tmp_path):
     assert "| held-tool | hammer-held | 1 |" in table and "| held-tool | hammer-table | 1 |" in table
     assert sorted(os.listdir(out / "figures")) == ["figure8_s0.png", "hammer-held_s0.png", "hammer-table_s0.png"]
     combined = subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "disentanglement.py"), "table", str(out)],
+        [sys.executable, str(MEASURE), "table", str(out)],
         check=True, env=environment, capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     assert combined.stdout == table

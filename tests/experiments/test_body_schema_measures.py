@@ -3,8 +3,7 @@ the window rules."""
 
 import numpy as np
 import pytest
-
-from sb3_ef.analysis.body_schema import (
+from body_schema import (
     RegionErrors,
     cut_region_windows,
     dilate,
@@ -12,7 +11,7 @@ from sb3_ef.analysis.body_schema import (
     saliency_shares,
     tint,
 )
-from sb3_ef.analysis.scripted import ScriptedEpisode, figure_eight_probe
+from scripted import ScriptedEpisode, figure_eight_probe
 
 
 def test_saliency_share_is_the_masked_part_of_the_total():

@@ -142,7 +142,7 @@ def cut_region_windows(
 ) -> RegionWindows:
     """Windows (last context frame t, every ``stride``-th valid t) of episodes with ``frames``, ``actions``,
     ``masks`` (name -> (T + 1, h, w)), ``attached`` (T + 1,) and ``object`` positions (T + 1, 3) such as
-    :class:`~sb3_ef.analysis.scripted.ScriptedEpisode`.
+    :class:`scripted.ScriptedEpisode` (``scripted.py`` beside this file).
 
     :param require_attached: None (all windows), ``"context"`` (the object is attached at t) or ``"window"``
         (attached in every frame of the window, context and targets).
