@@ -3,7 +3,8 @@ the hook through which motor babbling takes the actions over."""
 
 from __future__ import annotations
 
-from typing import Protocol
+from collections.abc import Callable
+from typing import Any, Protocol
 
 import numpy as np
 from gymnasium import spaces
@@ -34,6 +35,13 @@ class OwnExplorationMixin:
         return self.policy.unscale_action(buffer_action), buffer_action
 
 
+#: ``predict``'s observation, its recurrent state (TD-MPC2's warm-start plans) and its answer; ``_sample_action``.
+Observation = np.ndarray | dict[str, np.ndarray]
+PredictState = tuple[np.ndarray, ...] | None
+Prediction = tuple[np.ndarray, PredictState]
+SampleAction = Callable[[int, ActionNoise | None, int], tuple[np.ndarray, np.ndarray]]
+
+
 class ActionOverride(Protocol):
     """What takes over a host's actions for a while (motor babbling): each method returns the actions to use, or
     ``None`` to leave the choice to the algorithm."""
@@ -41,10 +49,37 @@ class ActionOverride(Protocol):
     def rollout_action(self, n_envs: int) -> np.ndarray | None:
         """The buffer actions (in [-1, 1], one row per env) of the next rollout step."""
 
-    def evaluation_action(
-        self, observation: np.ndarray | dict[str, np.ndarray], state: tuple[np.ndarray, ...] | None
-    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None] | None:
+    def evaluation_action(self, observation: Observation, state: PredictState) -> Prediction | None:
         """``predict``'s answer for ``observation`` (env actions and state)."""
+
+
+def overridden_sample_action(
+    override: ActionOverride | None,
+    policy: BasePolicy,
+    sample: SampleAction,
+    learning_starts: int,
+    action_noise: ActionNoise | None = None,
+    n_envs: int = 1,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``_sample_action``'s (env, buffer) actions: ``override``'s when it gives some, else ``sample``'s. With
+    ``functools.partial`` over the first three, it stands in for an algorithm's own ``_sample_action``."""
+    buffer_action = override.rollout_action(n_envs) if override is not None else None
+    if buffer_action is None:
+        return sample(learning_starts, action_noise, n_envs)
+    return policy.unscale_action(buffer_action), buffer_action
+
+
+def overridden_predict(
+    override: ActionOverride | None,
+    predict: Callable[..., Prediction],
+    observation: Observation,
+    state: PredictState = None,
+    episode_start: np.ndarray | None = None,
+    deterministic: bool = False,
+) -> Prediction:
+    """``predict``'s answer, ``override``'s when it gives one (as a partial over the first two: a ``predict``)."""
+    answer = override.evaluation_action(observation, state) if override is not None else None
+    return predict(observation, state, episode_start, deterministic) if answer is None else answer
 
 
 class ActionOverrideMixin:
@@ -54,27 +89,11 @@ class ActionOverrideMixin:
     policy: BasePolicy
     action_override: ActionOverride | None = None
 
-    def _sample_action(
-        self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
-    ) -> tuple[np.ndarray, np.ndarray]:
-        if self.action_override is not None:
-            buffer_action = self.action_override.rollout_action(n_envs)
-            if buffer_action is not None:
-                return self.policy.unscale_action(buffer_action), buffer_action
-        return super()._sample_action(learning_starts, action_noise, n_envs)  # type: ignore[misc]
+    def _sample_action(self, *args: Any) -> tuple[np.ndarray, np.ndarray]:
+        return overridden_sample_action(self.action_override, self.policy, super()._sample_action, *args)  # type: ignore[misc]
 
-    def predict(
-        self,
-        observation: np.ndarray | dict[str, np.ndarray],
-        state: tuple[np.ndarray, ...] | None = None,
-        episode_start: np.ndarray | None = None,
-        deterministic: bool = False,
-    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
-        if self.action_override is not None:
-            answer = self.action_override.evaluation_action(observation, state)
-            if answer is not None:
-                return answer
-        return super().predict(observation, state, episode_start, deterministic)  # type: ignore[misc]
+    def predict(self, *args: Any, **kwargs: Any) -> Prediction:
+        return overridden_predict(self.action_override, super().predict, *args, **kwargs)  # type: ignore[misc]
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "action_override"]  # type: ignore[misc]
