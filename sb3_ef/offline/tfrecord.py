@@ -1,19 +1,15 @@
-"""TFRecord files of ``tf.train.Example`` records, read and written without TensorFlow.
+"""TFRecord files of ``tf.train.Example`` records, read without TensorFlow.
 
-A TFRecord file is a sequence of records: ``length`` (uint64, little endian), the masked CRC-32C of those 8 bytes
-(uint32), ``length`` bytes of data and the masked CRC-32C of the data. Here the data is a serialised
-``tf.train.Example``: a map from feature names to a list of bytes, floats or int64s, decoded by the small protobuf
-reader below (only the fields of Example / Features / Feature exist for it).
-
-CRC-32C runs in C through ``google-crc32c`` or ``crc32c`` when one is installed (both are in the ``offline`` extra),
-otherwise in pure Python (about 3 MB/s: checking dominates reading then).
+A record is ``length`` (uint64, little endian), the masked CRC-32C of those 8 bytes (uint32), ``length`` bytes of
+data (here an Example: feature name -> list of bytes, floats or int64s) and the masked CRC-32C of the data. CRC-32C
+runs in C through ``google-crc32c`` or ``crc32c`` when installed, else in pure Python (about 3 MB/s).
 """
 
 from __future__ import annotations
 
 import os
 import struct
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import BinaryIO
 
 import numpy as np
@@ -40,8 +36,8 @@ def python_crc32c(data: bytes) -> int:
     return crc ^ 0xFFFFFFFF
 
 
-def _c_crc32c() -> tuple[Callable[[bytes], int] | None, str]:
-    """The fastest installed C CRC-32C and its name, or ``(None, "python")``."""
+def _fastest_crc32c() -> tuple[Callable[[bytes], int], str]:
+    """The fastest installed CRC-32C and its name: ``google-crc32c``'s C build, ``crc32c``, else Python's."""
     try:
         import google_crc32c
 
@@ -54,15 +50,11 @@ def _c_crc32c() -> tuple[Callable[[bytes], int] | None, str]:
 
         return crc32c_module.crc32c, "crc32c"
     except ImportError:
-        return None, "python"
+        return python_crc32c, "python"
 
 
-_C_CRC32C, CRC32C_IMPLEMENTATION = _c_crc32c()
-
-
-def crc32c(data: bytes) -> int:
-    """CRC-32C (Castagnoli) of ``data``; in C when available (``CRC32C_IMPLEMENTATION`` names the one used)."""
-    return _C_CRC32C(data) if _C_CRC32C is not None else python_crc32c(data)
+#: CRC-32C (Castagnoli) of some bytes, and the name of the implementation that computes it.
+crc32c, CRC32C_IMPLEMENTATION = _fastest_crc32c()
 
 
 def masked_crc32c(data: bytes) -> int:
@@ -79,13 +71,8 @@ def read_records(path: str | os.PathLike, check_crc: bool = True) -> Iterator[by
 
 
 def record_offsets(path: str | os.PathLike) -> list[int]:
-    """Byte offsets of every record of a TFRecord file, from the length fields alone (the data is not read).
-
-    Each length field is checked against the CRC-32C stored after it (12 bytes per record: cheap even in Python).
-
-    :raises ValueError: a length field that does not match its CRC (a damaged file), or a file that ends inside a
-        record (truncated), naming the record and the bytes expected.
-    """
+    """Byte offsets of every record, from the length fields alone, each checked against its CRC-32C; a damaged
+    length field or a file that ends inside a record raises ``ValueError`` naming the record."""
     offsets: list[int] = []
     size = os.path.getsize(path)
     with open(path, "rb") as file:
@@ -116,10 +103,8 @@ def record_offsets(path: str | os.PathLike) -> list[int]:
 def read_record_at(
     file: BinaryIO, offset: int, path: str = "", check_crc: bool = True, index: int | None = None
 ) -> bytes:
-    """The data of the record at byte ``offset`` of an open TFRecord file, its two CRCs checked when ``check_crc``.
-
-    :raises ValueError: a truncated record or a wrong checksum, naming ``path``, the record ``index`` and the offset.
-    """
+    """The data of the record at byte ``offset`` of an open TFRecord file, its two CRCs checked when ``check_crc``
+    (a truncated record or a wrong checksum: ``ValueError`` naming ``path``, the record ``index`` and the offset)."""
     record = f"record {index} (byte {offset})" if index is not None else f"the record at byte {offset}"
     file.seek(offset)
     header = file.read(12)
@@ -222,10 +207,8 @@ def _decode_feature(buffer: bytes) -> list[bytes] | np.ndarray:
 
 
 def parse_example(data: bytes) -> Features:
-    """Decode a serialised ``tf.train.Example`` into ``{name: list of bytes | float32 array | int64 array}``.
-
-    :raises ValueError: ``data`` is not a well-formed Example (truncated, or another message).
-    """
+    """A serialised ``tf.train.Example`` as ``{name: list of bytes | float32 array | int64 array}`` (``ValueError``
+    when ``data`` is no well-formed Example)."""
     try:
         return _parse_example(data)
     except (IndexError, TypeError, ValueError, struct.error, UnicodeDecodeError) as error:
@@ -248,39 +231,3 @@ def _parse_example(data: bytes) -> Features:
                     value = _length_delimited(payload)
             features[key] = _decode_feature(value)
     return features
-
-
-def _encode_varint(value: int) -> bytes:
-    value &= (1 << 64) - 1
-    out = bytearray()
-    while True:
-        byte = value & 0x7F
-        value >>= 7
-        if value:
-            out.append(byte | 0x80)
-        else:
-            out.append(byte)
-            return bytes(out)
-
-
-def _length_field(number: int, payload: bytes) -> bytes:
-    return _encode_varint(number << 3 | _LENGTH) + _encode_varint(len(payload)) + payload
-
-
-def serialize_example(features: Mapping[str, bytes | Sequence[bytes] | np.ndarray | Sequence[float]]) -> bytes:
-    """Encode ``{name: bytes, list of bytes, float array or int array}`` as a ``tf.train.Example``."""
-    entries = b""
-    for key, value in features.items():
-        if isinstance(value, bytes):
-            value = [value]
-        if isinstance(value, list) and all(isinstance(item, bytes) for item in value):
-            feature = _length_field(1, b"".join(_length_field(1, item) for item in value))
-        else:
-            array = np.asarray(value)
-            if np.issubdtype(array.dtype, np.integer):
-                packed = b"".join(_encode_varint(int(item)) for item in array.ravel())
-                feature = _length_field(3, _length_field(1, packed))
-            else:
-                feature = _length_field(2, _length_field(1, array.astype("<f4").ravel().tobytes()))
-        entries += _length_field(1, _length_field(1, key.encode()) + _length_field(2, feature))
-    return _length_field(1, entries)

@@ -11,8 +11,9 @@ from PIL import Image
 
 from sb3_ef.offline.episodes import EpisodeError, make_episode, write_episode
 from sb3_ef.offline.readers import BAIRDataset, FolderDataset, load_episodes, open_dataset
-from sb3_ef.offline.tfrecord import parse_example, serialize_example, write_records
+from sb3_ef.offline.tfrecord import parse_example, write_records
 from tests.helpers.offline import square_episode
+from tests.offline.examples import serialize_example
 
 
 @pytest.mark.parametrize("suffix", ["npz", "h5"])

@@ -14,8 +14,9 @@ from PIL import Image
 from sb3_ef.offline.episodes import EpisodeError, make_episode
 from sb3_ef.offline.readers import open_dataset
 from sb3_ef.offline.rlds import OXE_LAYOUTS, RLDSDataset
-from sb3_ef.offline.tfrecord import serialize_example, write_records
+from sb3_ef.offline.tfrecord import write_records
 from tests.helpers.offline import square_episode
+from tests.offline.examples import serialize_example
 
 
 def encode(frame: np.ndarray, image_format: str) -> bytes:

@@ -14,9 +14,9 @@ from sb3_ef.offline.tfrecord import (
     parse_example,
     python_crc32c,
     read_records,
-    serialize_example,
     write_records,
 )
+from tests.offline.examples import serialize_example
 
 
 @pytest.mark.parametrize("implementation", [crc32c, python_crc32c])
