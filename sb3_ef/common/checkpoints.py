@@ -31,6 +31,8 @@ import random
 import re
 import warnings
 import zipfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -123,6 +125,31 @@ def latest_checkpoint(
             stacklevel=2,
         )
     return None
+
+
+def resume_note(run_dir: str | os.PathLike, resume_command: str, name_prefix: str = "rl_model") -> str:
+    """What a run that stopped part-way in ``run_dir`` can continue from: its newest intact checkpoint and
+    ``resume_command`` (the command that continues it), or that it saved none."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a damaged newest checkpoint is passed over: the note names the one used
+        checkpoint = latest_checkpoint(run_dir, name_prefix, intact=True)
+    if checkpoint is None:
+        return f"The run in {run_dir} saved no checkpoint to resume from (checkpoints need a save frequency)"
+    where = f"{checkpoint.model_path} (step {checkpoint.step})"
+    return f"The run's last checkpoint is {where}: continue with `{resume_command}`"
+
+
+@contextmanager
+def noting_last_checkpoint(
+    run_dir: str | os.PathLike, resume_command: str, name_prefix: str = "rl_model"
+) -> Iterator[None]:
+    """Add :func:`resume_note` to any error that escapes the block (as a note: ``error.__notes__``, shown under its
+    traceback), so that a run that fails part-way says where it can continue from. Ctrl-C passes unchanged."""
+    try:
+        yield
+    except Exception as error:
+        error.add_note(resume_note(run_dir, resume_command, name_prefix))
+        raise
 
 
 def checkpoint_for(model_path: str | os.PathLike, name_prefix: str = "rl_model") -> Checkpoint:

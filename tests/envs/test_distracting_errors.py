@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import re
+import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from sb3_ef.envs import make_env
-from sb3_ef.envs.distracting.davis import DAVIS_TRAIN_VIDEOS
+from sb3_ef.envs.distracting import davis
+from sb3_ef.envs.distracting.davis import DAVIS_TRAIN_VIDEOS, check_frames, frame_files
 from sb3_ef.envs.distracting.settings import camera_settings, color_settings
-from tests.envs.davis_files import write_video
+from tests.envs.davis_files import FRAMES, write_video
 
 NAME = "dmc-distracting/cartpole-balance"
 DOWNLOAD = r"DAVIS-2017-trainval-480p\.zip .*https://davischallenge\.org/davis2017/code\.html.*DAVIS/JPEGImages/480p"
@@ -53,16 +56,47 @@ def test_a_folder_with_too_few_videos_for_the_difficulty(davis_dir, tmp_path):
         make_env(NAME, size=32, background_dir=tmp_path)
 
 
-def test_an_unreadable_frame_names_the_file(davis_dir, tmp_path):
+def test_an_unreadable_frame_is_named_when_the_env_is_made(tmp_path):
     for video in DAVIS_TRAIN_VIDEOS[:4]:
         (tmp_path / video).mkdir()
         (tmp_path / video / "00000.jpg").write_bytes(b"not a jpeg")
-    env = make_env(NAME, size=32, background_dir=tmp_path, distraction="background")
-    try:
-        with pytest.raises(ValueError, match=r"Cannot read the background frame '.*00000\.jpg' as an image"):
-            env.reset(seed=0)
-    finally:
-        env.close()
+    with pytest.raises(ValueError, match=r"The background frame '.*00000\.jpg' cannot be decoded .*damaged"):
+        make_env(NAME, size=32, background_dir=tmp_path, distraction="background")
+
+
+def damaged_copy(davis_dir: Path, folder: Path) -> Path:
+    """A copy of the DAVIS folder whose second video's last frame is cut in half, as a failed copy leaves it."""
+    shutil.copytree(davis_dir, folder)
+    frame = frame_files(folder / DAVIS_TRAIN_VIDEOS[1])[-1]
+    frame.write_bytes(frame.read_bytes()[: frame.stat().st_size // 2])
+    return frame
+
+
+def test_a_damaged_jpeg_among_real_ones_is_named_with_the_remedy(davis_dir, tmp_path):
+    frame = damaged_copy(davis_dir, tmp_path / "480p")
+    message = (
+        f"The background frame '{re.escape(str(frame))}' cannot be decoded \\(.*\\): the file "
+        "is damaged; unzip its video folder again from DAVIS-2017-trainval-480p.zip"
+    )
+    with pytest.raises(ValueError, match=message):
+        make_env(NAME, size=32, background_dir=tmp_path / "480p", distraction="background")
+
+
+def test_decoded_folders_are_not_decoded_again_until_a_frame_changes(davis_dir, tmp_path, monkeypatch):
+    folders = [tmp_path / "480p" / video for video in DAVIS_TRAIN_VIDEOS[:4]]
+    shutil.copytree(davis_dir, tmp_path / "480p")
+    opened: list[Path] = []
+    original = davis.Image.open
+    monkeypatch.setattr(davis.Image, "open", lambda path, *args: (opened.append(path), original(path, *args))[1])
+    check_frames(folders)
+    assert len(opened) == 4 * FRAMES
+    check_frames(folders)
+    assert len(opened) == 4 * FRAMES  # the second env: nothing decoded
+    frame = frame_files(folders[1])[-1]
+    frame.write_bytes(frame.read_bytes()[:-100])
+    with pytest.raises(ValueError, match="cannot be decoded"):
+        check_frames(folders)
+    assert opened[-1] == frame and len(opened) == 4 * FRAMES + FRAMES  # only the changed folder
 
 
 @pytest.mark.parametrize(

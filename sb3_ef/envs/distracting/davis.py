@@ -50,6 +50,10 @@ DAVIS_DOWNLOAD_HINT = (
 
 _JPEG_SUFFIXES = (".jpg", ".jpeg")
 
+#: Video folders whose frames all decoded, each with the name, size and modification time of its frames (a frame
+#: changed since is decoded again).
+_DECODED: set[tuple[Path, tuple[tuple[str, int, int], ...]]] = set()
+
 
 def frame_files(folder: Path) -> list[Path]:
     """The JPEG frames of a video folder in name order (DAVIS numbers them ``00000.jpg``, ...); ``[]`` if none."""
@@ -105,10 +109,11 @@ def background_root(background_dir: str | os.PathLike[str] | None) -> Path:
 def video_folders(
     background_dir: str | os.PathLike[str] | None, videos: str | Sequence[str], difficulty: str
 ) -> tuple[Path, ...]:
-    """The folders of the videos a background distraction draws from, each checked to hold JPEG frames.
+    """The folders of the videos a background distraction draws from, each checked to hold JPEG frames that all
+    decode (:func:`check_frames`).
 
-    :raises ValueError: when no folder is given (and ``$SB3_EF_DAVIS_DIR`` is unset) or some videos are missing;
-        the message says where to download DAVIS and which folder to pass.
+    :raises ValueError: when no folder is given (and ``$SB3_EF_DAVIS_DIR`` is unset), some videos are missing (the
+        message says where to download DAVIS and which folder to pass) or a frame is damaged.
     :raises FileNotFoundError: when ``background_dir`` is not a folder.
     """
     names = video_names(videos, difficulty)
@@ -127,7 +132,39 @@ def video_folders(
             f"background_dir {str(root)!r} lacks {len(missing)} of the {len(names)} videos the {difficulty!r} "
             f"background draws from ({shown}): {DAVIS_DOWNLOAD_HINT}"
         )
-    return tuple(root / name for name in names)
+    folders = tuple(root / name for name in names)
+    check_frames(folders)
+    return folders
+
+
+def _frame_error(path: Path, error: OSError) -> ValueError:
+    return ValueError(
+        f"The background frame {str(path)!r} cannot be decoded ({error}): the file is damaged; unzip its video "
+        "folder again from DAVIS-2017-trainval-480p.zip (https://davischallenge.org/davis2017/code.html)"
+    )
+
+
+def check_frames(folders: Sequence[Path]) -> None:
+    """Decode every JPEG frame of ``folders`` (at an eighth of its size: the whole file is read) so that a damaged
+    one is named when the env is made, not at the reset that draws it. A folder whose frames decoded before, and
+    have not changed since, is not decoded again.
+
+    :raises ValueError: naming the first damaged frame and how to replace it.
+    """
+    for folder in folders:
+        files = frame_files(folder)
+        signature = tuple((path.name, path.stat().st_size, path.stat().st_mtime_ns) for path in files)
+        key = (folder.resolve(), signature)
+        if key in _DECODED:
+            continue
+        for path in files:
+            try:
+                with Image.open(path) as image:
+                    image.draft("RGB", (max(1, image.width // 8), max(1, image.height // 8)))
+                    image.load()
+            except OSError as error:  # PIL's UnidentifiedImageError and truncated files included
+                raise _frame_error(path, error) from error
+        _DECODED.add(key)
 
 
 def load_textures(files: Sequence[Path], width: int, height: int) -> np.ndarray:
@@ -138,6 +175,6 @@ def load_textures(files: Sequence[Path], width: int, height: int) -> np.ndarray:
             with Image.open(path) as image:
                 resized = image.convert("RGB").resize((width, height), Image.Resampling.BILINEAR)
         except OSError as error:  # PIL's UnidentifiedImageError included
-            raise ValueError(f"Cannot read the background frame {str(path)!r} as an image: {error}") from error
+            raise _frame_error(path, error) from error
         textures[index] = np.asarray(resized, np.uint8).reshape(-1)
     return textures
