@@ -1,17 +1,10 @@
 """Aggregate scores over algorithms, tasks and seeds: the Efficiency Normalised Score and rliable metrics.
 
-Definitions (see docs/analysis.md for the worked reasoning):
-
-- Score table: columns ``algo, task, seed, step, score``; ``step`` is the x-axis (agent steps or frames, the same
-  unit for every algorithm).
-- Performance curve of an algorithm on a task: the mean score over its seeds at each of its evaluation steps.
-  Between its evaluation steps the curve is linearly interpolated; before its first / after its last evaluation
-  it holds the first / last value.
-- M(task): the maximum of all algorithms' performance curves on that task (must be > 0).
-- Threshold step for q in (0.95, 0.90, 0.85): the first step, on the union of all algorithms' evaluation steps
-  for that task, at which some algorithm's curve reaches ``q * M``.
-- Each algorithm's normalised score there: its curve's value at that step divided by M, in [0, 1] for non-negative
-  scores. ENS(algo) = mean of those over thresholds and tasks.
+A score table has columns ``algo, task, seed, step, score`` (one step unit for every algorithm). An algorithm's
+performance curve on a task is its mean score over seeds, linearly interpolated between its evaluation steps and held
+flat outside them. M(task) is the greatest value of all curves (> 0); for q in (0.95, 0.90, 0.85) the threshold step
+is the first evaluation step (of any algorithm) where some curve reaches ``q * M``. ENS(algo) is the mean over
+thresholds and tasks of its curve there divided by M. docs/analysis.md gives the reasoning.
 """
 
 from __future__ import annotations
@@ -44,14 +37,11 @@ def check_columns(df: pd.DataFrame, columns: tuple[str, ...]) -> None:
 
 
 def load_records(directory: str | os.PathLike, finished_only: bool = False) -> pd.DataFrame:
-    """Concatenate every evaluation CSV (header ``algo, task, seed, step, frame, return, success``) under a
-    directory, recursively, and the ``evaluations.npz`` of every rl-zoo3 run folder without such a CSV
-    (:mod:`sb3_ef.analysis.zoo_logs`); other CSV files, and ``evaluations.npz`` files in folders that rl-zoo3 did not
-    lay out (``<logs>/<algo>/<env>_<n>/``), are skipped. Values are checked (:func:`check_record_values`).
+    """Every evaluation CSV (``RECORD_COLUMNS`` header) under ``directory`` and the ``evaluations.npz`` of every
+    rl-zoo3 run folder without one, checked (:func:`check_record_values`); other files are skipped.
 
-    :param finished_only: only finished runs: CSVs with a ``<name>/result.json`` beside ``<name>.csv``
-        (``sb3-ef benchmark``'s results folder) and rl-zoo3 runs that saved their final model, so a grid part-way
-        through is read without its runs in progress.
+    :param finished_only: only finished runs: CSVs with a ``<name>/result.json`` beside them and rl-zoo3 runs that
+        saved their final model (a grid part-way through is read without its runs in progress).
     """
     from sb3_ef.analysis.zoo_logs import EVALUATIONS_FILE, is_zoo_run_folder, zoo_run_finished, zoo_run_records
 
@@ -108,8 +98,7 @@ RECORD_VALUE_RULES: dict[str, tuple[str, Callable[[pd.Series], pd.Series]]] = {
 
 def check_record_values(records: pd.DataFrame, source: str | os.PathLike) -> pd.DataFrame:
     """``records`` with numeric ``step``, ``frame``, ``return`` and ``success`` (empty: NaN), or a ``ValueError``
-    naming the file, line, column and value of the first bad entry of each wrong column (an empty ``algo`` or
-    ``task``; a step, frame or return that is not such a number; a success outside [0, 1])."""
+    naming the file, line, column and value of the first bad entry of each wrong column."""
     pandas = require("pandas")
     check_columns(records, RECORD_COLUMNS)
     problems = []
@@ -170,12 +159,8 @@ def performance_curves(scores: pd.DataFrame) -> pd.DataFrame:
 
 
 def returns_at(records: pd.DataFrame, steps: tuple[int, ...]) -> pd.DataFrame:
-    """Evaluation return at given steps, over seeds: columns ``algo, task, step, mean, std, seeds, returns``.
-
-    ``std`` is the sample standard deviation (NaN for one seed); ``returns`` lists the seeds' returns in seed order.
-    Runs without an evaluation at a step (unfinished ones) are left out of that row, which ``seeds`` shows; a step
-    that no run reached has no row.
-    """
+    """Evaluation return at given steps over seeds: columns ``algo, task, step, mean, std`` (sample; NaN for one seed),
+    ``seeds`` (the runs evaluated at that step) and ``returns`` (in seed order); a step no run reached has no row."""
     check_columns(records, RECORD_COLUMNS)
     if not steps or any(step < 0 for step in steps):
         raise ValueError(f"Expected one or more non-negative steps, got {steps}")
@@ -187,10 +172,8 @@ def returns_at(records: pd.DataFrame, steps: tuple[int, ...]) -> pd.DataFrame:
 
 
 def ens_table(scores: pd.DataFrame, thresholds: tuple[float, ...] = ENS_THRESHOLDS) -> pd.DataFrame:
-    """Per task and threshold: the threshold step and each algorithm's normalised score there.
-
-    :return: columns ``task, threshold, step, algo, normalized_score``.
-    """
+    """Per task and threshold, the threshold step and each algorithm's normalised score there: columns ``task,
+    threshold, step, algo, normalized_score``."""
     pandas = require("pandas")
     curves = performance_curves(scores)
     algos = sorted(curves["algo"].unique())
@@ -214,16 +197,10 @@ def ens_table(scores: pd.DataFrame, thresholds: tuple[float, ...] = ENS_THRESHOL
                 raise ValueError(f"ENS thresholds must be in (0, 1], got {threshold}")
             # relative tolerance so that e.g. 0.95 * M reached exactly is not lost to rounding
             index = int(np.argmax(best >= threshold * maximum * (1 - 1e-12)))
-            for algo, column in zip(by_algo, values[:, index], strict=True):
-                rows.append(
-                    {
-                        "task": task,
-                        "threshold": threshold,
-                        "step": grid[index],
-                        "algo": algo,
-                        "normalized_score": column / maximum,
-                    }
-                )
+            rows += [
+                {"task": task, "threshold": threshold, "step": grid[index], "algo": algo, "normalized_score": value}
+                for algo, value in zip(by_algo, values[:, index] / maximum, strict=True)
+            ]
     return pandas.DataFrame(rows)
 
 
@@ -276,11 +253,8 @@ def stratified_bootstrap(
     confidence: float = 0.95,
     rng: np.random.Generator | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Percentile confidence intervals of ``aggregate`` over a (runs, tasks) matrix, resampling runs with
-    replacement independently within each task (rliable's stratified bootstrap).
-
-    :return: (lower, upper), each of the aggregate's shape.
-    """
+    """Percentile confidence intervals ``(lower, upper)`` of ``aggregate`` over a (runs, tasks) matrix, resampling
+    runs with replacement within each task (rliable's stratified bootstrap)."""
     rng = np.random.default_rng() if rng is None else rng
     runs, tasks = matrix.shape
     samples = matrix[rng.integers(0, runs, size=(reps, runs, tasks)), np.arange(tasks)]
@@ -291,27 +265,16 @@ def stratified_bootstrap(
 
 
 def rliable_metrics(scores: pd.DataFrame, reps: int = 2000, seed: int = 0) -> pd.DataFrame:
-    """Median, IQM, mean and optimality gap (rliable's aggregate functions) of the best normalised score per run,
-    with 95% stratified bootstrap confidence intervals over ``reps`` resamples.
-
-    The bootstrap is :func:`stratified_bootstrap` rather than ``rliable.library.get_interval_estimates``: the
-    latter depends on ``arch``, which fails to import with pandas 3 (arch 7.x) or refuses rliable's
-    ``random_state`` argument (arch 8.x).
-
-    :return: columns ``algo, metric, estimate, lower, upper``.
-    """
+    """Median, IQM, mean and optimality gap (rliable's) of the best normalised score per run, with 95% stratified
+    bootstrap intervals over ``reps`` resamples: columns ``algo, metric, estimate, lower, upper``. The bootstrap is
+    :func:`stratified_bootstrap`: rliable's own needs ``arch``, which breaks with pandas 3 (7.x) or rliable (8.x)."""
     pandas = require("pandas")
     metrics = require("rliable.metrics")
+    names = ("median", "iqm", "mean", "optimality_gap")
+    functions = [getattr(metrics, f"aggregate_{name}") for name in names]
 
     def aggregate(matrix: np.ndarray) -> np.ndarray:
-        return np.array(
-            [
-                metrics.aggregate_median(matrix),
-                metrics.aggregate_iqm(matrix),
-                metrics.aggregate_mean(matrix),
-                metrics.aggregate_optimality_gap(matrix),
-            ]
-        )
+        return np.array([function(matrix) for function in functions])
 
     rng = np.random.default_rng(seed)
     rows = []
