@@ -228,7 +228,7 @@ def measure(name: str, compiled: bool | str | dict, device: th.device, sizes: Si
 def measure_dreamer(result: Result, device: th.device, sizes: Sizes, smoke: bool) -> None:
     """Dreamer-v3's env steps/s over ``loop_steps`` steps of sheeprl's loop, after ``warmup_steps`` random steps and
     ``loop_steps`` steps of training (untimed); errors become the result's status."""
-    from sb3_ef.dreamerv3.timing import timed_training
+    from dreamer_timing import timed_training  # beside this file
 
     env = make_env(ENV_NAME, size=result.frame_size, frame_stack=1, fast_render=True, seed=0)
     result.storage_device = "disk (memmap)"

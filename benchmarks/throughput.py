@@ -200,7 +200,7 @@ def measure_dreamer(pair: Pair, setting: Setting, repeats: int) -> dict[str, Rat
     settings (:data:`DREAMER_KWARGS`, 64x64 frames, the warm-up's random steps first), timed over ``repeats``
     segments of ``dreamer_loop_steps`` steps that start after the warm-up. Dreamer-v3's updates/s are NaN (it has
     no ``train()`` of its own)."""
-    from sb3_ef.dreamerv3.timing import timed_training
+    from dreamer_timing import timed_training  # beside this file
 
     baseline = build(pair.baseline, setting, pair.kwargs(setting.size)[0])
     try:

@@ -1,5 +1,6 @@
-"""How fast sheeprl's Dreamer-v3 loop runs (acting, env steps, replay, gradient steps at the replay ratio), for the
-benchmarks: one training run that marks the time every few steps and evaluates and writes nothing."""
+"""How fast sheeprl's Dreamer-v3 loop runs (acting, env steps, replay, gradient steps at the replay ratio), for
+``gpu.py`` and ``throughput.py``: one training run that marks the time every few steps and evaluates and writes
+nothing."""
 
 from __future__ import annotations
 
