@@ -22,6 +22,7 @@ from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamp
 from sb3_ef.common.compile import CompileOption, compile_kwargs, maybe_compile
 from sb3_ef.common.env_checks import check_box_actions, check_stacked_frames, policy_observation_space
 from sb3_ef.common.exploration import OwnExplorationMixin
+from sb3_ef.common.forwarding import base_arguments
 from sb3_ef.common.layers import frozen
 from sb3_ef.common.schedules import StepSchedule, get_step_schedule
 from sb3_ef.common.validation import check_algorithm_arguments
@@ -116,28 +117,15 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
             check_stacked_frames(policy_observation_space(env.observation_space), "DrQ-v2")
             check_box_actions(env.action_space, "DrQ-v2")
         super().__init__(
-            policy,
-            env,
-            learning_rate,
-            buffer_size,
-            learning_starts,
-            batch_size,
-            tau,
-            gamma,
-            train_freq,
-            gradient_steps,
-            replay_buffer_class=replay_buffer_class,
-            replay_buffer_kwargs=dict(replay_buffer_kwargs or {}),
-            n_steps=n_steps,
-            policy_kwargs=dict(policy_kwargs or {}),
-            stats_window_size=stats_window_size,
-            tensorboard_log=tensorboard_log,
-            verbose=verbose,
-            device=device,
-            seed=seed,
-            sde_support=False,
-            supported_action_spaces=(spaces.Box,),
-            support_multi_env=True,
+            **base_arguments(
+                OffPolicyAlgorithm,
+                locals(),
+                replay_buffer_kwargs=dict(replay_buffer_kwargs or {}),
+                policy_kwargs=dict(policy_kwargs or {}),
+                sde_support=False,
+                supported_action_spaces=(spaces.Box,),
+                support_multi_env=True,
+            )
         )
         self.exploration_std = exploration_std
         self.target_noise_clip = target_noise_clip
@@ -351,32 +339,7 @@ class DrQv2EF(EFMixin, DrQv2):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ):
-        super().__init__(
-            policy,
-            env,
-            learning_rate,
-            buffer_size,
-            learning_starts,
-            batch_size,
-            tau,
-            gamma,
-            train_freq,
-            gradient_steps,
-            n_steps=n_steps,
-            exploration_std=exploration_std,
-            target_noise_clip=target_noise_clip,
-            check_finite_losses=check_finite_losses,
-            compile=compile,
-            replay_buffer_class=replay_buffer_class,
-            replay_buffer_kwargs=replay_buffer_kwargs,
-            stats_window_size=stats_window_size,
-            tensorboard_log=tensorboard_log,
-            policy_kwargs=policy_kwargs,
-            verbose=verbose,
-            seed=seed,
-            device=device,
-            _init_setup_model=False,
-        )
+        super().__init__(**base_arguments(DrQv2, locals(), _init_setup_model=False))
         self._init_ef(beta, ef_horizon, babbling_steps, babbling_mode, babbling_in_eval)
         if _init_setup_model:
             self._setup_model()

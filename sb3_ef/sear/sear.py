@@ -13,6 +13,7 @@ from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_ef.common.compile import CompileOption
+from sb3_ef.common.forwarding import base_arguments
 from sb3_ef.common.schedules import StepSchedule
 from sb3_ef.drqv2.drqv2 import DrQv2
 from sb3_ef.drqv2.policies import DrQv2Policy
@@ -103,32 +104,8 @@ class SEAR(DrQv2):
                 f"SEAR reads the agent masks from the replay buffer: replay_buffer_kwargs must not set store_masks "
                 f"to {store_masks!r}"
             )
-        super().__init__(
-            policy,
-            env,
-            learning_rate,
-            buffer_size,
-            learning_starts,
-            batch_size,
-            tau,
-            gamma,
-            train_freq,
-            gradient_steps,
-            n_steps=n_steps,
-            exploration_std=exploration_std,
-            target_noise_clip=target_noise_clip,
-            check_finite_losses=check_finite_losses,
-            compile=compile,
-            replay_buffer_class=replay_buffer_class,
-            replay_buffer_kwargs={**(replay_buffer_kwargs or {}), "store_masks": True},
-            stats_window_size=stats_window_size,
-            tensorboard_log=tensorboard_log,
-            policy_kwargs=policy_kwargs,
-            verbose=verbose,
-            seed=seed,
-            device=device,
-            _init_setup_model=False,
-        )
+        masks_kept = {**(replay_buffer_kwargs or {}), "store_masks": True}
+        super().__init__(**base_arguments(DrQv2, locals(), replay_buffer_kwargs=masks_kept, _init_setup_model=False))
         if self.env is not None:
             check_agent_masks(self.env)
         self.coefficients = coefficients

@@ -21,6 +21,7 @@ from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamp
 from sb3_ef.common.compile import CompileOption, compile_kwargs, maybe_compile
 from sb3_ef.common.env_checks import check_box_actions, policy_observation_space
 from sb3_ef.common.exploration import OwnExplorationMixin
+from sb3_ef.common.forwarding import base_arguments
 from sb3_ef.common.layers import frozen
 from sb3_ef.common.policy_arguments import policy_built_with
 from sb3_ef.common.validation import check_algorithm_arguments
@@ -126,27 +127,17 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
             check_pixel_space(policy_observation_space(env.observation_space))
             check_box_actions(env.action_space, "TD-MPC2")
         super().__init__(
-            policy,
-            env,
-            learning_rate,
-            buffer_size,
-            learning_starts,  # type: ignore[arg-type]  # None is resolved in _setup_model
-            batch_size,
-            tau,
-            gamma,  # type: ignore[arg-type]  # None is resolved in _setup_model
-            train_freq=1,
-            gradient_steps=-1,
-            replay_buffer_class=replay_buffer_class,
-            replay_buffer_kwargs=dict(replay_buffer_kwargs or {}),
-            policy_kwargs=dict(policy_kwargs or {}),
-            stats_window_size=stats_window_size,
-            tensorboard_log=tensorboard_log,
-            verbose=verbose,
-            device=device,
-            seed=seed,
-            sde_support=False,
-            supported_action_spaces=(spaces.Box,),
-            support_multi_env=True,
+            **base_arguments(
+                OffPolicyAlgorithm,
+                locals(),
+                train_freq=1,
+                gradient_steps=-1,
+                replay_buffer_kwargs=dict(replay_buffer_kwargs or {}),
+                policy_kwargs=dict(policy_kwargs or {}),
+                sde_support=False,
+                supported_action_spaces=(spaces.Box,),
+                support_multi_env=True,
+            )
         )
         self.horizon = horizon
         self.consistency_coef = consistency_coef

@@ -10,6 +10,7 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 
 from sb3_ef.common.compile import CompileOption
+from sb3_ef.common.forwarding import base_arguments
 from sb3_ef.ef.foresight import ForesightLoss
 from sb3_ef.ef.host import EFMixin
 from sb3_ef.tdmpc2.policies import TDMPC2EFPolicy
@@ -76,35 +77,7 @@ class TDMPC2EF(EFMixin, TDMPC2):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ):
-        super().__init__(
-            policy,
-            env,
-            learning_rate,
-            buffer_size,
-            learning_starts,
-            batch_size,
-            tau,
-            gamma,
-            horizon=horizon,
-            consistency_coef=consistency_coef,
-            reward_coef=reward_coef,
-            value_coef=value_coef,
-            entropy_coef=entropy_coef,
-            rho=rho,
-            max_grad_norm=max_grad_norm,
-            seed_burst=seed_burst,
-            check_finite_losses=check_finite_losses,
-            compile=compile,
-            replay_buffer_class=replay_buffer_class,
-            replay_buffer_kwargs=replay_buffer_kwargs,
-            stats_window_size=stats_window_size,
-            tensorboard_log=tensorboard_log,
-            policy_kwargs=policy_kwargs,
-            verbose=verbose,
-            seed=seed,
-            device=device,
-            _init_setup_model=False,
-        )
+        super().__init__(**base_arguments(TDMPC2, locals(), _init_setup_model=False))
         self._init_ef(beta, ef_horizon, babbling_steps, babbling_mode, babbling_in_eval)
         if _init_setup_model:
             self._setup_model()
