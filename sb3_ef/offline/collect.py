@@ -1,9 +1,8 @@
 """Record episodes of an sb3-ef env (motor babbling, or a saved DrQv2EF / TDMPC2EF policy) in the folder format or
 as a LeRobot dataset, with the simulator's agent masks.
 
-Episode ``i`` is reset with seed ``seed + i`` and babbles from a generator seeded with ``(seed, i)``, so it does not
-depend on the others: a rerun into the same folder keeps the intact episodes there and records the rest. The
-settings of a collection are kept in ``OUT/sb3_ef_collect.json``; a rerun with other settings is refused.
+Episode ``i`` depends on no other (reset with seed ``seed + i``, babbling seeded ``(seed, i)``), so a rerun into the
+same folder keeps the intact episodes and records the rest; the settings kept in ``OUT/sb3_ef_collect.json`` must match.
 """
 
 from __future__ import annotations
@@ -38,15 +37,9 @@ from sb3_ef.offline.progress import make_progress_bar
 FORMATS = ("npz", "h5", "lerobot")
 #: The file in the output folder that records a collection's settings.
 RECORD = "sb3_ef_collect.json"
-#: ``collect``'s recorded arguments and the ``sb3-ef collect`` options that set them, for the messages.
+#: The ``sb3-ef collect`` options that set ``collect``'s recorded arguments, where not ``--<argument>``.
 OPTIONS = {
     "env_name": "ENV",
-    "size": "--size",
-    "action_repeat": "--action-repeat",
-    "mode": "--mode",
-    "policy": "--policy",
-    "algo": "--algo",
-    "seed": "--seed",
     "fast_render": "--slow-render",
     "masks": "--no-masks",
     "file_format": "--format",
@@ -55,8 +48,8 @@ OPTIONS = {
 
 
 def record_episode(env: Any, act: Any, seed: int | None = None, source: str = "", masks: bool = True) -> Episode:
-    """Play one episode; ``act(observation) -> action``. Frames are the newest frame of each stacked observation;
-    ``masks=False`` skips the agent masks (one segmentation render less per step)."""
+    """Play one episode with ``act(observation) -> action``, keeping the newest frame of each observation and, with
+    ``masks``, the agent masks (a second render per step)."""
     observation, _ = env.reset(seed=seed)
     agent_mask: Callable[[], Any] = env.unwrapped.agent_mask if masks else lambda: None
     frames, agent_masks, actions = [observation[-FRAME_CHANNELS:]], [agent_mask()], []
@@ -72,8 +65,7 @@ def record_episode(env: Any, act: Any, seed: int | None = None, source: str = ""
 
 
 class _Recorder:
-    """The env and the actor of a collection: episode ``i`` is reset with seed ``seed + i`` and babbles from a
-    generator seeded with ``(seed, i)``."""
+    """The env and the actor (babbling, or the saved ``policy``) of a collection."""
 
     def __init__(self, settings: dict[str, Any], env_kwargs: dict[str, Any]):
         from sb3_ef.analysis.cli import load_ef_model
@@ -121,24 +113,18 @@ def collect(
     **env_kwargs: Any,
 ) -> list[str]:
     """Write ``episodes`` files ``episode_00000.<npz|h5>`` to ``out_dir`` and return their paths, or with
-    ``file_format="lerobot"`` a LeRobot v3.0 dataset (:class:`~sb3_ef.offline.lerobot_writer.LeRobotWriter`: AV1
-    video, actions and agent masks in Parquet) and return ``[out_dir]``.
-
-    A rerun into the same folder (with the same settings) keeps what is there and records the rest: intact
-    NPZ / HDF5 episodes are kept (a damaged one is recorded again, with a warning), a LeRobot dataset is continued.
-    Ctrl-C keeps the finished episodes (a LeRobot dataset of them) and raises
-    :class:`~sb3_ef.common.interrupt.Interrupted`.
+    ``file_format="lerobot"`` a LeRobot v3.0 dataset (:class:`~sb3_ef.offline.lerobot_writer.LeRobotWriter`) and
+    return ``[out_dir]``. A rerun keeps the intact episodes there (a damaged one is recorded again, with a warning)
+    and records the rest; Ctrl-C keeps the finished ones and raises :class:`~sb3_ef.common.interrupt.Interrupted`.
 
     :param env_name: ``dmc/<domain>-<task>``, ``metaworld/<task>`` or another registered sb3-ef env (``toy/agent-v0``).
     :param mode: babbling mode when no ``policy`` is given (``"sign"`` as in the paper, or ``"clamped_uniform"``).
     :param policy: path of a saved DrQv2EF / TDMPC2EF to act instead of babbling (its frame size and stack are used).
     :param algo: ``drqv2_ef`` or ``tdmpc2_ef`` for ``policy`` (default: tried in turn).
-    :param fast_render: render without shadows and reflections (several times faster on CPU); train an RL agent
-        that is to start from these frames with the same setting.
+    :param fast_render: render without shadows and reflections (faster on CPU; train on the same setting).
     :param env_kwargs: more ``make_env`` options, e.g. ``episode_length`` (simulator steps).
-    :param masks: record agent masks for every episode (True), none (False), or the episodes of these indices
-        (a LeRobot dataset has masks for every episode or none: any index records all)
-        (masks are only needed to score held-out episodes; each costs a second render per step).
+    :param masks: agent masks (needed only to score held-out episodes) for every episode, none, or the episodes of
+        these indices (in a LeRobot dataset: any index records all).
     """
     if file_format not in FORMATS:
         raise ValueError(f"file_format must be one of {FORMATS}, got {file_format!r}")
@@ -159,19 +145,18 @@ def collect(
         return _collect_files(recorder, out_dir, settings, episodes, masks, bar)
     finally:
         recorder.env.close()
-        if bar is not None:
-            bar.close()
+        bar.close()
 
 
 def _check_folder(out_dir: str, settings: dict[str, Any]) -> None:
-    """Refuse a folder collected with other settings, and for a LeRobot dataset one holding anything else."""
+    """Refuse a folder collected with other settings, or (for a LeRobot dataset) holding anything else."""
     path = os.path.join(out_dir, RECORD)
     if os.path.isfile(path):
         with open(path) as file:
             recorded = json.load(file)
         ignored = {"masks"} if settings["file_format"] != "lerobot" else set()  # masks are per episode file
         differences = [
-            f"{OPTIONS[name]}: {recorded.get(name)!r}, not {value!r}"
+            f"{OPTIONS.get(name, '--' + name.replace('_', '-'))}: {recorded.get(name)!r}, not {value!r}"
             for name, value in settings.items()
             if name not in ignored and recorded.get(name) != value
         ]
@@ -190,7 +175,7 @@ def _check_folder(out_dir: str, settings: dict[str, Any]) -> None:
 
 
 def _write_record(out_dir: str, settings: dict[str, Any]) -> None:
-    """Keep the settings in ``out_dir`` (left as it is when it holds them already: a full disk still reruns)."""
+    """Keep the settings in ``out_dir`` (a file that holds them already is left alone: a full disk still reruns)."""
     os.makedirs(out_dir, exist_ok=True)
     path, text = os.path.join(out_dir, RECORD), json.dumps(settings, indent=2)
     if not os.path.isfile(path) or Path(path).read_text() != text:
@@ -211,8 +196,7 @@ def _collect_files(
                 episode = recorder.episode(index, path, with_masks)
                 with sigint_deferred():  # the file is written whole: an interrupt waits for it
                     write_episode(path, episode)
-            if bar is not None:
-                bar.update(1)
+            bar.update(1)
     except KeyboardInterrupt:
         count = sum(os.path.isfile(path) for path in paths)
         raise Interrupted(
@@ -231,8 +215,8 @@ def _collect_files(
 
 
 def _intact_episodes(paths: list[str], recorder: _Recorder) -> set[int]:
-    """The indices of the episode files already there that read back intact; a damaged one is named in a warning
-    (and recorded again), one of another frame shape or action size is refused before anything is recorded."""
+    """The indices of the episode files there that read back intact (a damaged one: a warning); one of another frame
+    shape or action size is refused before anything is recorded."""
     intact, other_shapes = set(), []
     for index, path in enumerate(paths):
         if not os.path.exists(path):
@@ -261,16 +245,14 @@ def _collect_lerobot(recorder: _Recorder, out_dir: str, settings: dict[str, Any]
     masks = bool(settings["masks"])
     writer = LeRobotWriter(out_dir, recorder.frame_shape, recorder.action_dim, masks=masks, append=True)
     _write_record(out_dir, settings)
-    if bar is not None:
-        bar.update(min(writer.episodes, episodes))
+    bar.update(min(writer.episodes, episodes))
     if writer.episodes >= episodes:
         return out_dir
     try:
         with writer:  # on an error or Ctrl-C it still finishes the episodes added (files and meta/)
             for index in range(writer.episodes, episodes):
                 writer.add(recorder.episode(index, f"{out_dir} (episode {index})", masks))
-                if bar is not None:
-                    bar.update(1)
+                bar.update(1)
     except KeyboardInterrupt:
         raise Interrupted(
             f"{writer.episodes} of {episodes} episodes are in {out_dir}, a LeRobot dataset of those (one still being "

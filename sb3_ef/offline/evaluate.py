@@ -1,10 +1,8 @@
-"""Held-out scores of an offline EF model, each next to the baseline that copies the last context frame.
+"""Held-out scores of an offline EF model, each next to the baseline that copies the last context frame t.
 
-For every window (last context frame t) and every k = 1..H: the squared error per value of the predicted frame
-t + k over the whole frame and over the agent's pixels (the union of the agent masks at t and t + k: where the
-agent is or was, the pixels a static copy gets wrong), and the same for the copy of frame t. Saliency: the h_a
-saliency of the predicted frame t + k (``sb3_ef.analysis.saliency``), thresholded with the mean + std rule and
-scored against the agent mask at t + k; "chance" is the mask's share of the frame, the precision of a random guess.
+For k = 1..H: the squared error of the predicted frame t + k over the frame and over the agent's pixels (where it is
+at t or t + k: what a copy gets wrong); and the precision of its thresholded h_a saliency against the agent mask at
+t + k, next to "chance", the mask's share of the frame.
 """
 
 from __future__ import annotations
@@ -49,14 +47,9 @@ def evaluate(
     seed: int = 0,
     progress: bool = False,
 ) -> dict[str, float | list[float]]:
-    """Scores on ``episodes`` (held out): per-k lists and their means over k = 1..H, ratios model / copy.
-
-    ``progress`` shows a bar over the prediction batches and the saliency windows (each costs a backward pass per
-    4x4 patch: minutes on a CPU).
-
-    Keys: ``frame_mse``, ``copy_frame_mse``, ``frame_ratio`` and, when the episodes have masks, ``agent_mse``,
-    ``copy_agent_mse``, ``agent_ratio``, ``saliency_precision``, ``saliency_recall``, ``saliency_chance``,
-    ``saliency_precision_over_chance``; ``*_per_k`` lists; ``windows``.
+    """Scores on held-out ``episodes``: ``frame_mse``, ``copy_frame_mse``, ``frame_ratio`` (model / copy) and, with
+    masks, the same for ``agent`` and ``saliency_precision`` / ``_recall`` / ``_chance`` / ``_precision_over_chance``;
+    means over k = 1..H of the ``*_per_k`` lists; ``windows``. ``progress`` shows a bar (saliency takes minutes on CPU).
     """
     config = model.config
     picks = evaluation_picks(episodes, config.context, config.horizon, stride)
@@ -82,16 +75,14 @@ def evaluate(
             sums["agent"] += (model_error * agent).sum(dim=(0, 2, 3)).cpu().numpy()
             sums["copy_agent"] += (copy_error * agent).sum(dim=(0, 2, 3)).cpu().numpy()
             sums["agent_pixels"] += agent.sum(dim=(0, 2, 3)).cpu().numpy()
-        if bar is not None:
-            bar.update(1)
+        bar.update(1)
     scores: dict[str, float | list[float]] = {"windows": float(len(picks))}
     _add_errors(scores, "frame", sums["frame"] / len(picks), sums["copy_frame"] / len(picks))
     if with_masks:
         pixels = np.maximum(sums["agent_pixels"], 1)
         _add_errors(scores, "agent", sums["agent"] / pixels, sums["copy_agent"] / pixels)
         scores.update(saliency_scores(model, episodes, picks, saliency_windows, seed, bar))
-    if bar is not None:
-        bar.close()
+    bar.close()
     return scores
 
 
@@ -117,8 +108,8 @@ def saliency_scores(
     episodes: list[Episode],
     picks: list[tuple[int, int]],
     count: int,
-    seed: int = 0,
-    bar: Any = None,
+    seed: int,
+    bar: Any,
 ) -> dict[str, float]:
     """Mean precision / recall of the thresholded h_a saliency of the predicted frame t + k (k drawn in 1..H)
     against the agent mask at t + k, over ``count`` windows drawn from ``picks``."""
@@ -129,8 +120,7 @@ def saliency_scores(
     precision, recall, chance = [], [], []
     for i, k in enumerate(rng.integers(1, config.horizon + 1, len(chosen))):
         truth = windows.masks[i, k].cpu().numpy()  # type: ignore[index]
-        if bar is not None:
-            bar.update(1)
+        bar.update(1)
         if not truth.any():
             continue
         scores = mask_scores(threshold_saliency(window_saliency(model, windows, i, int(k)).agent), truth)

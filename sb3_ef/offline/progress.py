@@ -5,13 +5,21 @@ from __future__ import annotations
 from typing import Any
 
 
+class _NoBar:
+    """The part of tqdm's interface the callers use, doing nothing."""
+
+    def update(self, n: int = 1) -> None: ...
+
+    def set_postfix(self, **values: Any) -> None: ...
+
+    def close(self) -> None: ...
+
+
 def make_progress_bar(total: int, description: str, unit: str, enabled: bool = True, initial: int = 0) -> Any:
-    """A tqdm bar over ``total`` items starting at ``initial``, or None when ``enabled`` is False or tqdm is not
-    installed (callers update it only when it is not None)."""
-    if not enabled:
-        return None
+    """A tqdm bar over ``total`` items starting at ``initial``; one that shows nothing when not ``enabled`` or when
+    tqdm is not installed."""
     try:
         from tqdm.auto import tqdm
     except ImportError:
-        return None
-    return tqdm(total=total, initial=initial, desc=description, unit=unit)
+        return _NoBar()
+    return tqdm(total=total, initial=initial, desc=description, unit=unit, disable=not enabled)
