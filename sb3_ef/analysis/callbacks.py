@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TypedDict, cast
+from typing import Any, cast
 
 import gymnasium as gym
 from stable_baselines3.common.callbacks import BaseCallback
@@ -17,34 +17,17 @@ from sb3_ef.ef.probe import fit_probe
 _NOT_TEXT = ("stdout", "log", "json", "csv")
 
 
-class _ThresholdKwargs(TypedDict):
-    threshold_rule: str
-    num_std: float
-    fraction: float
-
-
 class ForesightLoggerCallback(BaseCallback):
-    """Every ``log_freq`` calls, play the model on ``eval_env`` and log what EF predicts for those actions.
-
-    Works with any model that follows the EF contract (``model.ef``, ``model.encode``, ``model.frame_shape``),
-    i.e. DrQv2EF and TDMPC2EF. From the reset observation, the model acts (``model.predict``) for ``steps`` steps
-    (fewer if the episode ends); EF then predicts those frames open loop from the reset observation. Logged:
-
-    - ``foresight/prediction`` (image): rows = context frames, predicted frames, true frames;
-    - ``foresight/saliency`` (image): last predicted frame, its h_a saliency overlay (red), its h_s overlay (blue);
-    - ``foresight/prediction_mse``: mean squared pixel error in [0, 1] units, predicted vs true;
-    - ``foresight/mask_precision``, ``mask_recall``, ``mask_iou`` of the thresholded h_a map against
-      ``eval_env.unwrapped.agent_mask()`` after the last step, when the env provides agent masks.
+    """Every ``log_freq`` calls, play a model with EF (DrQv2EF, TDMPC2EF) ``steps`` steps (default: EF's horizon) on
+    ``eval_env`` from its reset, and log EF's open-loop prediction of those frames: ``foresight/prediction`` (rows:
+    context, predicted, true frames), ``foresight/saliency`` (the last predicted frame, its h_a overlay in red and h_s
+    in blue), ``foresight/prediction_mse`` and, when the env gives agent masks, ``foresight/mask_precision``,
+    ``mask_recall`` and ``mask_iou`` of the thresholded h_a map (:func:`~sb3_ef.analysis.masks.threshold_saliency`).
 
     :param eval_env: a single gymnasium env with the training env's observations (e.g. ``make_env(...)``).
-    :param log_freq: log every this many callback calls (environment steps of one env).
-    :param steps: prediction length; default the EF horizon.
     :param seed: reset seed, so every log starts from the same state (None: a fresh state each time).
-    :param threshold_rule, num_std, fraction: passed to :func:`~sb3_ef.analysis.masks.threshold_saliency`.
-    :param patch_size: saliency patch size in pixels.
-    :param probe_steps: latent EF (``ef_kwargs=dict(target="latent")``) decodes through its probe decoder: before
-        each log it is fitted this many more steps on the replay buffer (:func:`~sb3_ef.ef.probe.fit_probe`, which
-        leaves what training draws as it was).
+    :param probe_steps: latent EF decodes through its probe decoder, fitted this many more steps before each log
+        (:func:`~sb3_ef.ef.probe.fit_probe`, which leaves what training draws as it was).
     """
 
     def __init__(
@@ -74,7 +57,11 @@ class ForesightLoggerCallback(BaseCallback):
         self.probe_steps = probe_steps
         self.eval_env, self.log_freq, self.steps, self.seed = eval_env, log_freq, steps, seed
         self.deterministic, self.patch_size = deterministic, patch_size
-        self.threshold_kwargs = _ThresholdKwargs(threshold_rule=threshold_rule, num_std=num_std, fraction=fraction)
+        self.threshold_kwargs: dict[str, Any] = {
+            "threshold_rule": threshold_rule,
+            "num_std": num_std,
+            "fraction": fraction,
+        }
 
     def _init_callback(self) -> None:
         if getattr(self.model, "ef", None) is None:

@@ -12,18 +12,9 @@ THRESHOLD_RULES = ("mean_std", "top_fraction")
 def threshold_saliency(
     saliency: np.ndarray, rule: str = "mean_std", num_std: float = 1.0, fraction: float = 0.1
 ) -> np.ndarray:
-    """Turn a saliency map into a boolean "agent" mask.
-
-    Rules:
-
-    - ``"mean_std"`` (default): pixels whose value is strictly above ``mean + num_std * std`` of the map.
-      Scale-free, so it does not depend on how the map was normalised.
-    - ``"top_fraction"``: the ``fraction`` of pixels with the highest values (ties at the cut included).
-      Passing the true mask's pixel fraction gives the "matched size" rule, for which precision equals recall.
-
-    :param saliency: (h, w) map, e.g. ``Saliency.agent``.
-    :return: (h, w) bool array.
-    """
+    """A (h, w) saliency map as a boolean "agent" mask: by ``"mean_std"``, the pixels above ``mean + num_std * std``
+    (scale-free); by ``"top_fraction"``, the ``fraction`` of highest pixels, ties included (the true mask's fraction
+    gives the "matched size" rule, where precision equals recall)."""
     saliency = np.asarray(saliency, dtype=np.float64)
     if saliency.ndim != 2:
         raise ValueError(f"Expected a (height, width) saliency map, got shape {saliency.shape}")
@@ -55,11 +46,8 @@ def _ratio(numerator: int, denominator: int) -> float:
 
 
 def mask_scores(predicted: np.ndarray, target: np.ndarray) -> MaskScores:
-    """Precision TP/(TP+FP), recall TP/(TP+FN) and IoU TP/(TP+FP+FN) of two boolean masks of the same shape.
-
-    A ratio with a zero denominator (nothing predicted, no agent in view, both empty) is NaN rather than a
-    made-up 0 or 1, so averages over frames can skip it with ``np.nanmean``.
-    """
+    """Precision TP/(TP+FP), recall TP/(TP+FN) and IoU TP/(TP+FP+FN) of two boolean masks of the same shape; a
+    ratio with a zero denominator is NaN (not a made-up 0 or 1: ``np.nanmean`` skips it)."""
     predicted = np.asarray(predicted)
     target = np.asarray(target)
     if predicted.shape != target.shape:

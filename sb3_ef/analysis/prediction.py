@@ -26,12 +26,13 @@ class ForesightModel(Protocol):
     def encode(self, observations: th.Tensor) -> th.Tensor: ...
 
 
+Encoder = Callable[[th.Tensor], th.Tensor]
+
+
 def resolve_foresight(
-    model: ForesightModel | None = None,
-    encoder: Callable[[th.Tensor], th.Tensor] | None = None,
-    ef: EgoForesight | None = None,
-) -> tuple[Callable[[th.Tensor], th.Tensor], EgoForesight]:
-    """Return ``(encode, ef)`` from either a model following the contract or an explicit encoder + EF module."""
+    model: ForesightModel | None = None, encoder: Encoder | None = None, ef: EgoForesight | None = None
+) -> tuple[Encoder, EgoForesight]:
+    """``(encode, ef)`` of a model following the contract, or of an explicit encoder and EF module."""
     if model is not None:
         if encoder is not None or ef is not None:
             raise ValueError("Pass either a model or encoder + ef, not both")
@@ -56,7 +57,7 @@ def module_device(module: nn.Module) -> th.device:
 
 @contextlib.contextmanager
 def eval_mode(*modules: Any) -> Iterator[None]:
-    """Put the given nn.Modules in eval mode (BatchNorm statistics, no dropout) and restore their flags after."""
+    """The given nn.Modules in eval mode (BatchNorm statistics, no dropout) within the block."""
     torch_modules = [module for module in modules if isinstance(module, nn.Module)]
     flags = [module.training for module in torch_modules]
     for module in torch_modules:
@@ -79,6 +80,17 @@ def as_observation_batch(observation: np.ndarray | th.Tensor, device: th.device)
     return tensor.unsqueeze(0).to(device)
 
 
+def action_batch(actions: np.ndarray | th.Tensor, ef: EgoForesight, device: th.device) -> th.Tensor:
+    """(T, action_dim) actions, checked against ``ef``, as a float (1, T, action_dim) batch on ``device``."""
+    tensor = actions if isinstance(actions, th.Tensor) else th.as_tensor(np.asarray(actions, dtype=np.float32))
+    if tensor.dim() != 2 or tensor.shape[0] < 1:
+        raise ValueError(f"Expected actions of shape (steps, action_dim), got {tuple(tensor.shape)}")
+    expected_dim = getattr(ef, "action_dim", tensor.shape[1])
+    if tensor.shape[1] != expected_dim:
+        raise ValueError(f"Expected actions with {expected_dim} dimensions, got {tensor.shape[1]}")
+    return tensor.float().unsqueeze(0).to(device)
+
+
 def context_frames(observation: np.ndarray) -> np.ndarray:
     """The frames of a channels-first stacked observation, oldest first, as uint8 (k, h, w, 3)."""
     observation = np.asarray(observation)
@@ -95,15 +107,9 @@ def to_uint8_frames(frames: th.Tensor) -> np.ndarray:
 
 
 def figure_eight_actions(steps: int, action_dim: int, period: int = 40) -> np.ndarray:
-    """A hand-made probe sequence: the velocity of a figure-eight (1:2 Lissajous) path.
-
-    Component 0 is ``cos(2 pi t / period)`` and component 1 is ``cos(4 pi t / period)``: integrating them (as a
-    delta-position action space like Meta-World's does) traces ``x = sin(w t)``, ``y = sin(2 w t) / 2``, a figure
-    eight. Components beyond the first two are zero, so on higher-dimensional action spaces only the first two
-    actuators move; on a 1-D action space (cartpole) component 0 alone swings back and forth.
-
-    :return: float32 (steps, action_dim) in [-1, 1].
-    """
+    """A hand-made probe, float32 (steps, action_dim) in [-1, 1]: ``cos(w t)`` and ``cos(2 w t)`` on the first two
+    components (zero on the others), the velocity of a figure eight (1:2 Lissajous) in a delta-position action space
+    like Meta-World's; on a 1-D action space (cartpole) component 0 alone swings back and forth."""
     if action_dim < 1:
         raise ValueError(f"figure_eight_actions needs an action space with at least 1 dimension, got {action_dim}")
     if steps < 1 or period < 2:
@@ -121,28 +127,16 @@ def predict_open_loop(
     observation: np.ndarray | th.Tensor,
     actions: np.ndarray | th.Tensor,
     model: ForesightModel | None = None,
-    encoder: Callable[[th.Tensor], th.Tensor] | None = None,
+    encoder: Encoder | None = None,
     ef: EgoForesight | None = None,
 ) -> np.ndarray:
-    """Predict the next T frames open loop: encode the C context frames once, roll h_a forward through the T
-    actions and decode each step with the context's h_s (``EgoForesight.predict``). T may exceed the training
-    horizon.
-
-    :param observation: one stacked uint8 observation (3 * C, h, w), channels-first, oldest frame first.
-    :param actions: (T, action_dim) actions in [-1, 1].
-    :return: uint8 (T, h, w, 3).
-    """
+    """The T frames, uint8 (T, h, w, 3), EF predicts open loop (``EgoForesight.predict``) after ``actions`` (T,
+    action_dim) from one stacked uint8 ``observation`` (3 * C, h, w), oldest frame first; T may exceed the horizon."""
     encode, foresight = resolve_foresight(model, encoder, ef)
     device = module_device(foresight)
-    action_tensor = actions if isinstance(actions, th.Tensor) else th.as_tensor(np.asarray(actions, dtype=np.float32))
-    if action_tensor.dim() != 2 or action_tensor.shape[0] < 1:
-        raise ValueError(f"Expected actions of shape (steps, action_dim), got {tuple(action_tensor.shape)}")
-    expected_dim = getattr(foresight, "action_dim", action_tensor.shape[1])
-    if action_tensor.shape[1] != expected_dim:
-        raise ValueError(f"Expected actions with {expected_dim} dimensions, got {action_tensor.shape[1]}")
     with eval_mode(foresight, encoder):
         features = encode(as_observation_batch(observation, device))
-        frames = foresight.predict(features, action_tensor.float().unsqueeze(0).to(device))
+        frames = foresight.predict(features, action_batch(actions, foresight, device))
     return to_uint8_frames(frames[0])
 
 
@@ -184,10 +178,7 @@ def save_prediction_grid(
 
 
 def save_video(path: str | os.PathLike, predicted: np.ndarray, true: np.ndarray | None = None, fps: int = 10) -> str:
-    """GIF or MP4 (by suffix) of the predicted frames, side by side with the true ones when given.
-
-    MP4 needs the ``imageio-ffmpeg`` package.
-    """
+    """GIF or MP4 (by suffix; MP4 needs ``imageio-ffmpeg``) of the predicted frames, beside the true ones if given."""
     frames = predicted if true is None else np.concatenate([predicted, true[: len(predicted)]], axis=2)
     import imageio.v2 as imageio
 

@@ -1,22 +1,21 @@
 """Which pixels of a predicted frame each half of the representation controls (paper Section 4.2).
 
-The decoded frame is cut into ``patch_size`` x ``patch_size`` patches. For every patch the scalar is the sum of
-its decoded pixel values over the three colour channels (values in [0, 1], before any conversion to uint8); the
-patch's score is the L2 norm of that scalar's gradient with respect to the agent features h_a fed to the
-decoder, and separately with respect to the scene features h_s. All patches are differentiated in one batched
-backward pass (``is_grads_batched``), in chunks to bound memory.
+A patch's score is the L2 norm of the gradient of its summed decoded values (in [0, 1], over the colours) with
+respect to the agent features h_a fed to the decoder, and separately to the scene features h_s; the patches are
+differentiated in chunks of batched backward passes (``is_grads_batched``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 import torch as th
 
 from sb3_ef.analysis.prediction import (
+    Encoder,
     ForesightModel,
+    action_batch,
     as_observation_batch,
     eval_mode,
     module_device,
@@ -28,12 +27,8 @@ from sb3_ef.ef import EgoForesight
 
 @dataclass(frozen=True)
 class Saliency:
-    """Saliency of one decoded frame.
-
-    ``agent`` / ``scene`` are (h, w) maps at frame resolution, each patch's value broadcast over its pixels and
-    each map divided by its own maximum (so in [0, 1]; an all-zero map stays zero). ``agent_patches`` /
-    ``scene_patches`` keep the raw gradient norms per patch, (h / patch, w / patch), to compare magnitudes.
-    """
+    """Saliency of one decoded frame: ``agent`` / ``scene`` (h, w) maps in [0, 1] (each divided by its maximum), and
+    the raw gradient norms per patch, ``agent_patches`` / ``scene_patches``, to compare magnitudes."""
 
     frame: np.ndarray
     agent: np.ndarray
@@ -56,12 +51,8 @@ def decoder_saliency(
     skip: th.Tensor | None = None,
     chunk_size: int = 128,
 ) -> Saliency:
-    """Saliency of ``ef.decode(h_scene, h_agent)`` for a batch of one.
-
-    :param h_scene: (1, scene_dim) scene features.
-    :param h_agent: (1, agent_dim) agent features as given to the decoder (context or rolled out).
-    :param chunk_size: patches differentiated per batched backward call.
-    """
+    """Saliency of ``ef.decode(h_scene, h_agent)`` for (1, scene_dim) and (1, agent_dim) features (h_a of the
+    context or rolled out); ``chunk_size`` patches are differentiated per batched backward call."""
     if h_scene.dim() != 2 or h_agent.dim() != 2 or h_scene.shape[0] != 1 or h_agent.shape[0] != 1:
         raise ValueError(
             f"Expected h_scene (1, scene_dim) and h_agent (1, agent_dim), got {tuple(h_scene.shape)} "
@@ -103,22 +94,18 @@ def compute_saliency(
     observation: np.ndarray | th.Tensor,
     actions: np.ndarray | th.Tensor | None = None,
     model: ForesightModel | None = None,
-    encoder: Callable[[th.Tensor], th.Tensor] | None = None,
+    encoder: Encoder | None = None,
     ef: EgoForesight | None = None,
     patch_size: int = 4,
 ) -> Saliency:
-    """Saliency of the frame EF predicts after ``actions`` (T, action_dim) from one stacked observation, or of
-    its reconstruction of the newest context frame when ``actions`` is None. Gradients are taken with respect
-    to the decoder's inputs: the context's h_s and the (rolled-out) h_a."""
+    """Saliency of the frame EF predicts after ``actions`` (T, action_dim) from one stacked observation, or of its
+    reconstruction of the newest context frame when ``actions`` is None."""
     encode, foresight = resolve_foresight(model, encoder, ef)
     device = module_device(foresight)
     with th.no_grad(), eval_mode(foresight, encoder):
         h_scene, h_agent = foresight.split(encode(as_observation_batch(observation, device)))
         if actions is not None:
-            action_tensor = th.as_tensor(np.asarray(actions, dtype=np.float32)).to(device)
-            if action_tensor.dim() != 2:
-                raise ValueError(f"Expected actions of shape (steps, action_dim), got {tuple(action_tensor.shape)}")
-            h_agent = foresight.rollout(h_agent, action_tensor.unsqueeze(0))[:, -1]
+            h_agent = foresight.rollout(h_agent, action_batch(actions, foresight, device))[:, -1]
     return decoder_saliency(foresight, h_scene, h_agent, patch_size=patch_size)
 
 
