@@ -1,11 +1,7 @@
 """Ego-Foresight without RL: robot-video datasets, offline pretraining, open-loop prediction and warm starts.
 
-The public names are imported on first use (``from sb3_ef.offline import LeRobotDataset, open_dataset, collect,
-pretrain``), so that the command line checks its arguments before torch is imported. See docs/offline.md.
-
-``collect``, ``pretrain`` and ``evaluate`` are functions here even though modules of those names exist: their
-other names are imported from the modules (``from sb3_ef.offline.pretrain import CHECKPOINT``), not reached as
-attributes (``import sb3_ef.offline.pretrain as module`` gives the function).
+The public names are imported on first use, so that the command line checks its arguments before torch loads.
+``collect``, ``pretrain`` and ``evaluate`` here are the functions, not their modules. See docs/offline.md.
 """
 
 from __future__ import annotations
@@ -55,9 +51,8 @@ __getattr__ = lazy_attributes(__name__, _PUBLIC)
 
 
 class _Package(types.ModuleType):
-    """Keeps ``collect``, ``pretrain`` and ``evaluate`` the functions of those names: the import system records a
-    loaded submodule on its package under its own name, which would hide the function of the same name (the
-    submodules stay importable: ``from sb3_ef.offline.collect import collect``)."""
+    """Keeps ``collect``, ``pretrain`` and ``evaluate`` the functions: the import system would set each loaded
+    submodule on its package, hiding the function of the same name."""
 
     def __setattr__(self, name: str, value: Any) -> None:
         if not (name in _PUBLIC and isinstance(value, types.ModuleType)):

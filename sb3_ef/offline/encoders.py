@@ -20,13 +20,9 @@ DCGAN_FRAME_SIZE = 64
 
 
 class DCGANUNetEncoder(nn.Module):
-    """DCGAN encoder for 64x64 frames: four Conv(4, stride 2) + BatchNorm + LeakyReLU(0.2) blocks (64 -> 32 -> 16
-    -> 8 -> 4, ``width`` times 1, 2, 4, 8 channels), then a 4x4 convolution to ``features_dim`` and a tanh.
-
-    The output of block ``skip_block`` (0-based, default 1: ``2 * width`` channels at 16x16) is returned as the U-Net
-    skip map that EF's decoder resizes to each of its layers; it carries the scene's detail so that ``h`` can leave
-    it out. ``skip_block=None`` returns no skip.
-    """
+    """DCGAN encoder for 64x64 frames: four Conv(4, stride 2) + BatchNorm + LeakyReLU(0.2) blocks of ``width`` times
+    1, 2, 4, 8 channels, then a 4x4 convolution to ``features_dim`` and a tanh. Block ``skip_block``'s output (None:
+    none) is the U-Net skip map EF's decoder takes, carrying the scene's detail so that ``h`` can leave it out."""
 
     def __init__(self, in_channels: int, features_dim: int = 128, width: int = 32, skip_block: int | None = 1):
         super().__init__()
@@ -74,11 +70,8 @@ class HostEncoder(nn.Module):
 def build_encoder(
     kind: str, frame_shape: tuple[int, int, int], context: int, action_dim: int, **kwargs
 ) -> DCGANUNetEncoder | HostEncoder:
-    """The encoder ``kind`` (one of :data:`ENCODERS`) for ``context`` stacked frames of ``frame_shape``.
-
-    kwargs: ``features_dim`` (128) / ``width`` (32) / ``skip_block`` (1) for ``"dcgan-unet"``; ``features_dim``
-    (2048) for ``"drqv2"``; ``num_channels`` (32, latent ``16 * num_channels``) / ``simnorm_dim`` (8) for ``"tdmpc2"``.
-    """
+    """The encoder ``kind`` (one of :data:`ENCODERS`) for ``context`` stacked frames of ``frame_shape``; ``kwargs``
+    go to :class:`DCGANUNetEncoder`, ``DrQv2Encoder`` (``features_dim`` 2048) or TD-MPC2's ``WorldModel``."""
     _, height, width = frame_shape
     in_channels = FRAME_CHANNELS * context
     if kind == "dcgan-unet":

@@ -1,11 +1,7 @@
-"""Feature statistics of a LeRobot dataset (``meta/stats.json`` and the episode table's ``stats/...`` columns), in
-LeRobot's form: ``min``, ``max``, ``mean``, ``std``, ``count`` and the quantiles ``q01``, ``q10``, ``q50``, ``q90``,
-``q99`` of every feature; camera statistics per colour channel, shaped (3, 1, 1), in [0, 1]; vectors per component.
-
-Episode statistics are exact (uint8 frames through their histograms). The dataset's are aggregated from the
-episodes' as LeRobot aggregates them: means weighted by frame count, the pooled standard deviation, the least
-minimum and greatest maximum, and for quantiles the envelope of the episodes' (the least q01 / q10 / q50, the
-greatest q90 / q99), which bounds the dataset's quantiles but is not an estimate of them.
+"""Feature statistics of a LeRobot dataset (``meta/stats.json``, the episode table's ``stats/...``) in LeRobot's form:
+``min``, ``max``, ``mean``, ``std``, ``count`` and quantiles ``q01`` .. ``q99``, per colour channel of a camera (in
+[0, 1], shaped (3, 1, 1)) or component of a vector. Episodes' are exact; the dataset's aggregate them as LeRobot does
+(weighted means, pooled std, and for quantiles the envelope of the episodes', a bound rather than an estimate).
 """
 
 from __future__ import annotations

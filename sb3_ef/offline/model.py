@@ -73,11 +73,8 @@ class OfflineEF(nn.Module):
 
 
 def read_checkpoint(path: str | os.PathLike, device: str | th.device = "cpu") -> dict[str, Any]:
-    """The dict of a checkpoint written by ``pretrain`` (``model.pt`` or ``checkpoint.pt``).
-
-    Only tensors and plain values are unpickled (``weights_only``). A missing file is a ``FileNotFoundError``; a
-    damaged or truncated file, a Stable-Baselines3 model zip or another file a ``ValueError`` naming it.
-    """
+    """The dict of a checkpoint written by ``pretrain`` (``model.pt`` or ``checkpoint.pt``), unpickled
+    ``weights_only``; a damaged file, a Stable-Baselines3 model zip or another file is a ``ValueError`` naming it."""
     name = os.fspath(path)
     if not os.path.isfile(name):
         raise FileNotFoundError(f"No pretrained model at {name!r}")
@@ -100,8 +97,7 @@ def read_checkpoint(path: str | os.PathLike, device: str | th.device = "cpu") ->
 
 
 def load_pretrained(path: str | os.PathLike, device: str | th.device = "cpu") -> tuple[OfflineEF, dict[str, Any]]:
-    """Rebuild an :class:`OfflineEF` from a checkpoint written by ``pretrain``; returns it (in eval mode) and the
-    whole checkpoint dict (:func:`read_checkpoint` says which files are refused)."""
+    """The :class:`OfflineEF` of a ``pretrain`` checkpoint (in eval mode) and the checkpoint's dict."""
     checkpoint = read_checkpoint(path, device)
     config = dict(checkpoint["config"])
     config["frame_shape"] = tuple(config["frame_shape"])

@@ -42,8 +42,8 @@ def labelled_grid(rows: list[np.ndarray], labels: list[str], spacing: int = 2) -
 
 @th.no_grad()
 def predict_frames(model: OfflineEF, context: np.ndarray, actions: np.ndarray) -> np.ndarray:
-    """Frames after each of ``actions`` (T, action_dim) from ``context`` uint8 (context, 3, H, W), oldest first;
-    returns uint8 (T, H, W, 3). T may exceed the training horizon."""
+    """The frames, uint8 (T, H, W, 3), after each of ``actions`` (T, action_dim) from uint8 ``context`` frames
+    (context, 3, H, W), oldest first; T may exceed the training horizon."""
     config = model.config
     context = np.asarray(context)
     expected = (config.context, *config.frame_shape)
@@ -69,12 +69,10 @@ def predict_episode(
     steps: int | None = None,
     video: str = "gif",
 ) -> dict[str, str]:
-    """Predict from the context ending at frame ``start`` of ``episode`` and write ``prediction.png`` (rows labelled
-    context, prediction and, for dataset actions, truth) and ``prediction.gif`` / ``.mp4`` (predicted | true).
+    """Predict from the context ending at frame ``start`` (default: the first possible) of ``episode`` and write
+    ``prediction.png`` (rows: context, prediction and, for dataset actions, truth) and ``prediction.gif`` / ``.mp4``.
 
-    :param start: the last context frame (default: the first possible, ``context - 1``).
-    :param actions: ``"dataset"`` (the episode's own actions; true frames shown) or ``"figure8"`` (the paper's
-        hand-made trajectory on the first two action components; no true frames exist).
+    :param actions: ``"dataset"`` (the episode's own, true frames shown) or ``"figure8"`` (the paper's probe).
     :param steps: frames to predict (default: the horizon; with dataset actions at most to the episode's end).
     """
     if actions not in ACTION_SOURCES:

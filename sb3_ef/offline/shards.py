@@ -1,5 +1,5 @@
-"""TFRecord shards as a source of episodes (BAIR's files, RLDS / TFDS shards): the records indexed on open, and each
-read and decoded with errors that name the file and the episode (:class:`~sb3_ef.offline.episodes.EpisodeError`)."""
+"""TFRecord shards as a source of episodes (BAIR's, RLDS / TFDS): records indexed on open, each read and decoded
+with errors that name the file and the episode."""
 
 from __future__ import annotations
 
@@ -12,11 +12,8 @@ from sb3_ef.offline.tfrecord import Features, parse_example, read_record_at, rec
 
 
 def index_records(paths: Sequence[str]) -> list[tuple[str, int]]:
-    """``(path, byte offset)`` of every record of the shards ``paths``, in order.
-
-    :raises EpisodeError: a damaged length field or a truncated shard, or shards that hold no record at all (0-byte
-        files: an unfinished download or copy); a 0-byte shard among others is named in a warning.
-    """
+    """``(path, byte offset)`` of every record of the shards ``paths``, in order; damaged, truncated or only empty
+    shards raise ``EpisodeError``, an empty shard among others is named in a warning."""
     records, empty = [], []
     for path in paths:
         try:

@@ -12,9 +12,8 @@ from sb3_ef.offline.episodes import Episode
 
 @dataclass(frozen=True)
 class Windows:
-    """A batch of windows. ``observations`` uint8 (B, 3 * context, H, W) oldest first; ``actions`` (B, H, A);
-    ``frames`` uint8 (B, H, 3, H, W), frame ``t + k`` for k = 1..H; ``masks`` bool (B, H + 1, H, W) of the last
-    context frame and the H future frames, or None."""
+    """A batch of windows: ``observations`` uint8 (B, 3 * context, H, W) oldest first, ``actions`` (B, H, A),
+    ``frames`` t + 1 .. t + H uint8 (B, H, 3, H, W), ``masks`` bool (B, H + 1, H, W) of frames t .. t + H or None."""
 
     observations: th.Tensor
     actions: th.Tensor
