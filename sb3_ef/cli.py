@@ -14,7 +14,6 @@ exit status 130 (``sb3_ef.common.interrupt``).
 from __future__ import annotations
 
 import argparse
-import importlib
 import os
 import sys
 from collections.abc import Sequence
@@ -22,14 +21,10 @@ from typing import NamedTuple
 
 from sb3_ef.common.interrupt import INTERRUPTED_STATUS, interrupted_line
 from sb3_ef.envs.backend import RenderingBackendError
+from sb3_ef.registry import import_target
 
 #: Exceptions that report a mistake in the command line or the installation, not a bug.
 USER_ERRORS = (ValueError, OSError, ImportError, RenderingBackendError)
-
-
-def _function(target: str):
-    module, function = target.split(":")
-    return getattr(importlib.import_module(module), function)
 
 
 class Command(NamedTuple):
@@ -44,8 +39,8 @@ class Command(NamedTuple):
     def __call__(self, argv: list[str]) -> int | None:
         argv = [*self.prefix, *argv]
         if self.check is not None and not {"-h", "--help"} & set(argv):
-            _function(self.check)(argv)
-        return _function(self.target)(argv)
+            import_target(self.check)(argv)
+        return import_target(self.target)(argv)
 
 
 COMMANDS: dict[str, Command] = {

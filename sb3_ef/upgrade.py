@@ -28,6 +28,7 @@ from typing import Any
 import torch as th
 from stable_baselines3.common.save_util import data_to_json, json_to_data, load_from_zip_file, open_path
 
+from sb3_ef import registry
 from sb3_ef.common.files import write_atomically
 from sb3_ef.common.saved_models import is_legacy, saved_algorithm, saved_data
 
@@ -183,22 +184,17 @@ def _regrouped(state: dict[str, Any], optimizer: th.optim.Optimizer, name: str) 
 
 
 def legacy_algorithm(data: dict[str, Any]) -> type:
-    """The class of this version that loads the model whose 0.1.0 ``data`` is given: by its policy class, and for
-    DrQ-v2 and TD-MPC2 by whether it trained Ego-Foresight."""
-    from sb3_ef import SACEF, TD3EF, TDMPC2, TDMPC2EF, TQCEF, DrQv2, DrQv2EF
-
+    """The class of this version that loads the model whose 0.1.0 ``data`` is given: the registry's algorithm whose
+    0.1.0 files hold that policy class (``legacy_policy_module``), and for the hosts with a plain and an EF variant
+    (DrQ-v2, TD-MPC2) the one that matches whether it trained Ego-Foresight."""
     with_ef = data.get("ef_horizon") is not None
-    by_module = {
-        "sb3_ef.drqv2.policies": DrQv2EF if with_ef else DrQv2,
-        "sb3_ef.tdmpc2.policies": TDMPC2EF if with_ef else TDMPC2,
-        "stable_baselines3.sac.policies": SACEF,
-        "stable_baselines3.td3.policies": TD3EF,
-        "sb3_contrib.tqc.policies": TQCEF,
-    }
     module = (data.get("policy_class") or {}).get("__module__")
-    if module not in by_module:
-        raise ValueError(f"A file of sb3-ef 0.1.0 holds one of the policies of {sorted(by_module)}, got {module!r}")
-    return by_module[module]
+    candidates = [item for item in registry.ALGORITHMS.values() if item.legacy_policy_module == module]
+    if not candidates:
+        modules = sorted({item.legacy_policy_module for item in registry.ALGORITHMS.values()} - {None})
+        raise ValueError(f"A file of sb3-ef 0.1.0 holds one of the policies of {modules}, got {module!r}")
+    matching = [item for item in candidates if item.ef == with_ef] if len(candidates) > 1 else candidates
+    return matching[0].algorithm_class
 
 
 def upgrade(source: str | os.PathLike, destination: str | os.PathLike, device: str = "cpu") -> type:

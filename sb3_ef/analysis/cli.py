@@ -27,20 +27,15 @@ from typing import TYPE_CHECKING, Any
 import gymnasium as gym
 import numpy as np
 
+from sb3_ef import registry
 from sb3_ef.common.acting import EpisodeActor
 from sb3_ef.common.files import write_text_atomically
 
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
 
-#: The Ego-Foresight algorithms ``analyze model`` shows, by the keys of the rl-zoo plug-in, and their class names.
-EF_ALGORITHMS = {
-    "drqv2_ef": "DrQv2EF",
-    "tdmpc2_ef": "TDMPC2EF",
-    "sac_ef": "SACEF",
-    "td3_ef": "TD3EF",
-    "tqc_ef": "TQCEF",
-}
+#: The Ego-Foresight algorithms ``analyze model`` shows (``sb3_ef.registry``), by key, and their class names.
+EF_ALGORITHMS = {key: registry.entry(key).class_name for key in registry.keys(ef=True)}
 #: The published references of ``analyze results --reference`` (``sb3_ef.analysis.reference.REFERENCES``, named here
 #: so that the parser imports nothing heavy).
 REFERENCE_NAMES = ("drqv2", "tdmpc2", "dreamerv3", "curl")
@@ -147,12 +142,8 @@ def saved_algorithm_classes(path: str, algo: str | None) -> list[type[BaseAlgori
     """The classes to load ``path`` with: the sb3-ef algorithm its file records, else ``algo``'s or every EF
     algorithm in turn. A ``ValueError`` says what to do when that cannot give an Ego-Foresight model: another
     ``--algo`` than the file's, an algorithm without EF (e.g. ``SEAR``, ``CURL``), a file of sb3-ef 0.1.0."""
-    from stable_baselines3.common.base_class import BaseAlgorithm
-
-    import sb3_ef
     from sb3_ef.common.saved_models import is_legacy, saved_algorithm, saved_data
     from sb3_ef.common.validation import check_model_path
-    from sb3_ef.ef.host import EFMixin
 
     data = saved_data(check_model_path(path) or path)
     recorded = saved_algorithm(data)
@@ -163,23 +154,22 @@ def saved_algorithm_classes(path: str, algo: str | None) -> list[type[BaseAlgori
                 f"{path} was saved by sb3-ef 0.1.0: convert it once with `sb3-ef upgrade {path} NEW.zip`, then "
                 "analyze NEW.zip"
             )
-        return [getattr(sb3_ef, EF_ALGORITHMS[key]) for key in ([algo] if algo else EF_ALGORITHMS)]
-    algo_class = getattr(sb3_ef, recorded, None) if recorded in sb3_ef.__all__ else None
-    if not (isinstance(algo_class, type) and issubclass(algo_class, BaseAlgorithm)):
+        return [registry.entry(key).algorithm_class for key in ([algo] if algo else EF_ALGORITHMS)]
+    item = registry.by_class_name(recorded)
+    if item is None:
         raise ValueError(f"{path} was saved by {recorded}, not by an sb3-ef algorithm: `analyze model` reads {with_ef}")
     if algo is not None and EF_ALGORITHMS[algo] != recorded:
         raise ValueError(
             f"--algo {algo} ({EF_ALGORITHMS[algo]}) does not match {path}, which {recorded} saved: leave --algo out "
             "and the file is loaded as the algorithm it records"
         )
-    has_ef = issubclass(algo_class, EFMixin)
-    if not has_ef:
+    if not item.ef:
         raise ValueError(
             f"{path} holds a {recorded} model, which has no Ego-Foresight module: `sb3-ef analyze model` shows EF's "
             f"open-loop predictions and saliency, of models of {with_ef}; compare {recorded}'s evaluations with "
             "`sb3-ef analyze results`"
         )
-    return [algo_class]
+    return [item.algorithm_class]
 
 
 def load_ef_model(path: str, algo: str | None) -> Any:

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 import gymnasium as gym
 import numpy as np
 
+from sb3_ef import registry
 from sb3_ef.analysis._optional import require
 
 if TYPE_CHECKING:
@@ -89,12 +90,15 @@ def action_repeat_of(env_id: str, env_kwargs: dict[str, Any]) -> int:
 
 
 def algorithm_name(zoo_key: str) -> str:
-    """The class name rl-zoo3's key stands for (``drqv2_ef`` -> ``DrQv2EF``); the key itself without rl-zoo3."""
+    """The class name an algorithm key stands for: sb3-ef's (``drqv2_ef`` -> ``DrQv2EF``, ``sb3_ef.registry``) or
+    rl-zoo3's own (``sac`` -> ``SAC``); the key itself when neither knows it (or rl-zoo3 is not installed)."""
+    if zoo_key in registry.ALGORITHMS:
+        return registry.ALGORITHMS[zoo_key].class_name
     try:
-        from sb3_ef.zoo.records import algorithm_name as zoo_algorithm_name
+        from rl_zoo3.utils import ALGOS
     except ImportError:
         return zoo_key
-    return zoo_algorithm_name(zoo_key)
+    return ALGOS[zoo_key].__name__ if zoo_key in ALGOS else zoo_key
 
 
 def _evaluations(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:

@@ -1,5 +1,6 @@
 """A ``dreamerv3`` row of ``sb3-ef benchmark``: the run's files and resume rule are those of every other row
-(:mod:`sb3_ef.grid.run`), the training is sheeprl's.
+(:mod:`sb3_ef.grid.run`), the training is sheeprl's. ``sb3-ef train --algo dreamerv3`` trains with
+:func:`train_dreamerv3` too, into an rl-zoo3 run folder.
 
 Files below the results folder ``out`` (``<run_id>`` is ``<label>/<task>_s<seed>``)::
 
@@ -44,19 +45,28 @@ def execute_dreamerv3_run(
     """Train one ``dreamerv3`` run to ``spec.n_timesteps`` agent steps, evaluating every ``spec.eval_freq`` steps
     and checkpointing every ``spec.checkpoint_freq``, resuming from its latest checkpoint; the arguments are
     :func:`sb3_ef.grid.run.execute_run`'s."""
-    import torch as th
-
-    from sb3_ef.dreamerv3 import DreamerV3, Evaluation
-
     paths = RunPaths.of(out, spec)
     finished = read_result(paths)
     if finished is not None:
         return finished
+    start = time.perf_counter()
+    steps, resumed_from = train_dreamerv3(spec, paths, threads, device, keep_checkpoints)
+    return finish_run(spec, paths, steps, start, resumed_from, node, keep_checkpoints)
+
+
+def train_dreamerv3(
+    spec: RunSpec, paths: RunPaths, threads: int, device: str, keep_checkpoints: int | None
+) -> tuple[int, int | None]:
+    """Train the run of ``spec`` into ``paths`` (resumed from its latest checkpoint, if any) and save its final
+    model; return the steps trained and the step it resumed from (``None``: it started anew)."""
+    import torch as th
+
+    from sb3_ef.dreamerv3 import DreamerV3, Evaluation
+
     given = sorted(set(RUNNER_SET) & set(spec.hyperparams))
     if given:
-        raise ValueError(f"{spec.run_id}: {given} are set by the benchmark runner, not by the hyperparameters")
+        raise ValueError(f"{spec.run_id}: {given} are set by the runner, not by the hyperparameters")
     th.set_num_threads(threads)
-    start = time.perf_counter()
     env = build_env(spec, seed=spec.seed)
     eval_env = build_env(spec, seed=spec.seed + EVAL_SEED_OFFSET)
     model = DreamerV3.resume(paths.checkpoints, env, device=device)
@@ -93,4 +103,4 @@ def execute_dreamerv3_run(
     model.save(paths.model)
     env.close()
     eval_env.close()
-    return finish_run(spec, paths, model.num_timesteps, start, resumed_from, node, keep_checkpoints)
+    return model.num_timesteps, resumed_from

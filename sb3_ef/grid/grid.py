@@ -31,6 +31,7 @@ import gymnasium as gym
 import yaml
 
 import sb3_ef  # noqa: F401  (registers the environments)
+from sb3_ef import registry
 from sb3_ef.common.validation import did_you_mean
 from sb3_ef.zoo import config as zoo_config
 
@@ -78,12 +79,7 @@ class Algorithm:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "algo", self.algo or self.label)
-        if self.algo not in zoo_config.BENCHMARK_ALGORITHMS:
-            hint = did_you_mean(str(self.algo), zoo_config.BENCHMARK_ALGORITHMS)
-            raise ValueError(
-                f"Algorithm {self.label!r}: algo {self.algo!r}{hint} is not one of "
-                f"{', '.join(zoo_config.BENCHMARK_ALGORITHMS)}"
-            )
+        registry.entry(str(self.algo), f"Algorithm {self.label!r}: algo")  # a known key
         if not self.label or "/" in self.label or self.label != self.label.strip():
             raise ValueError(
                 f"Algorithm label must be a non-empty name without '/' or spaces around, got {self.label!r}"
@@ -187,9 +183,7 @@ def _positive(name: str, value: Any) -> int:
 
 def _entry(algorithm: Algorithm, task: str, overrides: Mapping[str, Any]) -> dict[str, Any]:
     """The zoo entry for ``task`` with ``overrides`` applied, every key checked against the algorithm class."""
-    from sb3_ef.zoo.registration import benchmark_classes
-
-    algo_class = benchmark_classes()[algorithm.algo]
+    algo_class = registry.entry(algorithm.algo).algorithm_class
     path = algorithm.conf_file or zoo_config.default_config_path(algorithm.algo)
     entries = zoo_config.load_config(path)
     zoo_config.validate_config(algorithm.algo, algo_class, entries, source=os.fspath(path))

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any, TypedDict
 
 import gymnasium as gym
 
+from sb3_ef import registry
 from sb3_ef.analysis.records import (
     RECORD_COLUMNS,
     RUN_RESULT_FILE,
@@ -34,6 +35,7 @@ from sb3_ef.analysis.records import (
 from sb3_ef.common.evaluation import EVAL_SEED_OFFSET, StepSeededEvalCallback
 from sb3_ef.common.files import write_text_atomically
 from sb3_ef.grid.grid import MAKE_ENV_SUITES, RunSpec, constructor_kwargs
+from sb3_ef.registry import import_target
 
 if TYPE_CHECKING:
     from stable_baselines3.common.vec_env import DummyVecEnv
@@ -58,10 +60,12 @@ class RunResult:
 
 @dataclass(frozen=True)
 class RunPaths:
-    """Where a run's files live below the results folder."""
+    """Where a run's files live: its evaluation CSV, its folder (``checkpoints/`` and ``result.json`` inside) and its
+    final model (``<folder>/model.zip`` in a grid, :meth:`of`)."""
 
     records: Path
     folder: Path
+    final_model: Path | None = None
 
     @classmethod
     def of(cls, out: str | os.PathLike, spec: RunSpec) -> RunPaths:
@@ -78,7 +82,7 @@ class RunPaths:
 
     @property
     def model(self) -> Path:
-        return self.folder / "model.zip"
+        return self.final_model or self.folder / "model.zip"
 
 
 def read_result(paths: RunPaths) -> RunResult | None:
@@ -137,7 +141,8 @@ def execute_run(
     keep_checkpoints: int | None = 2,
     node: str | None = None,
 ) -> RunResult:
-    """Train one run to ``spec.n_timesteps`` agent steps (resuming from its newest checkpoint) and record it;
+    """Train one run to ``spec.n_timesteps`` agent steps (resuming from its newest checkpoint) and record it, with the
+    run function the algorithm registry names for ``spec.algo`` (:func:`execute_sb3_run` unless another trains it);
     ``node`` names the cluster node that runs it, stored in its result.
 
     ``keep_checkpoints``: the newest checkpoints kept while it trains, all deleted when it finishes; ``None`` keeps
@@ -145,15 +150,24 @@ def execute_run(
 
     A finished run (``result.json`` present) is not trained again: its stored result comes back as ``skipped``.
     """
-    if spec.algo == "dreamerv3":  # sheeprl's training loop, with the same files and resume rule
-        from sb3_ef.dreamerv3.grid_run import execute_dreamerv3_run
+    run = import_target(registry.entry(spec.algo, "RunSpec.algo").grid_run)
+    return run(spec, out, threads, device, keep_checkpoints, node)
 
-        return execute_dreamerv3_run(spec, out, threads, device, keep_checkpoints, node)
+
+def execute_sb3_run(
+    spec: RunSpec,
+    out: str | os.PathLike,
+    threads: int = 1,
+    device: str = "auto",
+    keep_checkpoints: int | None = 2,
+    node: str | None = None,
+) -> RunResult:
+    """:func:`execute_run` for an algorithm SB3's ``learn`` trains, with SB3's callbacks for the evaluations and the
+    checkpoints."""
     import torch as th
 
     from sb3_ef.common.checkpoints import ResumableCheckpointCallback, latest_checkpoint, load_checkpoint
     from sb3_ef.zoo.progress import ProgressLogCallback
-    from sb3_ef.zoo.registration import algorithm_classes
 
     paths = RunPaths.of(out, spec)
     finished = read_result(paths)
@@ -163,7 +177,7 @@ def execute_run(
     start = time.perf_counter()
     env = build_env(spec, seed=spec.seed)
     eval_env = build_eval_env(spec, spec.seed)
-    algo_class = algorithm_classes()[spec.algo]
+    algo_class = registry.entry(spec.algo).algorithm_class
     checkpoint = latest_checkpoint(paths.checkpoints)
     if checkpoint is None:
         paths.records.unlink(missing_ok=True)

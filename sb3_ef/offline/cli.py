@@ -13,6 +13,8 @@ import os
 from collections.abc import Callable
 from typing import Any, TypeVar
 
+from sb3_ef import registry
+
 N = TypeVar("N", int, float)
 
 
@@ -62,7 +64,7 @@ def collect_parser() -> argparse.ArgumentParser:
     parser.add_argument("--action-repeat", type=positive_int, default=2)
     parser.add_argument("--mode", choices=("sign", "clamped_uniform"), default="sign", help="babbling actions")
     parser.add_argument("--policy", help="saved DrQv2EF / TDMPC2EF (.zip) acting instead of babbling")
-    parser.add_argument("--algo", choices=("drqv2_ef", "tdmpc2_ef"), help="algorithm of --policy")
+    parser.add_argument("--algo", choices=registry.keys(warm_start=True), help="algorithm of --policy")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--slow-render", action="store_true", help="render shadows and reflections (slower)")
     parser.add_argument("--no-masks", action="store_true", help="skip the agent masks (one render less per step)")

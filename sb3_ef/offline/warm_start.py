@@ -8,6 +8,7 @@ from typing import Any, cast
 import torch as th
 from torch import nn
 
+from sb3_ef import registry
 from sb3_ef.offline.encoders import HostEncoder
 from sb3_ef.offline.model import OfflineEF, load_pretrained
 
@@ -23,7 +24,8 @@ def _host_encoder(policy: nn.Module) -> tuple[str, nn.Module]:
             for name in attribute.split("."):
                 module = getattr(module, name)
             return kind, module
-    raise TypeError(f"Warm start supports DrQv2EF and TDMPC2EF, got a model with policy {type(policy).__name__}")
+    supported = " and ".join(registry.entry(key).class_name for key in registry.keys(warm_start=True))
+    raise TypeError(f"Warm start supports {supported}, got a model with policy {type(policy).__name__}")
 
 
 def _mismatches(source: nn.Module, target: nn.Module) -> list[str]:

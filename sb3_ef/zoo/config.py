@@ -15,18 +15,16 @@ from typing import Any
 import gymnasium as gym
 import yaml
 
+from sb3_ef import registry
 from sb3_ef.common.validation import did_you_mean
 
 #: Algorithm keys whose configs hold the paper's tasks and settings: EF's hosts with and without EF, and the
-#: paper's baselines SEAR and CURL.
-PAPER_ALGORITHMS = ("drqv2_ef", "drqv2", "tdmpc2_ef", "tdmpc2", "sear", "curl")
+#: paper's baselines SEAR and CURL (rl-zoo3 trains them).
+PAPER_ALGORITHMS = registry.keys(paper=True, rl_zoo3=True)
 #: Algorithm keys this package registers in rl-zoo3: the paper's, and EF on SB3's SAC, TD3 and sb3-contrib's TQC.
-ZOO_ALGORITHMS = (*PAPER_ALGORITHMS, "sac_ef", "td3_ef", "tqc_ef")
-#: Algorithm keys of `sb3-ef benchmark` grids: rl-zoo3's, and the paper's Dreamer-v3 baseline, which sheeprl trains
-#: in its own loop (sb3_ef.dreamerv3), not rl-zoo3.
-BENCHMARK_ALGORITHMS = (*ZOO_ALGORITHMS, "dreamerv3")
-#: Keys whose algorithms explore with their own noise (SB3's action-noise keys are refused for them).
-OWN_EXPLORATION_ALGORITHMS = (*PAPER_ALGORITHMS, "dreamerv3")
+ZOO_ALGORITHMS = registry.keys(rl_zoo3=True)
+#: Algorithm keys with a zoo config: every key of the registry (Dreamer-v3's runs in sheeprl's loop, not rl-zoo3's).
+BENCHMARK_ALGORITHMS = tuple(registry.ALGORITHMS)
 
 #: Keys rl-zoo3's ExperimentManager consumes before the remaining ones reach the algorithm constructor.
 ZOO_KEYS = frozenset(
@@ -97,7 +95,7 @@ def allowed_keys(algo_class: type) -> frozenset[str]:
 
 def check_keys(algo: str, algo_class: type, keys: Any, where: str) -> None:
     """Raise ``ValueError`` naming the first key that ``algo_class`` (through rl-zoo3) would not accept."""
-    own_exploration = algo in OWN_EXPLORATION_ALGORITHMS
+    own_exploration = registry.entry(algo).own_exploration
     allowed = allowed_keys(algo_class) | (frozenset() if own_exploration else NOISE_KEYS)
     rejected = {**REJECTED_KEYS, **(REJECTED_PAPER_KEYS if own_exploration else {})}
     for key in keys:

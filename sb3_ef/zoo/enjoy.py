@@ -20,7 +20,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 import sb3_ef  # noqa: F401  (registers the environments)
 from sb3_ef.zoo.options import check_enjoy_argv
 from sb3_ef.zoo.registration import algorithm_classes, register_algorithms
-from sb3_ef.zoo.train import run_with_argv, with_gym_package
+from sb3_ef.zoo.train import own_loop_main, run_with_argv, with_gym_package
 
 #: Replay-buffer capacity (frames) of a model loaded to act: more than any sampling window needs
 #: (horizon + frame stack), a few MB at 84x84 instead of the training capacity.
@@ -75,6 +75,10 @@ def main(argv: Sequence[str] | None = None) -> None:
         check_run_folder(
             args.folder or "rl-trained-agents", args.algo or "ppo", args.env or "CartPole-v1", args.exp_id or 0
         )
+        own_loop = own_loop_main(argv, "enjoy")
+        if own_loop is not None:
+            own_loop(argv)
+            return
     register_algorithms()
     classes = algorithm_classes()
     for key, algo_class in classes.items():

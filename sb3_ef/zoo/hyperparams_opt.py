@@ -18,7 +18,9 @@ from typing import Any
 
 import optuna
 
+from sb3_ef import registry
 from sb3_ef.drqv2.policies import DrQv2Policy
+from sb3_ef.registry import import_target
 from sb3_ef.tdmpc2.policies import TDMPC2Policy
 
 Params = dict[str, Any]
@@ -114,11 +116,9 @@ sample_drqv2_params = _sampler(_suggest_drqv2, None)
 sample_tdmpc2_ef_params = _sampler(_suggest_tdmpc2, [0, 625, 1_250, 2_500], _tdmpc2_feature_dim)
 sample_tdmpc2_params = _sampler(_suggest_tdmpc2, None)
 
+#: The samplers the registry names (``sb3_ef.registry``), by algorithm key.
 SAMPLERS: dict[str, Callable[..., Params]] = {
-    "drqv2_ef": sample_drqv2_ef_params,
-    "drqv2": sample_drqv2_params,
-    "tdmpc2_ef": sample_tdmpc2_ef_params,
-    "tdmpc2": sample_tdmpc2_params,
+    entry.key: import_target(entry.sampler) for entry in registry.ALGORITHMS.values() if entry.sampler is not None
 }
 
 CONVERTERS: dict[str, Callable[..., Params]] = dict.fromkeys(SAMPLERS, convert_params)

@@ -202,9 +202,9 @@ def check_zoo_argv(argv: Sequence[str], options: Sequence[Option], prog: str) ->
 def check_algo_and_env(args: argparse.Namespace) -> None:
     """Raise :class:`UsageError` for an ``--algo`` that neither sb3-ef nor rl-zoo3 registers, or an ``--env`` id
     that is not registered once sb3-ef and the ``--gym-packages`` are imported (rl-zoo3's defaults when not given)."""
-    from sb3_ef.zoo.config import ZOO_ALGORITHMS
+    from sb3_ef import registry
 
-    algorithms = (*ZOO_ALGORITHMS, *RL_ZOO3_ALGORITHMS)
+    algorithms = (*registry.ALGORITHMS, *RL_ZOO3_ALGORITHMS)
     algo = args.algo or "ppo"
     if algo not in algorithms:
         raise UsageError(

@@ -24,12 +24,9 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
-from rl_zoo3 import utils
-
 from sb3_ef.analysis.records import RUN_RESULT_FILE, read_records, write_records
 from sb3_ef.analysis.zoo_logs import EVALUATIONS_FILE, zoo_run_records
 from sb3_ef.common.files import write_text_atomically
-from sb3_ef.zoo.registration import register_algorithms
 
 
 def run_records_path(save_path: str | os.PathLike, env_name: str) -> Path:
@@ -48,13 +45,6 @@ def finish_run(save_path: str | os.PathLike, env_name: str, steps: int) -> None:
     rows = read_records(run_records_path(save_path, env_name))
     result = {"status": "finished", "steps": steps, "final_return": rows[-1]["return"] if rows else None}
     write_text_atomically(run_result_path(save_path, env_name), json.dumps(result, indent=1))
-
-
-def algorithm_name(zoo_key: str) -> str:
-    """The class name of the algorithm rl-zoo3 registers as ``zoo_key`` (``zoo_key`` itself if unknown)."""
-    register_algorithms()
-    algo_class = utils.ALGOS.get(zoo_key)
-    return zoo_key if algo_class is None else algo_class.__name__
 
 
 def export_records(log_folder: str, out: str, action_repeat: int | None = None) -> list[str]:

@@ -13,36 +13,14 @@ from typing import Any
 
 from rl_zoo3 import exp_manager, hyperparams_opt, utils
 
+from sb3_ef import registry
 from sb3_ef.zoo.hyperparams_opt import CONVERTERS, SAMPLERS
 
 
 def algorithm_classes() -> dict[str, type]:
-    """rl-zoo3 key -> algorithm class (imported on demand: the algorithms pull in torch)."""
-    from sb3_ef.curl import CURL
-    from sb3_ef.drqv2 import DrQv2, DrQv2EF
-    from sb3_ef.sb3_hosts import SACEF, TD3EF, TQCEF
-    from sb3_ef.sear import SEAR
-    from sb3_ef.tdmpc2 import TDMPC2, TDMPC2EF
-
-    return {
-        "drqv2_ef": DrQv2EF,
-        "drqv2": DrQv2,
-        "tdmpc2_ef": TDMPC2EF,
-        "tdmpc2": TDMPC2,
-        "sear": SEAR,
-        "curl": CURL,
-        "sac_ef": SACEF,
-        "td3_ef": TD3EF,
-        "tqc_ef": TQCEF,
-    }
-
-
-def benchmark_classes() -> dict[str, type]:
-    """`sb3-ef benchmark` key -> algorithm class: rl-zoo3's (:func:`algorithm_classes`) and ``dreamerv3``, which
-    sheeprl trains (``sb3_ef.dreamerv3``; the class imports without sheeprl, and needs it to build a model)."""
-    from sb3_ef.dreamerv3 import DreamerV3
-
-    return {**algorithm_classes(), "dreamerv3": DreamerV3}
+    """rl-zoo3 key -> algorithm class, for the registry's algorithms that rl-zoo3 trains (imported now: they pull in
+    torch)."""
+    return {key: registry.entry(key).algorithm_class for key in registry.keys(rl_zoo3=True)}
 
 
 def config_namespace() -> dict[str, Any]:

@@ -2,8 +2,9 @@
 
 Takes exactly rl-zoo3's arguments. Differences, all on top of rl-zoo3's own behaviour:
 
-- ``--algo drqv2_ef | drqv2 | tdmpc2_ef | tdmpc2 | sac_ef | td3_ef | tqc_ef`` read ``zoo_configs/<algo>.yml`` unless
-  ``--conf-file`` is given;
+- ``--algo drqv2_ef | drqv2 | tdmpc2_ef | tdmpc2 | sear | curl | sac_ef | td3_ef | tqc_ef | dreamerv3`` (the keys of
+  ``sb3_ef.registry``) read ``zoo_configs/<algo>.yml`` unless ``--conf-file`` is given; an algorithm that trains in
+  its own loop (``dreamerv3``) is trained by the function its registry entry names (:mod:`sb3_ef.zoo.sheeprl_run`);
 - ``sb3_ef`` is imported (its gymnasium ids registered) and added to ``--gym-packages`` (recorded in ``args.yml``,
   so subprocess envs and ``enjoy`` find the ids too);
 - the whole YAML file and the ``--hyperparams`` overrides are checked before anything is built, so a bad key
@@ -32,8 +33,10 @@ import gymnasium as gym
 from rl_zoo3 import exp_manager, hyperparams_opt, utils
 
 import sb3_ef  # noqa: F401  (registers the environments)
+from sb3_ef import registry
 from sb3_ef.common.checkpoints import Checkpoint, checkpoint_for, latest_checkpoint
 from sb3_ef.common.validation import did_you_mean, is_intact
+from sb3_ef.registry import import_target
 from sb3_ef.zoo import config
 from sb3_ef.zoo.hyperparams_opt import SAMPLERS
 from sb3_ef.zoo.options import SB3_EF_TRAIN_OPTIONS, check_train_argv, merge_train_argv, rl_zoo3_parser
@@ -66,7 +69,7 @@ def _pre_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _override_values(overrides: list[str], option: str = "--hyperparams") -> dict[str, Any]:
+def override_values(overrides: list[str], option: str = "--hyperparams") -> dict[str, Any]:
     """``key:value`` pairs of ``option`` (``--hyperparams``, ``--env-kwargs``, ``--eval-env-kwargs``), values
     evaluated as rl-zoo3 does (in its namespace)."""
     values = {}
@@ -89,8 +92,8 @@ def prepare(argv: Sequence[str]) -> list[str]:
     argv = list(argv)
     known, _ = _pre_parser().parse_known_args(argv)
     register_algorithms()  # our keys and config names exist from here on (the overrides may use them)
-    _override_values(known.env_kwargs, "--env-kwargs")  # rl-zoo3 would raise the evaluation's error as it is
-    _override_values(known.eval_env_kwargs, "--eval-env-kwargs")
+    override_values(known.env_kwargs, "--env-kwargs")  # rl-zoo3 would raise the evaluation's error as it is
+    override_values(known.eval_env_kwargs, "--eval-env-kwargs")
     if known.algo not in config.ZOO_ALGORITHMS:
         if known.algo not in utils.ALGOS:
             raise ValueError(
@@ -111,7 +114,7 @@ def prepare(argv: Sequence[str]) -> list[str]:
         conf_file = str(config.default_config_path(known.algo))
         argv += ["--conf-file", conf_file]
     algo_class = utils.ALGOS[known.algo]
-    overrides = _override_values(known.hyperparams)
+    overrides = override_values(known.hyperparams)
     config.check_keys(known.algo, algo_class, overrides, where="--hyperparams")
     config.check_values(overrides, where="--hyperparams")
     entry = overrides
@@ -215,6 +218,20 @@ def trained_agent(argv: list[str]) -> str | None:
     return trained
 
 
+def own_loop_main(argv: list[str], command: str) -> Callable[[list[str]], None] | None:
+    """The registry's ``command`` (``train`` or ``enjoy``) function for the algorithm of ``argv`` (``--algo``, or with
+    ``--resume`` the run's recorded one) when it trains in its own loop, not rl-zoo3's; else ``None``."""
+    options, _ = _sb3_ef_parser().parse_known_args(argv)
+    if options.resume is not None:
+        saved = sorted(Path(options.resume).glob(f"*/{ARGV_FILE}"))
+        argv = json.loads(saved[0].read_text()) if len(saved) == 1 else []
+    algo = _pre_parser().parse_known_args(argv)[0].algo
+    item = registry.ALGORITHMS.get(algo)
+    if item is None or item.zoo_run is None:
+        return None
+    return import_target(item.zoo_run[("train", "enjoy").index(command)])
+
+
 def run_with_argv(function: Callable[[], None], argv: Sequence[str], prog: str) -> None:
     """Call an rl-zoo3 entry point (which parses ``sys.argv``) on ``argv``; its usage and errors name ``prog``."""
     saved = sys.argv
@@ -235,6 +252,10 @@ def main(argv: Sequence[str] | None = None) -> None:
         zoo_help_parser("sb3-ef optimize" if "-optimize" in argv else "sb3-ef train").print_help()
         return
     check_train_argv(argv)
+    own_loop = own_loop_main(argv, "train")
+    if own_loop is not None:
+        own_loop(argv)
+        return
     options, _ = _sb3_ef_parser().parse_known_args(argv)
     if options.resume is not None:
         argv = resume_argv(options.resume, _without_options(argv, {"--resume": True}))

@@ -1,0 +1,129 @@
+"""The algorithm registry: each key the workbench knows (``sb3-ef train --algo``, zoo configs, grids, ``analyze``,
+``collect``, ``upgrade``) mapped to its class and to what the workbench does with it.
+
+This module sits at the bottom of the workbench and imports nothing heavy: classes, samplers and run functions are
+named by import path (``"module:attribute"``) and imported on first use (:func:`import_target`), so that a command
+line is checked before torch, SB3, rl-zoo3 or sheeprl are imported. A new algorithm is one entry here (and a zoo
+config ``zoo_configs/<key>.yml``) plus its own package.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+from typing import Any
+
+from sb3_ef.common.validation import did_you_mean
+
+#: The grid run function of the algorithms SB3's ``learn`` trains.
+SB3_GRID_RUN = "sb3_ef.grid.run:execute_sb3_run"
+
+
+def import_target(target: str) -> Any:
+    """The object a ``"module:attribute"`` path names, imported now."""
+    module, _, attribute = target.partition(":")
+    return getattr(importlib.import_module(module), attribute)
+
+
+@dataclass(frozen=True)
+class AlgorithmEntry:
+    """What the workbench needs of one algorithm.
+
+    :param key: the name in commands, configs and grids (``drqv2_ef``).
+    :param target: the class, as ``"module:Class"``.
+    :param paper: a method or baseline of the Ego-Foresight paper (its zoo config holds the paper's tasks).
+    :param ef: trains Ego-Foresight: ``sb3-ef analyze model`` shows its predictions and saliency.
+    :param own_exploration: explores with its own noise (rl-zoo3's SB3 action-noise keys are refused).
+    :param sampler: its Optuna sampler for ``sb3-ef optimize`` (``"module:function"``), if it has one.
+    :param grid_run: the function that trains one ``sb3-ef benchmark`` row (``"module:function"``, called as
+        :func:`sb3_ef.grid.run.execute_run` is).
+    :param zoo_run: ``"module:function"`` pair that ``sb3-ef train`` / ``enjoy`` call with their arguments instead of
+        rl-zoo3's (for an algorithm rl-zoo3 cannot train); ``None``: rl-zoo3 trains and runs it.
+    :param warm_start: an offline-pretrained encoder and EF can be copied into it (``sb3_ef.offline``), and
+        ``sb3-ef collect --policy`` acts with it.
+    :param legacy_policy_module: the policy module of its sb3-ef 0.1.0 files (``sb3-ef upgrade``), if any.
+    """
+
+    key: str
+    target: str
+    paper: bool = False
+    ef: bool = False
+    own_exploration: bool = False
+    sampler: str | None = None
+    grid_run: str = SB3_GRID_RUN
+    zoo_run: tuple[str, str] | None = None
+    warm_start: bool = False
+    legacy_policy_module: str | None = None
+
+    @property
+    def class_name(self) -> str:
+        """The class's name, as records and saved files write it (``DrQv2EF``)."""
+        return self.target.rpartition(":")[2]
+
+    @property
+    def algorithm_class(self) -> type:
+        """The class (imported now)."""
+        return import_target(self.target)
+
+    @property
+    def rl_zoo3(self) -> bool:
+        """Whether rl-zoo3 trains it (registered in its ``ALGOS``)."""
+        return self.zoo_run is None
+
+
+def _entries(*entries: AlgorithmEntry) -> dict[str, AlgorithmEntry]:
+    return {entry.key: entry for entry in entries}
+
+
+_OPT = "sb3_ef.zoo.hyperparams_opt"
+
+ALGORITHMS: dict[str, AlgorithmEntry] = _entries(
+    AlgorithmEntry(
+        "drqv2_ef", "sb3_ef.drqv2:DrQv2EF", paper=True, ef=True, own_exploration=True,
+        sampler=f"{_OPT}:sample_drqv2_ef_params", warm_start=True, legacy_policy_module="sb3_ef.drqv2.policies",
+    ),
+    AlgorithmEntry(
+        "drqv2", "sb3_ef.drqv2:DrQv2", paper=True, own_exploration=True, sampler=f"{_OPT}:sample_drqv2_params",
+        legacy_policy_module="sb3_ef.drqv2.policies",
+    ),
+    AlgorithmEntry(
+        "tdmpc2_ef", "sb3_ef.tdmpc2:TDMPC2EF", paper=True, ef=True, own_exploration=True,
+        sampler=f"{_OPT}:sample_tdmpc2_ef_params", warm_start=True, legacy_policy_module="sb3_ef.tdmpc2.policies",
+    ),
+    AlgorithmEntry(
+        "tdmpc2", "sb3_ef.tdmpc2:TDMPC2", paper=True, own_exploration=True, sampler=f"{_OPT}:sample_tdmpc2_params",
+        legacy_policy_module="sb3_ef.tdmpc2.policies",
+    ),
+    AlgorithmEntry("sear", "sb3_ef.sear:SEAR", paper=True, own_exploration=True),
+    AlgorithmEntry("curl", "sb3_ef.curl:CURL", paper=True, own_exploration=True),
+    AlgorithmEntry("sac_ef", "sb3_ef.sb3_hosts:SACEF", ef=True, legacy_policy_module="stable_baselines3.sac.policies"),
+    AlgorithmEntry("td3_ef", "sb3_ef.sb3_hosts:TD3EF", ef=True, legacy_policy_module="stable_baselines3.td3.policies"),
+    AlgorithmEntry("tqc_ef", "sb3_ef.sb3_hosts:TQCEF", ef=True, legacy_policy_module="sb3_contrib.tqc.policies"),
+    AlgorithmEntry(
+        "dreamerv3", "sb3_ef.dreamerv3:DreamerV3", paper=True, own_exploration=True,
+        grid_run="sb3_ef.dreamerv3.grid_run:execute_dreamerv3_run",
+        zoo_run=("sb3_ef.zoo.sheeprl_run:train_main", "sb3_ef.zoo.sheeprl_run:enjoy_main"),
+    ),
+)  # fmt: skip
+
+
+def entry(key: str, argument: str = "algo") -> AlgorithmEntry:
+    """The entry of ``key``; a ``ValueError`` names ``argument`` (where the key came from), the key and the known
+    ones."""
+    if key not in ALGORITHMS:
+        raise ValueError(
+            f"{argument} {key!r}{did_you_mean(str(key), ALGORITHMS)} is not a known algorithm: expected one of "
+            f"{', '.join(ALGORITHMS)}"
+        )
+    return ALGORITHMS[key]
+
+
+def keys(**capabilities: bool) -> tuple[str, ...]:
+    """The keys whose entries have the given attribute values, in registry order (``keys(ef=True)``)."""
+    wanted = capabilities.items()
+    return tuple(key for key, item in ALGORITHMS.items() if all(getattr(item, name) == value for name, value in wanted))
+
+
+def by_class_name(name: str) -> AlgorithmEntry | None:
+    """The entry of the class named ``name`` (as a saved file records it), or ``None``."""
+    return next((item for item in ALGORITHMS.values() if item.class_name == name), None)

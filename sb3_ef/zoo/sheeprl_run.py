@@ -1,0 +1,173 @@
+"""``sb3-ef train --algo dreamerv3`` and ``sb3-ef enjoy --algo dreamerv3``: Dreamer-v3 trains in sheeprl's loop, not
+rl-zoo3's, with rl-zoo3's arguments and run folders and the training of a ``dreamerv3`` grid row
+(:func:`sb3_ef.dreamerv3.grid_run.train_dreamerv3`).
+
+A run folder ``<logs>/<algo>/<env>_<n>/`` holds what an rl-zoo3 run of sb3-ef holds: the final model ``<env>.zip``,
+the evaluation CSV ``<env>.csv`` (one row per ``--eval-freq`` steps), ``<env>/args.yml``, ``<env>/config.yml`` (the
+zoo entry), ``<env>/train_argv.json`` (for ``--resume``), the ``--save-freq`` checkpoints in
+``<env>/checkpoints/`` and ``<env>/result.json`` once the run has reached its steps. ``--resume RUN_DIR`` continues
+the run in its own folder from its latest checkpoint, with its recorded arguments under the new ones.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from sb3_ef import registry
+from sb3_ef.grid.grid import RunSpec
+from sb3_ef.grid.run import RunPaths, build_env
+from sb3_ef.zoo import config
+from sb3_ef.zoo.options import ENJOY_OPTIONS, TRAIN_OPTIONS, check_enjoy_argv, check_train_argv, merge_train_argv
+from sb3_ef.zoo.records import finish_run
+from sb3_ef.zoo.resume import ARGV_FILE, with_seed
+
+#: The train options these runs take; rl-zoo3's others (Optuna, vectorised envs, -i, tracking) do not apply.
+TRAIN_SUPPORTED = frozenset(
+    {"--algo", "--env", "--n-timesteps", "--eval-freq", "--eval-episodes", "--save-freq", "--log-folder", "--seed",
+     "--device", "--hyperparams", "--env-kwargs", "--conf-file", "--num-threads", "--verbose", "--gym-packages",
+     "--resume", "--keep-checkpoints"}
+)  # fmt: skip
+#: The enjoy options these runs take.
+ENJOY_SUPPORTED = frozenset(
+    {"--algo", "--env", "--folder", "--exp-id", "--n-timesteps", "--deterministic", "--seed", "--device",
+     "--env-kwargs", "--no-render", "--num-threads", "--verbose", "--gym-packages"}
+)  # fmt: skip
+#: rl-zoo3's defaults where these runs use them.
+DEFAULT_EVAL_FREQ, DEFAULT_EVAL_EPISODES, DEFAULT_ENJOY_STEPS = 25_000, 5, 1000
+
+
+def _refuse_unsupported(args: argparse.Namespace, options: Sequence[Any], supported: frozenset[str], how: str) -> None:
+    """Raise ``ValueError`` naming the first given option that ``supported`` lacks."""
+    for option in options:
+        name = next(name for name in option.names if name.startswith("--"))
+        if name not in supported and getattr(args, name[2:].replace("-", "_"), None) not in (None, False):
+            raise ValueError(
+                f"{option.names[0]} is not supported for --algo {args.algo}, which {how}; its options: "
+                f"{', '.join(sorted(supported))}"
+            )
+
+
+def _pairs(items: Sequence[str] | None, option: str) -> dict[str, Any]:
+    """rl-zoo3's ``key:value`` items, values evaluated as rl-zoo3 evaluates them."""
+    from sb3_ef.zoo.train import override_values
+
+    return override_values(list(items or ()), option)
+
+
+def _recorded_argv(run_dir: str, extra: list[str]) -> tuple[list[str], Path]:
+    """The arguments that continue the run in ``run_dir`` (its recorded ones under ``extra``) and the folder."""
+    folder = Path(run_dir)
+    saved = sorted(folder.glob(f"*/{ARGV_FILE}"))
+    if len(saved) != 1:
+        raise ValueError(f"--resume expects an sb3-ef run folder holding <env>/{ARGV_FILE}, got {run_dir!r}")
+    return merge_train_argv(json.loads(saved[0].read_text()), extra), folder
+
+
+def _new_run_folder(log_folder: str, algo: str, env_name: str) -> Path:
+    """``<log_folder>/<algo>/<env>_<n+1>``, as rl-zoo3 numbers its runs."""
+    from rl_zoo3.utils import EnvironmentName, get_latest_run_id
+
+    log_path = os.path.join(log_folder, algo)
+    return Path(log_path) / f"{env_name}_{get_latest_run_id(log_path, EnvironmentName(env_name)) + 1}"
+
+
+def _write_run_files(params: Path, args: argparse.Namespace, entry: dict[str, Any], argv: list[str]) -> None:
+    """``args.yml``, ``config.yml`` (the entry as rl-zoo3 writes it: a list of pairs) and ``train_argv.json``."""
+    params.mkdir(parents=True, exist_ok=True)
+    recorded = {"algo": args.algo, "env": args.env, "seed": args.seed, "env_kwargs": entry.get("env_kwargs", {})}
+    (params / "args.yml").write_text(yaml.safe_dump(recorded))
+    (params / "config.yml").write_text(yaml.safe_dump([[key, entry[key]] for key in sorted(entry)]))
+    (params / ARGV_FILE).write_text(json.dumps(with_seed(argv, args.seed)))
+
+
+def run_spec(args: argparse.Namespace) -> tuple[RunSpec, dict[str, Any]]:
+    """The run of the parsed train arguments and its zoo entry (``--hyperparams`` and ``--env-kwargs`` over it)."""
+    algo_class = registry.entry(args.algo).algorithm_class
+    conf_file = args.conf_file or str(config.default_config_path(args.algo))
+    entries = config.load_config(conf_file)
+    config.validate_config(args.algo, algo_class, entries, source=conf_file)
+    overrides = _pairs(args.hyperparams, "--hyperparams")
+    config.check_keys(args.algo, algo_class, overrides, where="--hyperparams")
+    entry = {**config.select_entry(entries, args.env), **overrides}
+    entry["env_kwargs"] = {**(entry.get("env_kwargs") or {}), **_pairs(args.env_kwargs, "--env-kwargs")}
+    eval_freq = args.eval_freq if args.eval_freq is not None else DEFAULT_EVAL_FREQ
+    n_timesteps = args.n_timesteps or int(entry["n_timesteps"])
+    hyperparams = {key: value for key, value in entry.items() if key not in ("policy", "n_timesteps", "env_kwargs")}
+    spec = RunSpec(
+        label=args.algo, algo=args.algo, task=args.env, seed=args.seed, n_timesteps=n_timesteps,
+        eval_freq=eval_freq, eval_episodes=args.eval_episodes or DEFAULT_EVAL_EPISODES,
+        checkpoint_freq=args.save_freq or n_timesteps, hyperparams=hyperparams, env_kwargs=entry["env_kwargs"],
+    )  # fmt: skip
+    return spec, entry
+
+
+def train_main(argv: list[str]) -> None:
+    """``sb3-ef train --algo dreamerv3`` (see the module docstring)."""
+    import numpy as np
+
+    from sb3_ef.dreamerv3.grid_run import train_dreamerv3
+
+    args = check_train_argv(argv)
+    folder = None
+    if args.resume is not None:
+        extra = [arg for arg in argv if arg not in ("--resume", args.resume)]
+        argv, folder = _recorded_argv(args.resume, extra)
+        args = check_train_argv(argv)
+    _refuse_unsupported(args, TRAIN_OPTIONS, TRAIN_SUPPORTED, "trains in its own loop, not rl-zoo3's")
+    if args.seed is None:
+        args.seed = int(np.random.randint(2**31 - 1))
+    spec, entry = run_spec(args)
+    env_name = spec.task.replace("/", "-")
+    folder = folder or _new_run_folder(args.log_folder or "logs", spec.algo, env_name)
+    paths = RunPaths(folder / f"{env_name}.csv", folder / env_name, final_model=folder / f"{env_name}.zip")
+    _write_run_files(paths.folder, args, entry, argv)
+    print(f"Log path: {folder}", flush=True)
+    keep = args.keep_checkpoints if args.keep_checkpoints is not None else 2
+    steps, _ = train_dreamerv3(spec, paths, args.num_threads or 1, args.device or "auto", keep)
+    finish_run(folder, env_name, steps)
+    print(f"Saving to {paths.model}", flush=True)
+
+
+def enjoy_main(argv: list[str]) -> None:
+    """``sb3-ef enjoy --algo dreamerv3``: the run's final model acting ``-n`` steps on its env, each episode's return
+    and length printed as rl-zoo3's enjoy prints them."""
+    args = check_enjoy_argv(argv)
+    _refuse_unsupported(args, ENJOY_OPTIONS, ENJOY_SUPPORTED, "acts outside rl-zoo3")
+    folder = args.folder or "rl-trained-agents"
+    exp_id = args.exp_id or 0
+    env_name = args.env.replace("/", "-")
+    log_path = Path(folder) / args.algo
+    run = (
+        log_path / f"{env_name}_{exp_id}"
+        if exp_id
+        else max(log_path.glob(f"{env_name}_[0-9]*"), key=lambda path: int(path.name.rsplit("_", 1)[1]))
+    )
+    recorded = yaml.safe_load((run / env_name / "args.yml").read_text())
+    env_kwargs = {**recorded.get("env_kwargs", {}), **_pairs(args.env_kwargs, "--env-kwargs")}
+    spec = RunSpec(args.algo, args.algo, args.env, args.seed or 0, 1, 1, 1, 1, env_kwargs=env_kwargs)
+    model = registry.entry(args.algo).algorithm_class.load(run / f"{env_name}.zip", device=args.device or "auto")
+    env = build_env(spec, seed=spec.seed)
+    print(f"Loading {run / f'{env_name}.zip'}", flush=True)
+    _act(model, env, args.n_timesteps or DEFAULT_ENJOY_STEPS, bool(args.deterministic))
+    env.close()
+
+
+def _act(model: Any, env: Any, steps: int, deterministic: bool) -> None:
+    """Act ``steps`` steps, printing each finished episode's return and length."""
+    observation, _ = env.reset(seed=0)
+    episode_return, episode_length, state, start = 0.0, 0, None, True
+    for _ in range(steps):
+        action, state = model.predict(observation[None], state, [start], deterministic)
+        observation, reward, terminated, truncated, _ = env.step(action[0])
+        episode_return, episode_length, start = episode_return + float(reward), episode_length + 1, False
+        if terminated or truncated:
+            print(f"Episode Reward: {episode_return:.2f}\nEpisode Length {episode_length}", flush=True)
+            observation, _ = env.reset()
+            episode_return, episode_length, start = 0.0, 0, True
