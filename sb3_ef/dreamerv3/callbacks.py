@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -81,6 +82,7 @@ class RunCallback:
     :param save_every: the steps between checkpoints written to disk (sheeprl calls the callback at every
         evaluation; the other calls only keep :attr:`last_state`).
     :param total_steps: the step of the run's last call, whose checkpoint is always written.
+    :param on_weights: called with each call's state (without its replay buffer), the newest weights.
     """
 
     def __init__(
@@ -93,6 +95,7 @@ class RunCallback:
         keep_last: int | None = None,
         save_every: int = 1,
         total_steps: int = 0,
+        on_weights: Callable[[dict[str, Any]], None] | None = None,
     ):
         from sheeprl.utils.callback import CheckpointCallback
 
@@ -108,6 +111,7 @@ class RunCallback:
         self._start_time = time.monotonic()
         self.config: Any = None  # the run's resolved sheeprl configuration, set before training starts
         self.last_state: dict[str, Any] | None = None
+        self.on_weights = on_weights
         self.last_checkpoint: str | None = None
 
     def on_checkpoint_coupled(
@@ -117,6 +121,8 @@ class RunCallback:
         if self.evaluation is not None and step % self.evaluation.freq == 0:
             self._evaluate(fabric, state, step)
         self.last_state = {key: value for key, value in state.items() if key != "rb"}
+        if self.on_weights is not None:
+            self.on_weights(self.last_state)
         if step % self.save_every and step < self.total_steps:
             return
         self.checkpointer.on_checkpoint_coupled(fabric, ckpt_path, state, replay_buffer)

@@ -9,9 +9,11 @@ The algorithm's settings start from sheeprl's ``exp=dreamer_v3`` experiment with
 from __future__ import annotations
 
 import importlib
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any
+
+from sb3_ef.common.validation import did_you_mean
 
 #: The sheeprl release this package drives (its configuration keys and checkpoint contents).
 SHEEPRL_VERSION = "0.8.4"
@@ -87,21 +89,70 @@ class Recipe:
             )
         overrides = self.sheeprl_overrides
         if not isinstance(overrides, Mapping) or not all(isinstance(key, str) for key in overrides):
-            raise ValueError(f"sheeprl_overrides must map dotted sheeprl keys to values, got {overrides!r}")
+            raise ValueError(
+                "sheeprl_overrides must be a dict of dotted sheeprl keys to values (e.g. {'algo.horizon': 15}), got "
+                f"{overrides!r} ({type(overrides).__name__})"
+            )
+        object.__setattr__(self, "sheeprl_overrides", dict(overrides))  # a copy: the caller's dict may change
         for key in overrides:
             for session_key, argument in SESSION_KEYS.items():
                 if key == session_key or key.startswith(session_key + "."):
                     raise ValueError(f"sheeprl_overrides: {key!r} is set by DreamerV3 from {argument}, not here")
 
 
-def _set(cfg: Any, key: str, value: Any) -> None:
-    """Set an existing key of sheeprl's configuration; an unknown one is an error (a typo would be ignored)."""
+def _dotted_keys(cfg: Any, prefix: str = "") -> Iterator[str]:
+    """Every key of a configuration, dotted, sections and their keys."""
+    from omegaconf import OmegaConf
+
+    for key in cfg:
+        dotted = f"{prefix}{key}"
+        yield dotted
+        node = cfg._get_node(key)
+        if OmegaConf.is_dict(node):
+            yield from _dotted_keys(node, dotted + ".")
+
+
+def _type_mismatch(current: Any, value: Any) -> str | None:
+    """What ``value`` should be to replace ``current`` (a resolved configuration value), or ``None`` when it fits:
+    the same kind (a whole number for an integer, a number for a float, a list for a list, a dict for a section);
+    ``None`` in the configuration takes anything, ``None`` as a value replaces anything."""
+    from omegaconf import OmegaConf
+
+    if current is None or value is None:
+        return None
+    kinds: tuple[tuple[bool, str, bool], ...] = (
+        (isinstance(current, bool), "true or false", isinstance(value, bool)),
+        (isinstance(current, int), "a whole number", isinstance(value, int) and not isinstance(value, bool)),
+        (isinstance(current, float), "a number", isinstance(value, (int, float)) and not isinstance(value, bool)),
+        (isinstance(current, str), "a string", isinstance(value, str)),
+        (OmegaConf.is_list(current), "a list", isinstance(value, (list, tuple))),
+        (OmegaConf.is_dict(current), "a dict (a section)", isinstance(value, Mapping)),
+    )
+    for applies, expected, fits in kinds:
+        if applies:
+            return None if fits else expected
+    return None
+
+
+def _set(cfg: Any, key: str, value: Any, typed: bool = True) -> None:
+    """Set an existing key of sheeprl's configuration (to a value of its type when ``typed``); an unknown key (a typo
+    sheeprl would ignore) or a value of another type (one sheeprl's loop would fail on) is an error naming what was
+    expected."""
     from omegaconf import OmegaConf
 
     parent_key, _, leaf = key.rpartition(".")
     parent = OmegaConf.select(cfg, parent_key) if parent_key else cfg
     if parent is None or not OmegaConf.is_dict(parent) or leaf not in parent:
-        raise ValueError(f"sheeprl_overrides: {key!r} is not a key of sheeprl's Dreamer-v3 configuration")
+        hint = did_you_mean(key, list(_dotted_keys(cfg)))
+        raise ValueError(f"sheeprl_overrides: {key!r} is not a key of sheeprl's Dreamer-v3 configuration{hint}")
+    current = OmegaConf.select(cfg, key, throw_on_missing=False)
+    expected = _type_mismatch(current, value) if typed else None
+    if expected is not None:
+        shown = current if not OmegaConf.is_config(current) else OmegaConf.to_container(current)
+        raise ValueError(
+            f"sheeprl_overrides: {key!r} must be {expected} (sheeprl's default is {shown!r}), got {value!r} "
+            f"({type(value).__name__})"
+        )
     OmegaConf.update(cfg, key, value, merge=False)
 
 
@@ -126,7 +177,7 @@ def compose_config(recipe: Recipe) -> Any:
         "metric.log_level": 0,
         "model_manager.disabled": True,
     }.items():
-        _set(cfg, key, value)
+        _set(cfg, key, value, typed=False)  # the recipe's own values (a float replay ratio where sheeprl has 1)
     for key, value in recipe.sheeprl_overrides.items():
         _set(cfg, key, value)
     return cfg

@@ -4,8 +4,10 @@ Dreamer-v3 itself is sheeprl's (``sheeprl.algos.dreamer_v3``, its world model, a
 training loop): this class composes sheeprl's configuration, hands it the env, runs its training entry point in
 this process, and acts with sheeprl's player. What differs from SB3's algorithms follows from that:
 
-- ``learn`` runs no SB3 callbacks (sheeprl's loop calls none); it evaluates and checkpoints through
-  ``evaluation`` / ``checkpoint_freq`` instead (:mod:`sb3_ef.dreamerv3.callbacks`);
+- ``learn`` calls SB3 callbacks after each env step (from the env sheeprl steps); one that returns ``False`` stops
+  the run there, and the model keeps the weights of the newest evaluation or checkpoint step (sheeprl's loop keeps
+  its networks to itself between them); ``evaluation`` / ``checkpoint_freq`` evaluate and checkpoint at sheeprl's
+  own checkpoint steps (:mod:`sb3_ef.dreamerv3.callbacks`);
 - ``learn(n, reset_num_timesteps=False)`` continues from the newest checkpoint, with its replay buffer, as
   sheeprl's resume does (the env starts a new episode there); a trained model does not restart its step count
   (``learn`` with ``reset_num_timesteps=True`` is refused once it has trained);
@@ -14,20 +16,21 @@ this process, and acts with sheeprl's player. What differs from SB3's algorithms
 
 from __future__ import annotations
 
+import contextlib
 import io
-import json
 import os
 import tempfile
-import zipfile
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import torch as th
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList, ProgressBarCallback
+from stable_baselines3.common.type_aliases import MaybeCallback
 
 from sb3_ef.common.env_checks import FRAME_CHANNELS
-from sb3_ef.common.files import atomic_path
+from sb3_ef.common.validation import check_device
 from sb3_ef.dreamerv3 import live
 from sb3_ef.dreamerv3.callbacks import Evaluation, RunCallback, read_latest
 from sb3_ef.dreamerv3.config import (
@@ -38,14 +41,15 @@ from sb3_ef.dreamerv3.config import (
     fabric_device,
     require_sheeprl,
 )
-from sb3_ef.dreamerv3.env import NewestFrame, check_frame_size, task_id
+from sb3_ef.dreamerv3.env import NewestFrame, StepCallbacks, StopTraining, check_frame_size, task_id
 from sb3_ef.dreamerv3.player import Player, forked_rng
+from sb3_ef.dreamerv3.saving import PathOrFile, read_model, write_model
 from sb3_ef.dreamerv3.training import resolved_config, run
 
 #: The policy name a zoo entry gives (Dreamer-v3 has one network design: sheeprl's, sized by ``model_size``).
 POLICY = "CnnPolicy"
-#: The files of a saved model.
-_SETTINGS, _CONFIG, _WEIGHTS = "dreamerv3.json", "config.yaml", "checkpoint.ckpt"
+#: The name of the configuration file of a sheeprl run folder.
+_CONFIG = "config.yaml"
 
 
 class DreamerV3:
@@ -65,7 +69,8 @@ class DreamerV3:
     :param work_dir: where sheeprl writes its runs, checkpoints and memory-mapped replay buffer (default: a new
         temporary folder).
     :param seed: the run's seed (sheeprl seeds Python, NumPy, torch and the env with it); default a random one.
-    :param device: ``auto``, ``cpu``, ``cuda`` or ``cuda:<index>``.
+    :param device: ``auto``, ``cpu``, ``cuda`` or ``cuda:<index>``; CUDA asked for on a machine without it falls
+        back to the CPU with a warning, as the other algorithms do.
     :param verbose: 1 prints a line per evaluation.
     """
 
@@ -91,9 +96,12 @@ class DreamerV3:
             )
         self.recipe = Recipe(
             model_size, replay_ratio, batch_size, sequence_length, buffer_size, learning_starts,
-            dict(sheeprl_overrides or {}),
+            {} if sheeprl_overrides is None else sheeprl_overrides,
         )  # fmt: skip
         fabric_device(device)  # checks the device string
+        check_device(device)  # warns when CUDA is asked for and not there
+        if device.startswith("cuda") and not th.cuda.is_available():
+            device = "cpu"
         require_sheeprl()
         self.cfg = compose_config(self.recipe)  # checks every override key now
         self.env = None if env is None else self._checked_env(env)
@@ -141,7 +149,7 @@ class DreamerV3:
     def learn(
         self,
         total_timesteps: int,
-        callback: None = None,
+        callback: MaybeCallback = None,
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
         evaluation: Evaluation | None = None,
@@ -150,18 +158,15 @@ class DreamerV3:
         log_prefix: str | None = None,
     ) -> DreamerV3:
         """Train ``total_timesteps`` agent steps (more, with ``reset_num_timesteps=False``, from the newest
-        checkpoint); evaluate every ``evaluation.freq`` steps; checkpoint every ``checkpoint_freq`` steps (a
-        multiple of ``evaluation.freq``; default: at the end only) keeping the newest ``keep_checkpoints``; print a
-        progress line per evaluation after ``log_prefix`` (and with ``verbose=1``)."""
-        if callback is not None or progress_bar:
-            raise ValueError(
-                "DreamerV3 trains inside sheeprl's loop, which runs no SB3 callbacks or progress bar: pass "
-                "learn(..., evaluation=Evaluation(...), checkpoint_freq=...) instead"
-            )
+        checkpoint), calling ``callback`` (SB3 callbacks) after each env step; evaluate every ``evaluation.freq``
+        steps; checkpoint every ``checkpoint_freq`` steps (a multiple of ``evaluation.freq``; default: at the end
+        only) keeping the newest ``keep_checkpoints``; print a progress line per evaluation after ``log_prefix`` (and
+        with ``verbose=1``)."""
         if isinstance(total_timesteps, bool) or not isinstance(total_timesteps, int) or total_timesteps < 1:
             raise ValueError(f"total_timesteps must be a positive integer, got {total_timesteps!r}")
         if self.env is None:
             raise ValueError("DreamerV3 has no env to train on: pass env= to the constructor or to load()")
+        self._check_frames(self.frame_shape[1:], "the env")
         if reset_num_timesteps and self._checkpoint is not None:
             raise ValueError(
                 f"DreamerV3 has trained {self.num_timesteps} steps: continue with learn(n, reset_num_timesteps=False) "
@@ -173,10 +178,17 @@ class DreamerV3:
         every = self._checkpoint_every(total, evaluation, checkpoint_freq)
         callback_ = RunCallback(
             self.work_dir, self.settings, self.frame_shape, self.action_space, evaluation, keep_checkpoints,
-            save_every=checkpoint_freq or total, total_steps=total,
+            save_every=checkpoint_freq or total, total_steps=total, on_weights=self._take_weights,
         )  # fmt: skip
+        steps = _sb3_callback(callback, progress_bar)
+        self.num_timesteps, env = start, self.env
+        if steps is not None:
+            steps.init_callback(self)  # type: ignore[arg-type]  # SB3's callbacks read an algorithm's attributes
+            locals_: dict[str, Any] = {"self": self, "total_timesteps": total, "callback": steps}
+            steps.on_training_start(locals_, globals())
+            env = StepCallbacks(self.env, self, steps, locals_)
         (self.work_dir / "sheeprl" / "train").mkdir(parents=True, exist_ok=True)  # sheeprl's runs, version_<n>
-        with live.registered(self.env) as env_token, live.registered(callback_) as callback_token:
+        with live.registered(env) as env_token, live.registered(callback_) as callback_token:
             session = Session(
                 env_token, callback_token, task_id(self.env), self.frame_shape[1], self.seed, total, every,
                 keep_checkpoints, str(self.work_dir), "train", self.device, resume,
@@ -184,14 +196,33 @@ class DreamerV3:
             self.resolved = resolved_config(self.cfg.copy(), session, self._buffer_in_checkpoint)
             callback_.config, callback_.start_step = self.resolved, start
             callback_.log_prefix = log_prefix if log_prefix is not None else ("" if self.verbose >= 1 else None)
-            run(self.resolved)
-        if callback_.last_state is None:
-            raise RuntimeError("sheeprl ended without a final checkpoint (checkpoint.save_last)")
-        self._state, self._player = callback_.last_state, None
+            with contextlib.suppress(StopTraining):  # the model keeps the newest weights sheeprl handed over
+                run(self.resolved)
+        if steps is not None:
+            steps.on_training_end()
+        if self._state is None:
+            raise RuntimeError(f"DreamerV3 stopped at step {self.num_timesteps}, before sheeprl's first checkpoint")
         self.num_timesteps = int(self._state["iter_num"])
         if callback_.last_checkpoint is not None:
             self._checkpoint, self._buffer_in_checkpoint = callback_.last_checkpoint, True
         return self
+
+    def _take_weights(self, state: dict[str, Any]) -> None:
+        """Act with ``state`` from now on (sheeprl's newest weights, at one of its checkpoint steps)."""
+        self._state, self._player = state, None
+
+    def _check_frames(self, frame_size: tuple[int, ...], given_by: str) -> None:
+        """Refuse frames (``(h, w)``) that Dreamer-v3 cannot read, or of another size than the model trained on."""
+        height, width = (int(size) for size in frame_size)
+        check_frame_size(height, width)
+        if self._state is None and self._checkpoint is None:
+            return
+        trained = int(self._config().env.screen_size)
+        if (height, width) != (trained, trained):
+            raise ValueError(
+                f"DreamerV3 was trained on {trained}x{trained} frames, {given_by} gives {height}x{width}: "
+                f"give it frames of the training's size (make_env(..., size={trained}))"
+            )
 
     @staticmethod
     def _checkpoint_every(total: int, evaluation: Evaluation | None, checkpoint_freq: int | None) -> int:
@@ -280,7 +311,7 @@ class DreamerV3:
         return (actions[0] if single else actions), player.recurrent_state()
 
     def _acting_player(self, n_envs: int, frame_shape: tuple[int, ...]) -> Player:
-        check_frame_size(frame_shape[1], frame_shape[2])
+        self._check_frames(frame_shape[1:], "the observation")
         player = self._player
         if player is None or player.frame_shape != frame_shape:
             from lightning.fabric import Fabric
@@ -297,9 +328,9 @@ class DreamerV3:
             player.reset()
         return player
 
-    def save(self, path: str | os.PathLike) -> None:
-        """Write the model (settings, sheeprl's configuration, weights and optimiser states; no replay buffer) to
-        one zip file, atomically."""
+    def save(self, path: PathOrFile) -> None:
+        """Write the model (settings, sheeprl's configuration, weights and optimiser states; no replay buffer) to one
+        zip file, atomically (``.zip`` added to a path without a suffix, as SB3 does), or into an open binary file."""
         config = self._config()
         space = self.action_space
         info = {
@@ -313,30 +344,26 @@ class DreamerV3:
         th.save(self._weights(), weights)
         from omegaconf import OmegaConf
 
-        with atomic_path(path) as temporary, zipfile.ZipFile(temporary, "w") as archive:
-            archive.writestr(_SETTINGS, json.dumps(info, indent=1))
-            archive.writestr(_CONFIG, OmegaConf.to_yaml(OmegaConf.create(dict(config.as_dict()))))
-            archive.writestr(_WEIGHTS, weights.getvalue())
+        write_model(path, info, OmegaConf.to_yaml(OmegaConf.create(dict(config.as_dict()))), weights.getvalue())
 
     @classmethod
     def load(
         cls,
-        path: str | os.PathLike,
+        path: PathOrFile,
         env: gym.Env | None = None,
         device: str = "auto",
         work_dir: str | os.PathLike | None = None,
     ) -> DreamerV3:
-        """A model written by :meth:`save`. Without ``env`` it acts (:meth:`predict`); with one,
-        ``learn(n, reset_num_timesteps=False)`` continues it (with a new replay buffer: sheeprl fills it, acting
-        with the loaded policy for ``learning_starts`` steps, before training again)."""
+        """A model written by :meth:`save` (a path, with or without its ``.zip``, or an open binary file). Without
+        ``env`` it acts (:meth:`predict`); with one, ``learn(n, reset_num_timesteps=False)`` continues it (with a new
+        replay buffer: sheeprl fills it, acting with the loaded policy for ``learning_starts`` steps, before training
+        again)."""
         from omegaconf import OmegaConf
         from sheeprl.utils.utils import dotdict
 
         from sb3_ef.common.files import write_atomically
 
-        info, config, weights = _read_saved(path)
-        if info.get("algorithm") != cls.__name__:
-            raise ValueError(f"{path} was saved by {info.get('algorithm')!r}, not {cls.__name__}")
+        info, config, weights = read_model(path)
         model = cls(env=env, work_dir=work_dir, device=device, **info["settings"])
         space = info["action_space"]
         model._saved_action_space = gym.spaces.Box(
@@ -352,22 +379,19 @@ class DreamerV3:
         model._checkpoint, model._buffer_in_checkpoint, model.num_timesteps = str(checkpoint), False, step
         model._state = th.load(io.BytesIO(weights), map_location="cpu", weights_only=False)
         model.resolved = dotdict(OmegaConf.to_container(OmegaConf.create(config.decode()), resolve=True))
+        if model.env is not None:
+            model._check_frames(model.frame_shape[1:], "the env")
         return model
 
 
-def _read_saved(path: str | os.PathLike) -> tuple[dict[str, Any], bytes, bytes]:
-    """The settings, sheeprl configuration and weights of a file written by :meth:`DreamerV3.save`."""
-    if not Path(path).is_file():
-        raise FileNotFoundError(f"No saved DreamerV3 model at {path}")
-    try:
-        with zipfile.ZipFile(path) as archive:
-            names = set(archive.namelist())
-            if not {_SETTINGS, _CONFIG, _WEIGHTS} <= names or archive.testzip() is not None:
-                raise ValueError(
-                    f"{path} is not a DreamerV3 model: expected the files {[_SETTINGS, _CONFIG, _WEIGHTS]} of "
-                    f"DreamerV3.save(), got {sorted(names)}"
-                )
-            info = json.loads(archive.read(_SETTINGS))
-            return info, archive.read(_CONFIG), archive.read(_WEIGHTS)
-    except (zipfile.BadZipFile, EOFError) as error:
-        raise ValueError(f"{path} is not a DreamerV3 model: not a complete zip archive ({error})") from error
+def _sb3_callback(callback: MaybeCallback, progress_bar: bool) -> BaseCallback | None:
+    """SB3's callbacks as one (a list as a ``CallbackList``, with SB3's progress bar when ``progress_bar``)."""
+    callbacks = list(callback) if isinstance(callback, list) else ([] if callback is None else [callback])
+    for given in callbacks:
+        if not isinstance(given, BaseCallback):
+            raise ValueError(f"callback must be an SB3 BaseCallback or a list of them, got {type(given).__name__}")
+    if progress_bar:
+        callbacks.append(ProgressBarCallback())
+    if not callbacks:
+        return None
+    return callbacks[0] if len(callbacks) == 1 else CallbackList(callbacks)

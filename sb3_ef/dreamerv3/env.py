@@ -9,6 +9,8 @@ and infos pass through unchanged; action repeat is the env's own (``make_env``'s
 
 from __future__ import annotations
 
+from typing import Any
+
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
@@ -48,6 +50,34 @@ class NewestFrame(gym.ObservationWrapper):
 
     def observation(self, observation: np.ndarray) -> np.ndarray:
         return observation[-FRAME_CHANNELS:]
+
+
+class StopTraining(Exception):
+    """Raised from the env's ``step`` when an SB3 callback returns ``False``: it ends sheeprl's loop there."""
+
+
+class StepCallbacks(gym.Wrapper):
+    """An env that counts the steps sheeprl takes (one per agent step: sheeprl resets an ended episode in the same
+    step) on ``model.num_timesteps`` and calls the SB3 callback ``callback.on_step()`` after each, as SB3's
+    algorithms do after each env step; ``False`` raises :class:`StopTraining`.
+
+    :param locals_: the dict the callback reads as ``callback.locals`` (updated with each step's values).
+    """
+
+    def __init__(self, env: gym.Env, model: Any, callback: Any, locals_: dict[str, Any]):
+        super().__init__(env)
+        self.model, self.callback, self.locals = model, callback, locals_
+
+    def step(self, action: Any) -> Any:
+        result = self.env.step(action)
+        observation, reward, terminated, truncated, info = result
+        self.model.num_timesteps += 1
+        self.locals.update(
+            actions=action, new_obs=observation, rewards=reward, dones=terminated or truncated, infos=[info]
+        )
+        if not self.callback.on_step():
+            raise StopTraining(f"a callback stopped the training at step {self.model.num_timesteps}")
+        return result
 
 
 class _KeptOpen(gym.Wrapper):

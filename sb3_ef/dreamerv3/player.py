@@ -31,6 +31,20 @@ def env_actions(actions: np.ndarray, action_space: gym.spaces.Box, normalize: bo
     return np.where(bounded, (clipped + 1) / 2 * (high - low) + low, clipped).astype(action_space.dtype, copy=False)
 
 
+def distribution_mode(distribution: th.distributions.Distribution) -> th.Tensor:
+    """The mode of one of sheeprl's action distributions: torch's ``mode``, and for a transformed distribution
+    (tanh-normal) its base distribution's mode through its transforms."""
+    inner = distribution
+    while isinstance(inner, th.distributions.Independent):
+        inner = inner.base_dist
+    if isinstance(inner, th.distributions.TransformedDistribution):
+        value = distribution_mode(inner.base_dist)
+        for transform in inner.transforms:
+            value = transform(value)
+        return value
+    return inner.mode
+
+
 class Player:
     """sheeprl's Dreamer-v3 player for ``n_envs`` envs of ``action_space``, with the weights of a checkpoint's
     ``state``; :meth:`act` takes one ``(n_envs, 3, h, w)`` uint8 frame per env and updates the recurrent state.
@@ -67,6 +81,7 @@ class Player:
         self.frame_shape = frame_shape
         self.action_space = action_space
         self.normalize = bool(cfg.algo.get("normalize_actions", False))
+        self.action_clip = float(cfg.algo.actor.get("action_clip", 0.0))
         self.player.num_envs = n_envs
         self.player.init_states()
 
@@ -81,9 +96,32 @@ class Player:
         if frames.shape[0] != n_envs or frames.shape[1] != FRAME_CHANNELS:
             raise ValueError(f"expected {n_envs} RGB frames of shape (3, h, w), got an array of shape {frames.shape}")
         observation = th.as_tensor(frames, device=self.device).float().view(1, n_envs, *frames.shape[1:]) / 255 - 0.5
-        actions = self.player.get_actions({FRAME_KEY: observation}, greedy)
-        actor_actions = th.cat(actions, -1).reshape(n_envs, -1).cpu().numpy()
-        return env_actions(actor_actions, self.action_space, self.normalize)
+        if greedy:
+            actions = self._modes({FRAME_KEY: observation})
+        else:
+            actions = th.cat(self.player.get_actions({FRAME_KEY: observation}, False), -1)
+        return env_actions(actions.reshape(n_envs, -1).cpu().numpy(), self.action_space, self.normalize)
+
+    def _modes(self, observation: dict[str, th.Tensor]) -> th.Tensor:
+        """sheeprl's acting step with nothing drawn: the posterior's mode (each categorical latent's most likely
+        class) and the actor's mode (its distribution's mode before the squashing transforms, then through them),
+        clipped as sheeprl clips its actions. sheeprl's own greedy step samples both."""
+        from sheeprl.algos.dreamer_v2.utils import compute_stochastic_state
+        from sheeprl.algos.dreamer_v3.agent import clip_actions
+
+        player, rssm = self.player, self.player.rssm
+        embedded = player.encoder(observation)
+        player.recurrent_state = rssm.recurrent_model(
+            th.cat((player.stochastic_state, player.actions), -1), player.recurrent_state
+        )
+        posterior_input = embedded if player.decoupled_rssm else th.cat((player.recurrent_state, embedded), -1)
+        logits = rssm._uniform_mix(rssm.representation_model(posterior_input))
+        posterior = compute_stochastic_state(logits, discrete=rssm.discrete, sample=False)
+        player.stochastic_state = posterior.view(*posterior.shape[:-2], -1)
+        with forked_rng(self.device):  # the actor's forward pass also draws a sample, which is not used
+            _, distributions = player.actor(th.cat((player.stochastic_state, player.recurrent_state), -1), False)
+        player.actions = clip_actions(th.cat([distribution_mode(d) for d in distributions], -1), self.action_clip)
+        return player.actions
 
     def recurrent_state(self) -> tuple[np.ndarray, ...]:
         """The per-env memory of the player: recurrent state, stochastic state, previous action (numpy copies)."""
