@@ -15,6 +15,7 @@ from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import polyak_update
 from torch.nn import functional as F
 
+from sb3_ef.auxiliary.diagnostics import aux_grad_ratio_due, encoder_gradient_ratio
 from sb3_ef.auxiliary.host import AuxiliaryHostMixin
 from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.common.augmentation import random_shift
@@ -173,19 +174,25 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         self.logger.record("train/exploration_std", self.exploration_schedule(self.num_timesteps))
 
     def _update(self, batch: SequenceReplayBufferSamples) -> dict[str, th.Tensor]:
-        """One gradient update: augment -> encode -> critic (+ auxiliary) step on encoder, critic and auxiliary
-        module -> actor step through the frozen critic -> critic target. Returns the (detached) scalars to log,
-        without a device sync. With ``compile`` the exploration std is passed as a tensor, so that its schedule
-        does not recompile the losses."""
+        """One gradient update, as DrQ-v2's: augment -> encode -> critic (+ auxiliary) step on the encoder, critic
+        and auxiliary module -> actor step on detached features through the frozen critic -> critic target. Returns
+        the (detached) scalars to log, without a device sync. With ``compile`` the exploration std is passed as a
+        tensor, so that its schedule does not recompile the losses, and ``aux_grad_ratio`` is not computed (it
+        differentiates the compiled graph twice)."""
         compiled = self.compile is not False
         if compiled:
             th.compiler.cudagraph_mark_step_begin()
         std = th.tensor(self.exploration_schedule(self.num_timesteps), device=self.device)
         observations, next_observations, targets = self._augment(batch)
-        loss, features, logs = self._critic_and_auxiliary_loss(observations, next_observations, targets, batch, std)
+        critic_loss, auxiliary_loss, features, logs = self._critic_and_auxiliary_loss(
+            observations, next_observations, targets, batch, std
+        )
+        if auxiliary_loss is not None and not compiled and aux_grad_ratio_due(self._n_updates):
+            encoder = self.policy.encoder.parameters()
+            logs["aux_grad_ratio"] = encoder_gradient_ratio(auxiliary_loss, critic_loss, encoder)
         self._check_finite(**logs)
         self.critic.optimizer.zero_grad()
-        loss.backward()
+        (critic_loss if auxiliary_loss is None else critic_loss + auxiliary_loss).backward()
         self.critic.optimizer.step()
 
         with frozen(self.critic):
@@ -215,21 +222,20 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         targets: Any,
         batch: SequenceReplayBufferSamples,
         std: th.Tensor,
-    ) -> tuple[th.Tensor, th.Tensor, dict[str, th.Tensor]]:
-        """The loss of the encoder, critic and auxiliary step (``critic_loss`` plus the auxiliary module's weighted
-        loss on the same features), the encoder features of the augmented observations, and the (detached) scalars
-        to log."""
+    ) -> tuple[th.Tensor, th.Tensor | None, th.Tensor, dict[str, th.Tensor]]:
+        """The losses of the encoder, critic and auxiliary step: ``critic_loss`` and the auxiliary module's weighted
+        loss on the same features (``None`` without one), whose sum the step minimises; the encoder features of the
+        augmented observations; and the (detached) scalars to log."""
         features = self.policy.encoder(observations)
         with th.no_grad():
             next_features = self.policy.encoder(next_observations)
         critic_loss, q_mean = self._critic_loss(features, batch, next_features, std)
         logs = {"critic_loss": critic_loss.detach(), "q_values": q_mean}
-        loss = critic_loss
+        auxiliary_loss = None
         if self.auxiliary is not None:
             auxiliary_loss, auxiliary_logs = self.auxiliary(features, targets)
-            loss = loss + auxiliary_loss
             logs.update(auxiliary_logs)
-        return loss, features, logs
+        return critic_loss, auxiliary_loss, features, logs
 
     def _noisy_actions(self, features: th.Tensor, std: float | th.Tensor) -> th.Tensor:
         """Actor mean plus clipped Gaussian noise, clamped to the action bounds with a straight-through gradient

@@ -15,6 +15,7 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 
+from sb3_ef.auxiliary.diagnostics import aux_grad_ratio_due, encoder_gradient_ratio
 from sb3_ef.auxiliary.host import AuxiliaryHostMixin
 from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
@@ -176,7 +177,7 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
 
     def _optimise_auxiliary(self, auxiliary: AuxiliaryLoss) -> None:
         """The auxiliary module joins the world model's optimiser as the group ``auxiliary`` (its gradient is
-        clipped on its own, see :meth:`_world_model_gradients`)."""
+        clipped on its own, see :meth:`_world_model_step`)."""
         self.policy.optimizer.add_param_group({"name": "auxiliary", "params": list(auxiliary.parameters())})
 
     @property
@@ -225,8 +226,10 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         return {name: value.clone() for name, value in logs.items()} if compiled else logs
 
     def _world_model_step(self, losses: dict[str, th.Tensor]) -> dict[str, th.Tensor]:
-        """The optimiser step of the world model (and the auxiliary module) on :meth:`losses`; returns the losses
-        to log with their total and the gradient norms."""
+        """The optimiser step of the world model (and the auxiliary module) on :meth:`losses`, with TD-MPC2's
+        clipping (:func:`~sb3_ef.tdmpc2.gradients.clipped_world_model_gradients`: the host's gradient clipped as the
+        reference does, the auxiliary loss's on its own); returns the losses to log with their total, the gradient
+        norms before clipping and, on the updates that compute it (not with ``compile``), ``aux_grad_ratio``."""
         self._check_finite(**losses)
         auxiliary_loss = losses.pop("auxiliary_loss", None)
         host_loss = (
@@ -234,19 +237,15 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
             + self.reward_coef * losses["reward_loss"]
             + self.value_coef * losses["value_loss"]
         )
-        total_loss = host_loss if auxiliary_loss is None else host_loss + auxiliary_loss
-        self.policy.optimizer.zero_grad()
-        grad_norms = self._world_model_gradients(host_loss, auxiliary_loss)
-        self.policy.optimizer.step()
         logs = {key: value.detach() for key, value in losses.items()}
-        logs["total_loss"] = total_loss.detach()
-        return {**logs, **grad_norms}
-
-    def _world_model_gradients(self, host_loss: th.Tensor, auxiliary_loss: th.Tensor | None) -> dict[str, th.Tensor]:
-        """Backpropagate and clip (:func:`~sb3_ef.tdmpc2.gradients.clipped_world_model_gradients`: the host's
-        gradient clipped as the reference does, the auxiliary loss's on its own); returns the norms before
-        clipping."""
-        return clipped_world_model_gradients(self.policy.optimizer, host_loss, auxiliary_loss, self.max_grad_norm)
+        logs["total_loss"] = (host_loss if auxiliary_loss is None else host_loss + auxiliary_loss).detach()
+        if auxiliary_loss is not None and self.compile is False and aux_grad_ratio_due(self._n_updates):
+            encoder = self.world_model.encoder.parameters()
+            logs["aux_grad_ratio"] = encoder_gradient_ratio(auxiliary_loss, host_loss, encoder)
+        self.policy.optimizer.zero_grad()
+        logs.update(clipped_world_model_gradients(self.policy.optimizer, host_loss, auxiliary_loss, self.max_grad_norm))
+        self.policy.optimizer.step()
+        return logs
 
     def _policy_step(self, latents: th.Tensor, valid: th.Tensor) -> th.Tensor:
         """The policy prior's optimiser step on :meth:`_policy_loss` (the Q-ensemble frozen, so that only the prior
@@ -330,15 +329,10 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         model = self.world_model
         sample = model.pi(latents)
         q_values = model.q_value(latents, sample.action, reduce="avg")
-        self._update_q_scale(q_values[0].detach())
+        self.policy.update_q_scale(q_values[0].detach(), self.tau)
         objective = masked_mean(self.entropy_coef * sample.scaled_entropy + q_values / self.policy.q_scale, valid)
         weights = self.rho ** th.arange(latents.shape[0], device=latents.device, dtype=th.float32)
         return -(weights * objective).mean()
-
-    def _update_q_scale(self, q_values: th.Tensor) -> None:
-        """Move the running scale towards the 5-95 percentile range of Q (at least 1)."""
-        low, high = th.quantile(q_values, th.tensor([0.05, 0.95], device=q_values.device))
-        self.policy.q_scale.lerp_(th.clamp(high - low, min=1.0), self.tau)
 
     def _update_learning_rates(self) -> None:
         """Set the current learning rate on both optimisers, keeping each group's relative scale (encoder x0.3)."""

@@ -1,3 +1,5 @@
+import math
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -12,7 +14,11 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from sb3_ef.common.buffers import SequenceReplayBuffer
 from sb3_ef.common.layers import frozen
 from sb3_ef.drqv2 import DrQv2, DrQv2EF
+from sb3_ef.envs.toy import ToyAgentEnv
+from sb3_ef.tdmpc2 import TDMPC2EF
 from tests.helpers.drqv2 import EPISODE_STEPS, TINY_ALGO, TINY_POLICY, CueEnv, make_cue_env
+from tests.helpers.sear import make_sear
+from tests.helpers.tdmpc2 import TINY_EF_POLICY
 
 PLAIN_POLICY = {key: TINY_POLICY[key] for key in ("net_arch", "trunk_dim")}
 PLAIN_ALGO = {key: value for key, value in TINY_ALGO.items() if key not in ("ef_horizon", "babbling_steps")}
@@ -288,3 +294,30 @@ def test_learns_to_read_the_cue():
     trained, _ = evaluate_policy(model, make_cue_env(), n_eval_episodes=10, warn=False)
     assert abs(untrained) < 5.0
     assert trained > 15.0
+
+
+def make_tdmpc2_ef() -> TDMPC2EF:
+    return TDMPC2EF(
+        "CnnPolicy", ToyAgentEnv(size=64, max_episode_steps=20), learning_starts=10, batch_size=4, buffer_size=300,
+        ef_horizon=5, babbling_steps=0, seed_burst=False, seed=0, policy_kwargs=TINY_EF_POLICY,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("make", "host"),
+    [(make_model, "drqv2.drqv2"), (make_sear, "drqv2.drqv2"), (make_tdmpc2_ef, "tdmpc2.tdmpc2")],
+    ids=["DrQv2EF", "SEAR", "TDMPC2EF"],
+)
+def test_aux_grad_ratio_is_logged_and_leaves_the_updates_unchanged(make, host, monkeypatch):
+    def learned() -> tuple[dict[str, float], list[th.Tensor]]:
+        model = make()
+        model.learn(model.learning_starts + 4)
+        return dict(model.logger.name_to_value), [param.detach().clone() for param in model.policy.parameters()]
+
+    logged, parameters = learned()  # the first update computes the ratio
+    ratio = logged.pop("train/aux_grad_ratio")
+    assert math.isfinite(ratio) and ratio > 0
+    monkeypatch.setattr(f"sb3_ef.{host}.aux_grad_ratio_due", lambda n_updates: False)
+    unlogged, unchanged = learned()
+    assert logged == unlogged  # the same losses, with or without the ratio
+    assert all(th.equal(a, b) for a, b in zip(parameters, unchanged, strict=True))
