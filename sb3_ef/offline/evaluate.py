@@ -104,12 +104,7 @@ def window_saliency(model: OfflineEF, windows: Windows, index: int, k: int) -> S
 
 
 def saliency_scores(
-    model: OfflineEF,
-    episodes: list[Episode],
-    picks: list[tuple[int, int]],
-    count: int,
-    seed: int,
-    bar: Any,
+    model: OfflineEF, episodes: list[Episode], picks: list[tuple[int, int]], count: int, seed: int, bar: Any
 ) -> dict[str, float]:
     """Mean precision / recall of the thresholded h_a saliency of the predicted frame t + k (k drawn in 1..H)
     against the agent mask at t + k, over ``count`` windows drawn from ``picks``."""

@@ -20,8 +20,7 @@ from sb3_ef.offline.episodes import (
     make_episode,
     read_episode_file,
 )
-from sb3_ef.offline.shards import index_records, read_example, shard_paths
-from sb3_ef.offline.tfrecord import Features
+from sb3_ef.offline.tfrecord import Features, index_records, read_example, shard_paths
 
 TFRECORD_SUFFIXES = (".tfrecord", ".tfrecords")
 MINARI_PREFIX = "minari:"

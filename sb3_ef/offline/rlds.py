@@ -16,8 +16,7 @@ import numpy as np
 
 from sb3_ef.offline.dataset import EpisodeDataset, check_image_size, decode_image
 from sb3_ef.offline.episodes import Episode, EpisodeError, make_episode
-from sb3_ef.offline.shards import index_records, read_example
-from sb3_ef.offline.tfrecord import Features
+from sb3_ef.offline.tfrecord import Features, index_records, read_example
 
 STEPS = "steps/"
 SHARD_PATTERN = re.compile(r".+\.tfrecord(-\d{5}-of-\d{5})?$")
