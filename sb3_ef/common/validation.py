@@ -115,6 +115,40 @@ def _train_freq(name: str, value: Any) -> None:
         raise ValueError(f"{name} must be a positive integer or a pair (n, 'step' | 'episode'), got {_received(value)}")
 
 
+def _exploration_std(name: str, value: Any) -> None:
+    from sb3_ef.common.schedules import get_step_schedule
+
+    if callable(value):
+        return
+    expected = "a number >= 0, a string 'linear(initial, final, duration)' of numbers >= 0 or a callable of the step"
+    if isinstance(value, bool) or not isinstance(value, (numbers.Real, str)):
+        raise ValueError(f"{name} must be {expected}, got {_received(value)}")
+    try:
+        schedule = get_step_schedule(value)
+    except ValueError as error:
+        raise ValueError(f"{name} must be {expected}, got {_received(value)} ({error})") from None
+    first, last = schedule(0), schedule(2**62)
+    if not (math.isfinite(first) and math.isfinite(last)) or min(first, last) < 0:
+        detail = f" (from {first:g} to {last:g})" if isinstance(value, str) else ""
+        raise ValueError(f"{name} is a standard deviation: it must be {expected}, got {value!r}{detail}")
+
+
+def _ent_coef(name: str, value: Any) -> None:
+    if _is_number(value) and value >= 0:
+        return
+    if isinstance(value, str) and (value == "auto" or value.startswith("auto_")):
+        try:
+            initial = float(value[len("auto_") :]) if value != "auto" else 1.0
+        except ValueError:
+            initial = -1.0
+        if math.isfinite(initial) and initial > 0:
+            return
+    raise ValueError(
+        f"{name} must be a number >= 0 (a fixed entropy coefficient), 'auto' or 'auto_<initial value > 0>' (learned), "
+        f"got {_received(value)}"
+    )
+
+
 #: Argument name -> its check, for every algorithm that has the argument. ``None`` is accepted where the
 #: constructor's default is ``None`` (e.g. TD-MPC2's ``gamma``) and for EF's ``beta``/``ef_horizon`` (EF off).
 ARGUMENT_CHECKS: dict[str, Callable[[str, Any], None]] = {
@@ -141,6 +175,8 @@ ARGUMENT_CHECKS: dict[str, Callable[[str, Any], None]] = {
     "entropy_coef": _non_negative_number,
     "max_grad_norm": _positive_number,
     "rho": _unit_interval,
+    "exploration_std": _exploration_std,
+    "ent_coef": _ent_coef,
 }
 
 _EF_OFF = frozenset({"beta", "ef_horizon"})
@@ -159,18 +195,92 @@ def _defaults(algo_class: type) -> dict[str, Any]:
     return defaults
 
 
+def _accepted_arguments(target: Callable[..., Any]) -> set[str] | None:
+    """The keyword arguments ``target`` takes: a function's, or a class's ``__init__``'s and, while an ``__init__``
+    passes ``**kwargs`` on, those of the classes after it in the MRO; ``None`` when the chain ends in ``**kwargs``
+    (any name)."""
+    names: set[str] = set()
+    functions = [vars(base).get("__init__") for base in target.__mro__] if isinstance(target, type) else [target]
+    for function in functions:
+        if function is None or not inspect.isfunction(function):
+            continue
+        parameters = inspect.signature(function).parameters.values()
+        names.update(parameter.name for parameter in parameters if parameter.kind in _NAMED)
+        if all(parameter.kind is not inspect.Parameter.VAR_KEYWORD for parameter in parameters):
+            return names - {"self"}
+    return None
+
+
+_NAMED = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
+#: Ego-Foresight's arguments, named when given to a class without EF.
+EF_CLASSES = "Ego-Foresight's classes DrQv2EF, TDMPC2EF, SACEF, TD3EF and TQCEF"
+EF_ARGUMENTS = ("beta", "ef_horizon", "agent_dim", "ef_kwargs", "babbling_steps", "babbling_mode", "babbling_in_eval")
+
+
+def _check_argument_names(name: str, accepted: set[str] | None, given: Mapping[str, Any]) -> None:
+    """Raise ``TypeError`` naming an argument the class does not take (before the class it forwards to does)."""
+    for key, value in given.items():
+        if accepted is None or key in accepted:
+            continue
+        owner = f" (an argument of {EF_CLASSES})" if key in EF_ARGUMENTS else ""
+        raise TypeError(
+            f"{name} takes no argument {key}={value!r}{owner}{did_you_mean(key, accepted)}; see help({name})"
+        )
+
+
+def _check_policy_kwargs(name: str, accepted: set[str] | None, policy: Any, policy_kwargs: Any) -> None:
+    """Raise ``ValueError`` for a ``policy_kwargs`` entry the policy class does not take, saying where it belongs:
+    the algorithm's own argument, the features extractor's (``features_extractor_kwargs``), or a close name."""
+    taken = _accepted_arguments(policy) if isinstance(policy, type) else None
+    if taken is None or not isinstance(policy_kwargs, Mapping):
+        return
+    extractor = policy_kwargs.get("features_extractor_class") or _defaults(policy).get("features_extractor_class")
+    for key, value in policy_kwargs.items():
+        if key in taken:
+            continue
+        if accepted is not None and key in accepted:
+            where = f"it is {name}'s own argument: {name}(..., {key}={value!r})"
+        elif isinstance(extractor, type) and key in (_accepted_arguments(extractor) or ()):
+            where = (
+                f"it is an argument of the features extractor {extractor.__name__}: "
+                f"policy_kwargs=dict(features_extractor_kwargs=dict({key}={value!r}))"
+            )
+        else:
+            where = f"expected one of {', '.join(sorted(taken))}{did_you_mean(key, taken)}"
+        raise ValueError(f"{name}: policy_kwargs holds {key}={value!r}, which {policy.__name__} does not take: {where}")
+
+
+def _check_policy_fits_observations(name: str, policy: Any, env: Any, aliases: Mapping[str, Any]) -> None:
+    """Raise ``ValueError`` for ``"MlpPolicy"`` on image observations of a class that has a ``"CnnPolicy"``: it would
+    flatten the raw pixels into one vector (and an auxiliary loss would split pixels, not features)."""
+    space = getattr(env, "observation_space", None)
+    if policy != "MlpPolicy" or "CnnPolicy" not in aliases or space is None:
+        return
+    from stable_baselines3.common.preprocessing import is_image_space
+
+    if is_image_space(space, check_channels=False):
+        raise ValueError(
+            f"{name}: policy 'MlpPolicy' would flatten the env's {space.shape} frames into one vector of raw "
+            "pixels; expected 'CnnPolicy' (a convolutional encoder) for image observations"
+        )
+
+
 def check_algorithm_arguments(algo_class: type, arguments: Mapping[str, Any]) -> None:
     """Check the constructor arguments of an sb3-ef algorithm; call first thing in ``__init__`` with
     ``locals()`` (``kwargs`` forwarded to an SB3 host class are checked too).
 
-    Raises ``ValueError`` naming the argument, what it must be and what it got, for: numbers given as strings or of
-    the wrong sign, a policy name the class does not know. Warns when ``device`` asks for CUDA that is not there
-    (SB3 falls back to the CPU without a word).
+    Raises ``TypeError`` for an argument the class does not take, and ``ValueError`` naming the argument, what it must
+    be and what it got, for: numbers given as strings or of the wrong sign, a policy name the class does not know,
+    ``"MlpPolicy"`` on image observations, a ``policy_kwargs`` entry the policy does not take. Warns when ``device``
+    asks for CUDA that is not there (SB3 falls back to the CPU without a word).
     """
     values = {key: value for key, value in arguments.items() if key not in ("self", "kwargs", "__class__")}
-    values.update(arguments.get("kwargs") or {})
+    forwarded = arguments.get("kwargs") or {}
+    values.update(forwarded)
     defaults = _defaults(algo_class)
     name = algo_class.__name__
+    accepted = _accepted_arguments(algo_class)
+    _check_argument_names(name, accepted, forwarded)
     for key, value in values.items():
         check = ARGUMENT_CHECKS.get(key)
         if check is None or (value is None and (key in _EF_OFF or defaults.get(key, 0) is None)):
@@ -183,7 +293,25 @@ def check_algorithm_arguments(algo_class: type, arguments: Mapping[str, Any]) ->
             f"{name}: unknown policy {policy!r}{did_you_mean(policy, aliases)}; expected one of "
             f"{', '.join(map(repr, aliases))} or a policy class"
         )
+    _check_policy_fits_observations(name, policy, values.get("env"), aliases)
+    _check_policy_kwargs(name, accepted, aliases.get(policy, policy), values.get("policy_kwargs"))
     check_device(values.get("device", defaults.get("device", "auto")))
+
+
+def check_keyword_arguments(
+    what: str, target: Callable[..., Any], kwargs: Mapping[str, Any], set_by_caller: Iterable[str] = ()
+) -> None:
+    """Raise ``ValueError`` for a key of ``kwargs`` that ``target`` (a function or class) does not take, or that the
+    caller sets itself (``set_by_caller``), naming ``what`` the keys are for, the close matches and the valid keys."""
+    taken = _accepted_arguments(target)
+    if taken is None:
+        return
+    valid = sorted(taken - set(set_by_caller))
+    for key in kwargs:
+        if key not in valid:
+            raise ValueError(
+                f"unknown key {key!r} for {what}{did_you_mean(key, valid)}; expected one of {', '.join(valid)}"
+            )
 
 
 def check_device(device: Any) -> None:
@@ -254,10 +382,25 @@ def is_intact(model_path: str | os.PathLike) -> bool:
         return False
 
 
+def _is_torch_file(path: Path) -> bool:
+    """Whether ``path`` is a ``torch.save`` file: a zip archive whose first member is ``<name>/data.pkl`` (read from
+    the first header, as a cut SB3 zip may end in the central directory of a ``.pth`` zip stored inside it)."""
+    try:
+        with open(path, "rb") as file:
+            header = file.read(30)
+            if len(header) < 30 or header[:4] != b"PK\x03\x04":
+                return False
+            name = file.read(int.from_bytes(header[26:28], "little"))
+    except OSError:
+        return False
+    return name.endswith(b"/data.pkl")
+
+
 def check_model_path(path: Any) -> Path | None:
     """Raise when ``path`` (str or path-like; file objects pass) names no readable model zip: ``FileNotFoundError``
     naming the path as given (SB3 would report ``<path>.zip`` when ``path`` already ends in ``.zip``), or
-    ``ValueError`` for a damaged file (:func:`is_intact`). Returns the zip's path (``None`` for a file object)."""
+    ``ValueError`` for a PyTorch file (saying what reads it) or a damaged file (:func:`is_intact`). Returns the zip's
+    path (``None`` for a file object)."""
     if not isinstance(path, (str, os.PathLike)):
         return None
     given = Path(path)
@@ -266,6 +409,12 @@ def check_model_path(path: Any) -> Path | None:
     if found is None:
         tried = " or ".join(str(candidate) for candidate in candidates)
         raise FileNotFoundError(f"No saved model at {tried}")
+    if _is_torch_file(found):
+        raise ValueError(
+            f"{found} is a PyTorch file (torch.save), not a model zip written by save(): a `sb3-ef pretrain` output "
+            "(model.pt, checkpoint.pt) is read with sb3_ef.offline.load_pretrained, and its weights are copied into a "
+            "DrQv2EF or TDMPC2EF with sb3_ef.offline.load_ef(model, path)"
+        )
     if not is_intact(found):
         raise ValueError(
             f"{found} is not a saved model: expected a zip archive written by save() (the file may be truncated)"

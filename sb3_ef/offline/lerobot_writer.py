@@ -262,10 +262,15 @@ class LeRobotWriter:
         return columns
 
     def _table(self, columns: dict[str, np.ndarray]) -> Any:
-        """Parquet columns: fixed-size lists for the action vectors and the (height, width) masks."""
+        """Parquet columns: fixed-size lists for the action vectors and the (height, width) masks. A 1-d action is a
+        float column, as LeRobot stores every feature of shape [1] (its reader refuses a list there)."""
         pa = self.pa
         arrays = {name: pa.array(values) for name, values in columns.items() if values.ndim == 1}
-        arrays["action"] = pa.FixedSizeListArray.from_arrays(pa.array(columns["action"].ravel()), self.action_dim)
+        actions = columns["action"]
+        if self.action_dim == 1:
+            arrays["action"] = pa.array(actions[:, 0])
+        else:
+            arrays["action"] = pa.FixedSizeListArray.from_arrays(pa.array(actions.ravel()), self.action_dim)
         if MASK_KEY in columns:
             height, width = self.frame_shape[1:]
             rows = pa.FixedSizeListArray.from_arrays(pa.array(columns[MASK_KEY].ravel()), width)
