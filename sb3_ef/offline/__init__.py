@@ -12,38 +12,23 @@ from typing import Any
 
 from sb3_ef.common.lazy import lazy_attributes
 
-_PUBLIC = {
-    # episodes and readers
-    "Episode": "sb3_ef.offline.episodes",
-    "EpisodeError": "sb3_ef.offline.episodes",
-    "make_episode": "sb3_ef.offline.episodes",
-    "read_episode_file": "sb3_ef.offline.episodes",
-    "write_episode": "sb3_ef.offline.episodes",
-    "EpisodeDataset": "sb3_ef.offline.dataset",
-    "FolderDataset": "sb3_ef.offline.readers",
-    "MinariDataset": "sb3_ef.offline.readers",
-    "BAIRDataset": "sb3_ef.offline.readers",
-    "open_dataset": "sb3_ef.offline.readers",
-    "load_episodes": "sb3_ef.offline.readers",
-    "LeRobotDataset": "sb3_ef.offline.lerobot",
-    "LeRobotWriter": "sb3_ef.offline.lerobot_writer",
-    "write_lerobot": "sb3_ef.offline.lerobot_writer",
-    "RLDSDataset": "sb3_ef.offline.rlds",
-    "OXE_LAYOUTS": "sb3_ef.offline.rlds",
-    "StreamingWindowSampler": "sb3_ef.offline.streaming",
-    # recording, training, prediction, warm start
-    "collect": "sb3_ef.offline.collect",
-    "record_episode": "sb3_ef.offline.collect",
-    "pretrain": "sb3_ef.offline.pretrain",
-    "OfflineEF": "sb3_ef.offline.model",
-    "OfflineEFConfig": "sb3_ef.offline.model",
-    "load_pretrained": "sb3_ef.offline.model",
-    "evaluate": "sb3_ef.offline.evaluate",
-    "predict_frames": "sb3_ef.offline.predict",
-    "predict_episode": "sb3_ef.offline.predict",
-    "load_ef": "sb3_ef.offline.warm_start",
-    "Interrupted": "sb3_ef.common.interrupt",
+_NAMES = {
+    "offline.episodes": ("Episode", "EpisodeError", "make_episode", "read_episode_file", "write_episode"),
+    "offline.dataset": ("EpisodeDataset",),
+    "offline.readers": ("FolderDataset", "MinariDataset", "BAIRDataset", "open_dataset", "load_episodes"),
+    "offline.lerobot": ("LeRobotDataset",),
+    "offline.lerobot_writer": ("LeRobotWriter", "write_lerobot"),
+    "offline.rlds": ("RLDSDataset", "OXE_LAYOUTS"),
+    "offline.streaming": ("StreamingWindowSampler",),
+    "offline.collect": ("collect", "record_episode"),
+    "offline.pretrain": ("pretrain",),
+    "offline.model": ("OfflineEF", "OfflineEFConfig", "load_pretrained"),
+    "offline.evaluate": ("evaluate",),
+    "offline.predict": ("predict_frames", "predict_episode"),
+    "offline.warm_start": ("load_ef",),
+    "common.interrupt": ("Interrupted",),
 }
+_PUBLIC = {name: f"sb3_ef.{module}" for module, names in _NAMES.items() for name in names}
 
 __all__ = list(_PUBLIC)
 

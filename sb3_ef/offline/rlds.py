@@ -43,21 +43,9 @@ OXE_LAYOUTS: dict[str, tuple[str, tuple[str, ...]]] = {
 #: ``1-<feature>`` is one minus it: DROID's gripper position (1 closed) as the openness Octo and OpenVLA train on.
 ONE_MINUS = "1-"
 #: Tried in turn when no layout is named.
-IMAGE_KEYS = (
-    "observation/image",
-    "observation/rgb",
-    "observation/image_0",
-    "observation/rgb_static",
-    "observation/agentview_rgb",
-    "observation/front_rgb",
-    "observation/exterior_image_1_left",
-)
-ACTION_PARTS = (
-    "action/world_vector",
-    "action/rotation_delta",
-    "action/gripper_closedness_action",
-    "action/open_gripper",
-)
+_CAMERAS = ("image", "rgb", "image_0", "rgb_static", "agentview_rgb", "front_rgb", "exterior_image_1_left")
+IMAGE_KEYS = tuple(f"observation/{camera}" for camera in _CAMERAS)
+ACTION_PARTS = (*_EEF, "action/open_gripper")
 
 
 def rlds_shards(path: str | os.PathLike, split: str = "train") -> list[str]:
