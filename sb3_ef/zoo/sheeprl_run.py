@@ -25,7 +25,7 @@ from sb3_ef.grid.grid import RunSpec
 from sb3_ef.grid.run import RunPaths, build_env
 from sb3_ef.zoo import config
 from sb3_ef.zoo.options import ENJOY_OPTIONS, TRAIN_OPTIONS, check_enjoy_argv, check_train_argv, merge_train_argv
-from sb3_ef.zoo.records import finish_run
+from sb3_ef.zoo.records import finish_run, run_result_path
 from sb3_ef.zoo.resume import ARGV_FILE, with_seed
 
 #: The train options these runs take; rl-zoo3's others (Optuna, vectorised envs, -i, tracking) do not apply.
@@ -99,11 +99,10 @@ def run_spec(args: argparse.Namespace) -> tuple[RunSpec, dict[str, Any]]:
     entry["env_kwargs"] = {**(entry.get("env_kwargs") or {}), **_pairs(args.env_kwargs, "--env-kwargs")}
     eval_freq = args.eval_freq if args.eval_freq is not None else DEFAULT_EVAL_FREQ
     n_timesteps = args.n_timesteps or int(entry["n_timesteps"])
-    hyperparams = {key: value for key, value in entry.items() if key not in ("policy", "n_timesteps", "env_kwargs")}
     spec = RunSpec(
         label=args.algo, algo=args.algo, task=args.env, seed=args.seed, n_timesteps=n_timesteps,
         eval_freq=eval_freq, eval_episodes=args.eval_episodes or DEFAULT_EVAL_EPISODES,
-        checkpoint_freq=args.save_freq or n_timesteps, hyperparams=hyperparams, env_kwargs=entry["env_kwargs"],
+        checkpoint_freq=args.save_freq or n_timesteps, hyperparams=entry, env_kwargs=entry["env_kwargs"],
     )  # fmt: skip
     return spec, entry
 
@@ -128,6 +127,7 @@ def train_main(argv: list[str]) -> None:
     folder = folder or _new_run_folder(args.log_folder or "logs", spec.algo, env_name)
     paths = RunPaths(folder / f"{env_name}.csv", folder / env_name, final_model=folder / f"{env_name}.zip")
     _write_run_files(paths.folder, args, entry, argv)
+    run_result_path(folder, env_name).unlink(missing_ok=True)  # finished again only when it reaches its steps
     print(f"Log path: {folder}", flush=True)
     keep = args.keep_checkpoints if args.keep_checkpoints is not None else 2
     steps, _ = train_dreamerv3(spec, paths, args.num_threads or 1, args.device or "auto", keep)
