@@ -1,8 +1,5 @@
-"""Acting with a trained model one observation at a time, as an evaluation does: ``predict``'s state carried.
-
-SB3's ``predict(observation, state, episode_start)`` returns a state that its next call takes (a recurrent policy's
-hidden state; TD-MPC2's warm-start plans). A loop that drops it acts otherwise than the evaluations did.
-"""
+"""Acting with a trained model one observation at a time as an evaluation does, carrying the state ``predict``
+returns to its next call (a recurrent policy's hidden state, TD-MPC2's warm-start plans)."""
 
 from __future__ import annotations
 
@@ -12,11 +9,8 @@ import numpy as np
 
 
 class EpisodeActor:
-    """``model.predict`` over one episode at a time, each call taking the state the previous one returned.
-
-    :param model: anything with SB3's ``predict`` (an algorithm or a policy).
-    :param deterministic: as ``predict``'s.
-    """
+    """``model.predict`` (an algorithm's or a policy's) over one episode at a time, each call taking the state the
+    previous one returned."""
 
     def __init__(self, model: Any, deterministic: bool = True) -> None:
         self.model = model

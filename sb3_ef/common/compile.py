@@ -1,10 +1,6 @@
-"""The ``compile`` option of the algorithms: which values it takes, and ``torch.compile`` of an update's parts.
-
-``compile`` is ``False`` (eager), ``True`` (``torch.compile`` in its default mode), one of ``torch.compile``'s mode
-names (``"reduce-overhead"`` adds CUDA graphs) or a dict of ``torch.compile`` keyword arguments (e.g.
-``{"backend": "aot_eager"}``: dynamo and AOT autograd without code generation, which the tests use because Inductor
-takes about a minute per graph on a small CPU).
-"""
+"""The algorithms' ``compile`` option, ``torch.compile`` of an update's parts: ``False`` (eager), ``True`` (default
+mode), a mode name (``"reduce-overhead"`` adds CUDA graphs) or a dict of ``torch.compile`` arguments (the tests use
+``{"backend": "aot_eager"}``: no code generation, as Inductor takes about a minute per graph on a small CPU)."""
 
 from __future__ import annotations
 
@@ -21,10 +17,7 @@ F = TypeVar("F", bound=Callable[..., Any])
 
 
 def compile_kwargs(compile: CompileOption) -> dict[str, Any] | None:
-    """The ``torch.compile`` arguments that ``compile`` stands for; ``None`` when it is ``False`` (eager).
-
-    :raises ValueError: naming the accepted values and the one received.
-    """
+    """The ``torch.compile`` arguments that ``compile`` stands for; ``None`` when it is ``False`` (eager)."""
     if compile is False:
         return None
     if compile is True:

@@ -18,9 +18,8 @@ FRAME_CHANNELS = 3
 
 
 def policy_observation_space(observation_space: spaces.Space) -> spaces.Space:
-    """The observation space an SB3 algorithm gives its policy for an env with ``observation_space``: SB3 wraps
-    an env of channels-last images (uint8, bounds 0 and 255, smallest dimension not first) in ``VecTransposeImage``,
-    which makes them channels-first; any other space is the env's own."""
+    """The observation space an SB3 algorithm gives its policy: channels-last images made channels-first, as SB3's
+    ``VecTransposeImage`` does; any other space is the env's own."""
     if (
         isinstance(observation_space, spaces.Box)
         and is_image_space(observation_space)

@@ -61,8 +61,8 @@ def overridden_sample_action(
     action_noise: ActionNoise | None = None,
     n_envs: int = 1,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``_sample_action``'s (env, buffer) actions: ``override``'s when it gives some, else ``sample``'s. With
-    ``functools.partial`` over the first three, it stands in for an algorithm's own ``_sample_action``."""
+    """``_sample_action``'s (env, buffer) actions: ``override``'s when it gives some, else ``sample``'s (a partial
+    over the first three arguments stands in for an algorithm's ``_sample_action``)."""
     buffer_action = override.rollout_action(n_envs) if override is not None else None
     if buffer_action is None:
         return sample(learning_starts, action_noise, n_envs)

@@ -9,10 +9,8 @@ from typing import Any
 
 @contextmanager
 def policy_built_with(model: Any, defaults: dict[str, Any] | None = None, **derived: Any) -> Iterator[None]:
-    """While the block runs (SB3's ``_setup_model`` builds the policy from ``model.policy_kwargs``), the policy
-    gets ``defaults`` unless the user's kwargs set them, and ``derived`` always; ``model.policy_kwargs`` is the
-    user's own again afterwards. So the saved kwargs are those the user passed, and ``Algorithm.load(path,
-    policy_kwargs=<the constructor's own>)`` passes SB3's check that they equal the stored ones."""
+    """Within the block (SB3's ``_setup_model``), ``model.policy_kwargs`` adds ``defaults`` the user did not set and
+    ``derived``; afterwards it is the user's again, so saved kwargs pass SB3's check on ``load(policy_kwargs=...)``."""
     given = model.policy_kwargs
     model.policy_kwargs = {**(defaults or {}), **given, **derived}
     try:
