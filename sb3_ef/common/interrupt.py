@@ -4,7 +4,9 @@ A command that can save its state on Ctrl-C (``collect``'s episodes, ``pretrain`
 finished runs) catches ``KeyboardInterrupt`` there and raises :class:`Interrupted` with a line that says what was
 kept; the ``sb3-ef`` console script prints ``sb3-ef <command>: interrupted[: what was kept]`` on stderr and exits
 with :data:`INTERRUPTED_STATUS` (128 + SIGINT, as shells report it), without a traceback. :func:`sigint_deferred`
-keeps Ctrl-C out of steps that must not be cut (a video encoder's packets, an optimiser step).
+keeps Ctrl-C out of steps that must not be cut (a video encoder's packets, an optimiser step);
+:func:`progress_bar_callback` closes ``learn``'s progress bar however training ends, so that Ctrl-C in ``learn`` gives
+one ``KeyboardInterrupt`` with one traceback.
 """
 
 from __future__ import annotations
@@ -13,7 +15,10 @@ import signal
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.type_aliases import MaybeCallback
 
 #: The exit status of a command stopped by Ctrl-C (128 + SIGINT).
 INTERRUPTED_STATUS = 130
@@ -53,3 +58,25 @@ def _deliver(handler: Any) -> None:
         raise KeyboardInterrupt
     if callable(handler):
         handler(signal.SIGINT, None)
+
+
+@contextmanager
+def progress_bar_callback(callback: MaybeCallback, progress_bar: bool) -> Iterator[MaybeCallback]:
+    """``callback`` with SB3's progress bar added when ``progress_bar`` (pass it to SB3's ``learn`` with
+    ``progress_bar=False``); the bar is closed when the block ends by an error or Ctrl-C. SB3 closes its bar only when
+    training ends; one left open is closed at interpreter shutdown, where tqdm's rich bar can no longer import and
+    prints a second traceback after the ``KeyboardInterrupt``'s."""
+    if not progress_bar:
+        yield callback
+        return
+    from stable_baselines3.common.callbacks import BaseCallback, ConvertCallback, ProgressBarCallback
+
+    bar = ProgressBarCallback()
+    given = callback if isinstance(callback, list) else [] if callback is None else [callback]
+    callbacks = [item if isinstance(item, BaseCallback) else ConvertCallback(item) for item in given]
+    try:
+        yield [*callbacks, bar]
+    except BaseException:
+        if getattr(bar, "pbar", None) is not None:
+            bar.pbar.close()
+        raise
