@@ -124,7 +124,7 @@ def _exploration_std(name: str, value: Any) -> None:
     if isinstance(value, bool) or not isinstance(value, (numbers.Real, str)):
         raise ValueError(f"{name} must be {expected}, got {_received(value)}")
     try:
-        schedule = get_step_schedule(value)
+        schedule = get_step_schedule(value if isinstance(value, str) else float(value))
     except ValueError as error:
         raise ValueError(f"{name} must be {expected}, got {_received(value)} ({error})") from None
     first, last = schedule(0), schedule(2**62)
