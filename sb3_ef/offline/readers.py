@@ -20,7 +20,7 @@ from sb3_ef.offline.episodes import (
     make_episode,
     read_episode_file,
 )
-from sb3_ef.offline.tfrecord import Features, index_records, read_example, shard_paths
+from sb3_ef.offline.tfrecord import ExampleShards, Features
 
 TFRECORD_SUFFIXES = (".tfrecord", ".tfrecords")
 MINARI_PREFIX = "minari:"
@@ -126,7 +126,7 @@ def _channels_first(images: np.ndarray, source: str) -> np.ndarray:
     )
 
 
-class BAIRDataset(EpisodeDataset):
+class BAIRDataset(ExampleShards):
     """BAIR robot pushing (``softmotion30_44k``) TFRecords, read without TensorFlow: one ``tf.train.Example`` per
     episode with, per step ``t``, ``{t}/{camera}/encoded`` (raw RGB bytes of ``image_size`` squared, or a JPEG / PNG)
     and ``{t}/action``; the last of the 30 actions has no frame after it and is dropped.
@@ -144,28 +144,21 @@ class BAIRDataset(EpisodeDataset):
         min_frames: int = 2,
         verify: bool = True,
     ):
-        super().__init__(min_frames)
-        self.verify = verify
         if isinstance(paths, (str, os.PathLike)) and os.path.isdir(paths):
             paths = sorted(p for p in glob.glob(os.path.join(paths, "*")) if p.endswith(TFRECORD_SUFFIXES))
-        self.paths = shard_paths(paths)
-        if not self.paths:
+        shards = [os.fspath(path) for path in ([paths] if isinstance(paths, (str, os.PathLike)) else paths)]
+        if not shards:
             raise FileNotFoundError("No .tfrecord files given or found")
         self.camera = camera
         self.image_size = check_image_size(image_size, optional=False)
-        self._records = index_records(self.paths)
-
-    def __len__(self) -> int:
-        return len(self._records)
+        super().__init__(shards, verify, min_frames)
 
     def lengths(self) -> list[int]:
         """Frames per episode from each record's step features (records are parsed, images not decoded)."""
         return [len(self._steps(index)[1]) for index in range(len(self))]
 
     def _steps(self, index: int) -> tuple[Features, list[int], str]:
-        path, offset = self._records[index]
-        source = f"{path} (episode {index})"
-        features = read_example(path, offset, source, self.verify)
+        features, source = self._example(index)
         steps = sorted({int(key.split("/", 1)[0]) for key in features if key.split("/", 1)[0].isdigit()})
         return features, steps, source
 

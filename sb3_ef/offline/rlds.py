@@ -14,9 +14,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from sb3_ef.offline.dataset import EpisodeDataset, check_image_size, decode_image
+from sb3_ef.offline.dataset import check_image_size, decode_image
 from sb3_ef.offline.episodes import Episode, EpisodeError, make_episode
-from sb3_ef.offline.tfrecord import Features, index_records, read_example
+from sb3_ef.offline.tfrecord import ExampleShards, Features
 
 STEPS = "steps/"
 SHARD_PATTERN = re.compile(r".+\.tfrecord(-\d{5}-of-\d{5})?$")
@@ -65,7 +65,7 @@ def is_rlds_folder(path: str | os.PathLike) -> bool:
     )
 
 
-class RLDSDataset(EpisodeDataset):
+class RLDSDataset(ExampleShards):
     """Episodes of RLDS / TFDS TFRecord shards: one image feature and the action(s) of each step, record ``i``
     read (CRC-checked when ``verify``) and decoded on ``dataset[i]``.
 
@@ -88,13 +88,11 @@ class RLDSDataset(EpisodeDataset):
         verify: bool = True,
         min_frames: int = 2,
     ):
-        super().__init__(min_frames)
         if isinstance(paths, (str, os.PathLike)):
-            self.paths = rlds_shards(paths, split)
-            name = _dataset_name(os.fspath(paths))
+            shards, name = rlds_shards(paths, split), _dataset_name(os.fspath(paths))
         else:
-            self.paths, name = [os.fspath(p) for p in paths], None
-        if not self.paths:
+            shards, name = [os.fspath(p) for p in paths], None
+        if not shards:
             where = os.fspath(paths) if isinstance(paths, (str, os.PathLike)) else list(paths)
             raise FileNotFoundError(f"No TFRecord shards (<name>-{split}.tfrecord-*) in {where!r}")
         if layout is not None and layout not in OXE_LAYOUTS:
@@ -104,20 +102,12 @@ class RLDSDataset(EpisodeDataset):
         self.layout = layout
         self.image_key = image_key or default_image
         self.action_keys = tuple(action_keys) if action_keys else default_actions
-        self.image_size, self.verify = check_image_size(image_size), verify
-        self._records = index_records(self.paths)
-
-    def __len__(self) -> int:
-        return len(self._records)
+        self.image_size = check_image_size(image_size)
+        super().__init__(shards, verify, min_frames)
 
     def lengths(self) -> list[int]:
         """Frames per episode, from each record's step count (records are parsed, images not decoded)."""
-        return [len(self._resolve(*self._features(i))[0]) for i in range(len(self))]
-
-    def _features(self, index: int) -> tuple[Features, str]:
-        path, offset = self._records[index]
-        source = f"{path} (episode {index})"
-        return read_example(path, offset, source, self.verify), source
+        return [len(self._resolve(*self._example(i))[0]) for i in range(len(self))]
 
     def _resolve(self, features: Features, source: str) -> tuple[list[bytes], list[np.ndarray]]:
         """The image bytes of every step and the action feature arrays, by the configured or detected names."""
@@ -158,7 +148,7 @@ class RLDSDataset(EpisodeDataset):
         return images, actions
 
     def _read(self, index: int) -> Episode:
-        features, source = self._features(index)
+        features, source = self._example(index)
         images, actions = self._resolve(features, source)
         for flag, position in (("is_first", 0), ("is_last", -1)):
             values = features.get(STEPS + flag)

@@ -2,8 +2,8 @@
 
 A record is ``length`` (uint64, little endian), the masked CRC-32C of those 8 bytes (uint32), ``length`` bytes of
 data (here an Example: feature name -> list of bytes, floats or int64s) and the masked CRC-32C of the data. CRC-32C
-runs in C through ``google-crc32c`` or ``crc32c`` when installed, else in pure Python (about 3 MB/s). Shards of
-episodes (BAIR's, RLDS's) are indexed on open, each record read with errors naming the file and the episode.
+runs in C through ``google-crc32c`` or ``crc32c`` when installed, else in pure Python (about 3 MB/s).
+:class:`ExampleShards` reads episodes of one Example per record, with errors naming the file and the episode.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from typing import BinaryIO
 import numpy as np
 
 from sb3_ef.common.files import write_atomically
+from sb3_ef.offline.dataset import EpisodeDataset
 from sb3_ef.offline.episodes import EpisodeError
 
 _CRC_TABLE: list[int] = []
@@ -236,42 +237,37 @@ def _parse_example(data: bytes) -> Features:
     return features
 
 
-def index_records(paths: Sequence[str]) -> list[tuple[str, int]]:
-    """``(path, byte offset)`` of every record of the shards ``paths``, in order; damaged, truncated or only empty
-    shards raise ``EpisodeError``, an empty shard among others is named in a warning."""
-    records, empty = [], []
-    for path in paths:
-        try:
-            offsets = record_offsets(path)
-        except ValueError as error:
-            raise EpisodeError(str(error)) from error
-        if not offsets:
-            empty.append(path)
-        records += [(path, offset) for offset in offsets]
-    if not records:
-        raise EpisodeError(
-            f"No records in {list(paths)}: {len(empty)} of {len(paths)} TFRecord files are empty (0 bytes: an "
-            "unfinished download or copy?)"
-        )
-    if empty:
-        warnings.warn(f"Empty TFRecord files (0 bytes, no episode) skipped: {empty}", stacklevel=3)
-    return records
+class ExampleShards(EpisodeDataset):
+    """Episodes stored one ``tf.train.Example`` per record of TFRecord shards (BAIR's, RLDS's), indexed on open:
+    damaged, truncated or only empty shards raise ``EpisodeError``, an empty one among others a warning."""
 
+    def __init__(self, paths: Sequence[str], verify: bool = True, min_frames: int = 2):
+        super().__init__(min_frames)
+        self.paths, self.verify, self._records, empty = list(paths), verify, [], []
+        for path in self.paths:
+            try:
+                offsets = record_offsets(path)
+            except ValueError as error:
+                raise EpisodeError(str(error)) from error
+            empty += [] if offsets else [path]
+            self._records += [(path, offset) for offset in offsets]
+        if not self._records:
+            raise EpisodeError(
+                f"No records in {self.paths}: {len(empty)} of {len(self.paths)} TFRecord files are empty (0 bytes: an "
+                "unfinished download or copy?)"
+            )
+        if empty:
+            warnings.warn(f"Empty TFRecord files (0 bytes, no episode) skipped: {empty}", stacklevel=3)
 
-def read_example(path: str, offset: int, source: str, verify: bool = True) -> Features:
-    """The ``tf.train.Example`` of the record at ``offset`` of ``path``, its CRCs checked when ``verify``; errors
-    name ``source`` (file and episode)."""
-    with open(path, "rb") as file:
-        try:
-            data = read_record_at(file, offset, path, verify)
-        except ValueError as error:
-            raise EpisodeError(f"{source}: {error}") from error
-    try:
-        return parse_example(data)
-    except ValueError as error:
-        raise EpisodeError(f"{source}: {error}") from error
+    def __len__(self) -> int:
+        return len(self._records)
 
-
-def shard_paths(paths: str | os.PathLike | Sequence[str | os.PathLike]) -> list[str]:
-    """``paths`` as a list of strings (one path, or several)."""
-    return [os.fspath(path) for path in ([paths] if isinstance(paths, (str, os.PathLike)) else paths)]
+    def _example(self, index: int) -> tuple[Features, str]:
+        """The Example of episode ``index`` (its CRCs checked when ``verify``) and its source, for errors."""
+        path, offset = self._records[index]
+        source = f"{path} (episode {index})"
+        with open(path, "rb") as file:
+            try:
+                return parse_example(read_record_at(file, offset, path, self.verify)), source
+            except ValueError as error:
+                raise EpisodeError(f"{source}: {error}") from error
