@@ -23,7 +23,8 @@ algorithm:
 - progress is printed every 10 s of wall time (:class:`~sb3_ef.zoo.progress.ProgressLogCallback`); ``-P``'s bar
   only when the output is a terminal, where it draws;
 - Ctrl-C stops training (rl-zoo3 then saves the final model) and, with ``--save-freq``, writes a resumable
-  checkpoint of the step reached (with the replay buffer under ``--checkpoint-buffer``).
+  checkpoint of the step reached (with the replay buffer under ``--checkpoint-buffer``); ``sb3-ef train`` then
+  prints one line saying what was kept and exits with status 130.
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from sb3_ef.analysis.records import EvalRecorderCallback, truncate_records
 from sb3_ef.common.checkpoints import Checkpoint, ResumableCheckpointCallback, checkpoint_for, load_checkpoint
 from sb3_ef.common.evaluation import StepSeededEvalCallback
+from sb3_ef.common.interrupt import Interrupted
 from sb3_ef.zoo.progress import ProgressLogCallback
 from sb3_ef.zoo.records import finish_run, run_records_path, run_result_path
 
@@ -99,14 +101,22 @@ def continue_evaluations(callback: EvalCallback) -> None:
         callback.best_mean_reward = max(float(np.mean(returns)) for returns in callback.evaluations_results)
 
 
-class _Continuing:
-    """A model whose ``learn`` keeps its counters (rl-zoo3 calls ``model.learn(n_timesteps, ...)``)."""
+class _Watched:
+    """A model whose ``learn`` (rl-zoo3 calls ``model.learn(n_timesteps, ...)``) records a Ctrl-C, which rl-zoo3
+    then catches before it saves the model, and keeps its counters when ``continuing``."""
 
-    def __init__(self, model: BaseAlgorithm):
-        self._model = model
+    def __init__(self, model: BaseAlgorithm, continuing: bool):
+        self._model, self._continuing = model, continuing
+        self.interrupted = False
 
     def learn(self, total_timesteps: int, **kwargs: Any) -> BaseAlgorithm:
-        return self._model.learn(total_timesteps, reset_num_timesteps=False, **kwargs)
+        if self._continuing:
+            kwargs["reset_num_timesteps"] = False
+        try:
+            return self._model.learn(total_timesteps, **kwargs)
+        except KeyboardInterrupt:
+            self.interrupted = True
+            raise
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._model, name)
@@ -127,6 +137,7 @@ class ResumingExperimentManager(ExperimentManager):
         self.argv = argv
         self.checkpoint: Checkpoint | None = checkpoint_for(self.trained_agent) if self.continue_training else None
         self.continues_folder = False
+        self.interrupted = False
         if self.checkpoint is not None and is_run_folder(self.checkpoint.model_path.parent, self.env_name):
             self.save_path = str(self.checkpoint.model_path.parent)
             self.params_path = os.path.join(self.save_path, self.env_name)
@@ -214,9 +225,21 @@ class ResumingExperimentManager(ExperimentManager):
                 saved = callback.save()
                 print(f"Stopped at step {model.num_timesteps} of {total}: checkpoint {saved.model_path}", flush=True)
 
+    def save_trained_model(self, model: BaseAlgorithm) -> None:
+        """rl-zoo3's save; after a Ctrl-C, then :class:`~sb3_ef.common.interrupt.Interrupted` saying what was kept
+        (``sb3-ef train`` prints it as one line and exits with status 130)."""
+        super().save_trained_model(model)
+        if self.interrupted:
+            raise Interrupted(
+                f"stopped at step {model.num_timesteps}, model saved to {self.save_path}/{self.env_name}.zip; "
+                f"continue with `sb3-ef train --resume {self.save_path}`"
+            )
+
     def _learn(self, model: BaseAlgorithm) -> None:
         if self.checkpoint is None:
-            super().learn(model)
+            watched = _Watched(model, continuing=False)
+            super().learn(watched)  # type: ignore[arg-type]
+            self.interrupted = watched.interrupted
             return
         total = self.n_timesteps
         if model.num_timesteps >= total:
@@ -231,7 +254,9 @@ class ResumingExperimentManager(ExperimentManager):
             if isinstance(callback, EvalCallback):
                 callback.n_calls = model.num_timesteps // n_envs  # evaluate at the uninterrupted run's steps
         self.n_timesteps = total - model.num_timesteps
+        watched = _Watched(model, continuing=True)
         try:
-            super().learn(_Continuing(model))  # type: ignore[arg-type]
+            super().learn(watched)  # type: ignore[arg-type]
         finally:
             self.n_timesteps = total
+            self.interrupted = watched.interrupted

@@ -131,6 +131,26 @@ def test_resume_continues_a_finished_run_from_its_final_model(tmp_path):
     assert DrQv2EF.load(run / "dmc-cartpole-swingup-v0.zip", buffer_size=64).num_timesteps == 80
 
 
+def test_ctrl_c_in_train_saves_the_model_prints_one_line_and_exits_130(tmp_path, monkeypatch, capsys):
+    """Ctrl-C during ``learn`` (raised by the model's first rollout): rl-zoo3 saves the model, then the command
+    says what was kept and how to continue, on one line, with exit status 130."""
+    from sb3_ef.drqv2 import drqv2
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(drqv2.DrQv2, "collect_rollouts", interrupted)
+    logs = tmp_path / "logs"
+    assert cli.main(tiny_train_argv(logs, "-n", "100")) == cli.INTERRUPTED_STATUS == 130
+    run = logs / "drqv2_ef" / "dmc-cartpole-swingup-v0_1"
+    assert (run / "dmc-cartpole-swingup-v0.zip").is_file()
+    [line] = [line for line in capsys.readouterr().err.splitlines() if "interrupted" in line]
+    assert line == (
+        f"sb3-ef train: interrupted: stopped at step 0, model saved to {run}/dmc-cartpole-swingup-v0.zip; "
+        f"continue with `sb3-ef train --resume {run}`"
+    )
+
+
 @pytest.mark.slow
 def test_ctrl_c_stops_train_within_seconds_and_saves_model_and_buffer(tmp_path):
     """A real ``sb3-ef train`` subprocess (output to a pipe, ``-P`` given) gets SIGINT while training."""
@@ -157,7 +177,8 @@ def test_ctrl_c_stops_train_within_seconds_and_saves_model_and_buffer(tmp_path):
     process.wait(timeout=60)
     exited_s = time.monotonic() - sent
     text = "".join(output)
-    assert process.returncode == 0, text
+    assert process.returncode == 130, text
+    assert text.rstrip().splitlines()[-1].startswith("sb3-ef train: interrupted: stopped at step")
     assert stopped_s is not None and stopped_s < 5.0, f"{stopped_s} s to stop:\n{text}"
     run = logs / "drqv2_ef" / "dmc-cartpole-swingup-v0_1"
     model = DrQv2EF.load(run / "dmc-cartpole-swingup-v0.zip", buffer_size=64)
