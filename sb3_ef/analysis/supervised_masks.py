@@ -1,9 +1,5 @@
-"""SEAR's supervised agent masks, to set next to EF's h_a saliency on the same frames.
-
-SEAR learns the agent's pixels from the simulator's masks (a decoder trained with a per-pixel cross-entropy);
-EF has no masks and its h_a saliency says where the agent is only if the split of the features worked. Both are
-scored against the true mask with :func:`~sb3_ef.analysis.masks.mask_scores`.
-"""
+"""SEAR's agent masks (learnt from the simulator's), to score beside EF's h_a saliency on the same frames
+(:func:`~sb3_ef.analysis.masks.mask_scores`)."""
 
 from __future__ import annotations
 

@@ -68,12 +68,9 @@ class FolderDataset(EpisodeDataset):
 
 
 class MinariDataset(EpisodeDataset):
-    """Episodes of a local Minari dataset of image observations (or a dict holding one): channels-last, channels-first
-    or frame-stacked (the newest frame kept); agent masks from the step infos under ``mask_key`` when present.
-
-    :param dataset_id: the Minari id, e.g. ``"metaworld/hammer/babbling-v0"``.
-    :param observation_key: the image entry of dict observations (default: ``"pixels"`` or ``"image"``).
-    """
+    """Episodes of a local Minari dataset of image observations: channels-last, channels-first or frame-stacked (the
+    newest frame kept), under ``observation_key`` (default ``"pixels"`` or ``"image"``) of dict observations; agent
+    masks from the step infos under ``mask_key`` when present."""
 
     def __init__(
         self, dataset_id: str, observation_key: str | None = None, mask_key: str = "agent_mask", min_frames: int = 2
@@ -130,10 +127,7 @@ class BAIRDataset(ExampleShards):
     """BAIR robot pushing (``softmotion30_44k``) TFRecords, read without TensorFlow: one ``tf.train.Example`` per
     episode with, per step ``t``, ``{t}/{camera}/encoded`` (raw RGB bytes of ``image_size`` squared, or a JPEG / PNG)
     and ``{t}/action``; the last of the 30 actions has no frame after it and is dropped.
-
-    :param paths: TFRecord files, or one folder searched for ``*.tfrecord(s)``.
-    :param camera: ``"image_aux1"`` (the 64x64 view used for video prediction) or ``"image_main"``.
-    :param verify: check each record's CRC-32C when it is read.
+    ``paths``: TFRecord files or a folder of them; ``camera``: ``"image_aux1"`` (the 64x64 view) or ``"image_main"``.
     """
 
     def __init__(

@@ -71,10 +71,9 @@ class RLDSDataset(ExampleShards):
 
     :param paths: a TFDS dataset folder (``<name>/<version>``), or shard files.
     :param layout: an ``OXE_LAYOUTS`` name (default: the folder's dataset name when it is one, else auto-detected).
-    :param image_key: the image feature (without ``steps/``), e.g. ``"observation/image"``; overrides ``layout``.
-    :param action_keys: float features (without ``steps/``) concatenated into the action; overrides ``layout``.
-        ``"1-<feature>"`` takes one minus the feature (``"1-action_dict/gripper_position"``).
-    :param image_size: resize frames to ``image_size`` x ``image_size`` (None: keep their size).
+    :param image_key: the image feature (without ``steps/``); ``action_keys``: float features concatenated into the
+        action (``"1-<feature>"``: one minus it); both override ``layout``.
+    :param image_size: resize frames to ``image_size`` squared (None: keep their size).
     """
 
     def __init__(

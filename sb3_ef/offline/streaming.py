@@ -42,12 +42,8 @@ def episode_bytes(episode: Episode) -> int:
 
 
 class StreamingWindowSampler:
-    """Windows of ``context`` frames, ``horizon`` actions and frames from episodes ``indices`` of ``dataset``.
-
-    :param lengths: frames per episode of ``indices`` (default: ``dataset.lengths()``).
-    :param cache_mb: memory for decoded episodes; the pool holds as many as fit (at least one).
-    :param swap: pool episodes replaced before each batch when the dataset does not fit.
-    """
+    """Windows of ``context`` frames, ``horizon`` actions and frames from episodes ``indices`` of ``dataset`` (of
+    ``lengths`` frames, default ``dataset.lengths()``), ``swap`` pool episodes replaced before each batch."""
 
     def __init__(
         self,
