@@ -138,7 +138,7 @@ def window_batches(
     seed: int = 0,
 ) -> Generator[Windows, None, None]:
     """Endless window batches from ``dataset``: in this process, or decoded in ``workers`` worker processes."""
-    sampler = {"dataset": dataset, "indices": list(indices), "context": context, "horizon": horizon}
+    sampler: dict[str, Any] = {"dataset": dataset, "indices": list(indices), "context": context, "horizon": horizon}
     sampler.update(lengths=lengths, cache_mb=cache_mb, seed=seed)
     if workers == 0:
         yield from _endless(StreamingWindowSampler(**sampler), batch_size)
