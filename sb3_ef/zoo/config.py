@@ -108,9 +108,20 @@ def check_keys(algo: str, algo_class: type, keys: Any, where: str) -> None:
             )
 
 
+#: rl-zoo3 callbacks that cannot work with sb3-ef's algorithms, with the reason and what to do instead.
+REFUSED_CALLBACKS = {
+    "ParallelTrainCallback": "it trains a copy of the model reloaded as SB3's SAC or TQC, without the auxiliary loss "
+    "(EF, SEAR, CURL) or sb3-ef's update; leave it out and trade speed with train_freq and gradient_steps instead",
+}
+
+
 def check_values(values: dict[str, Any], where: str) -> None:
     """Raise ``ValueError`` for a string where rl-zoo3 expects a number or its schedule syntax ``lin_<initial>``
-    (it splits any string ``learning_rate`` at ``_``, and fails without one)."""
+    (it splits any string ``learning_rate`` at ``_``, and fails without one), and for a ``callback`` of
+    :data:`REFUSED_CALLBACKS`."""
+    for name, reason in REFUSED_CALLBACKS.items():
+        if name in repr(values.get("callback", "")):
+            raise ValueError(f"{where}: callback {name} is not supported with sb3-ef's algorithms: {reason}")
     for key in SCHEDULE_KEYS & set(values):
         value = values[key]
         if isinstance(value, str) and re.fullmatch(r"lin_[-+0-9.eE]+", value) is None:

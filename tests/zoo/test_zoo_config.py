@@ -13,6 +13,7 @@ from sb3_ef.zoo.config import (
     validate_config,
 )
 from sb3_ef.zoo.registration import algorithm_classes
+from sb3_ef.zoo.train import prepare
 
 PAPER_IDS = {f"dmc/{task}-v0" for task in DMC_PAPER_TASKS} | {f"metaworld/{task}-v0" for task in METAWORLD_PAPER_TASKS}
 
@@ -82,6 +83,18 @@ ENTRY = {"policy": "CnnPolicy", "n_timesteps": 100}
 def test_bad_entries_are_named(config, message, classes):
     with pytest.raises(ValueError, match=message):
         validate_config("drqv2_ef", classes["drqv2_ef"], config)
+
+
+@pytest.mark.parametrize(
+    "callback",
+    ["rl_zoo3.callbacks.ParallelTrainCallback", [{"rl_zoo3.callbacks.ParallelTrainCallback": {"gradient_steps": 8}}]],
+)
+def test_parallel_training_is_refused_at_once_with_the_reason_and_what_to_do(callback, classes):
+    """rl-zoo3's ParallelTrainCallback reloads the model as SAC or TQC and trains that copy, without EF."""
+    with pytest.raises(ValueError, match=r"ParallelTrainCallback is not supported.*without the auxiliary.*train_freq"):
+        validate_config("sac_ef", classes["sac_ef"], {"default": {**ENTRY, "callback": callback}})
+    with pytest.raises(ValueError, match=r"--hyperparams: callback ParallelTrainCallback"):
+        prepare(["--algo", "sac_ef", "--env", "dmc/cheetah-run-v0", "-params", f"callback:{callback!r}"])
 
 
 def test_plain_host_rejects_ef_keys(classes):
