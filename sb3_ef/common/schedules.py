@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import re
 from collections.abc import Callable
 
@@ -26,19 +27,12 @@ def get_step_schedule(spec: float | str | StepSchedule) -> StepSchedule:
     """Turn a number, a ``"linear(initial, final, duration)"`` string or a callable into a schedule of steps."""
     if callable(spec):
         return spec
-    if isinstance(spec, (int, float)):
-        value = float(spec)
-        return lambda _step: value
-    if isinstance(spec, str):
-        match = _LINEAR.match(spec)
-        if match:
-            initial, final, duration = (float(group) for group in match.groups())
-            return linear_schedule(initial, final, int(duration))
-        try:
+    if isinstance(spec, str) and (match := _LINEAR.match(spec)):
+        initial, final, duration = (float(group) for group in match.groups())
+        return linear_schedule(initial, final, int(duration))
+    if isinstance(spec, (int, float, str)):
+        with contextlib.suppress(ValueError):
             value = float(spec)
-        except ValueError:
-            pass
-        else:
             return lambda _step: value
     raise ValueError(
         f"Expected a number, a callable or a string 'linear(initial, final, duration)' for a schedule, got {spec!r}"
