@@ -79,3 +79,10 @@ def planning_iterations(action_dim: int, iterations: int = 6, large_action_dim: 
     if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
         raise ValueError(f"iterations must be a positive integer, got {iterations!r}")
     return iterations + extra * int(action_dim >= large_action_dim)
+
+
+def update_q_scale(q_scale: th.Tensor, q_values: th.Tensor, tau: float) -> None:
+    """Move the running Q scale ``q_scale`` (in place) by ``tau`` towards the 5-95 percentile range of ``q_values``
+    (at least 1), as TD-MPC2's ``RunningScale``."""
+    low, high = th.quantile(q_values, th.tensor([0.05, 0.95], device=q_values.device))
+    q_scale.lerp_(th.clamp(high - low, min=1.0), tau)

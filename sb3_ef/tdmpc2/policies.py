@@ -193,11 +193,6 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
         )
         return data
 
-    def update_q_scale(self, q_values: th.Tensor, tau: float) -> None:
-        """Move the running Q scale ``q_scale`` towards the 5-95 percentile range of ``q_values`` (at least 1)."""
-        low, high = th.quantile(q_values, th.tensor([0.05, 0.95], device=q_values.device))
-        self.q_scale.lerp_(th.clamp(high - low, min=1.0), tau)
-
     def encode(self, observations: th.Tensor) -> th.Tensor:
         """Latent z (the features h that EF splits) of uint8 stacked observations, without augmentation."""
         return self.world_model.encode(observations)

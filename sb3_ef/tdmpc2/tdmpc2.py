@@ -28,7 +28,7 @@ from sb3_ef.common.policy_arguments import policy_built_with
 from sb3_ef.common.validation import check_algorithm_arguments
 from sb3_ef.tdmpc2.arguments import check_arguments, known_episode_steps
 from sb3_ef.tdmpc2.gradients import clipped_world_model_gradients
-from sb3_ef.tdmpc2.math import discount_from_episode_length, seed_steps_from_episode_length
+from sb3_ef.tdmpc2.math import discount_from_episode_length, seed_steps_from_episode_length, update_q_scale
 from sb3_ef.tdmpc2.policies import TDMPC2Policy, check_pixel_space
 from sb3_ef.tdmpc2.sequence import SHIFT_PAD, Sequence, masked_mean, training_sequence
 from sb3_ef.tdmpc2.world_model import WorldModel
@@ -329,7 +329,7 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         model = self.world_model
         sample = model.pi(latents)
         q_values = model.q_value(latents, sample.action, reduce="avg")
-        self.policy.update_q_scale(q_values[0].detach(), self.tau)
+        update_q_scale(self.policy.q_scale, q_values[0].detach(), self.tau)
         objective = masked_mean(self.entropy_coef * sample.scaled_entropy + q_values / self.policy.q_scale, valid)
         weights = self.rho ** th.arange(latents.shape[0], device=latents.device, dtype=th.float32)
         return -(weights * objective).mean()

@@ -12,7 +12,6 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from sb3_ef.common.buffers import SequenceReplayBuffer
-from sb3_ef.common.layers import frozen
 from sb3_ef.drqv2 import DrQv2, DrQv2EF
 from sb3_ef.envs.toy import ToyAgentEnv
 from sb3_ef.tdmpc2 import TDMPC2EF
@@ -36,47 +35,59 @@ def filled_batch(model: DrQv2EF, steps: int = 30):
     return model.replay_buffer.sample(model.batch_size)
 
 
-def grads(module: th.nn.Module) -> list[th.Tensor | None]:
-    return [param.grad for param in module.parameters()]
+def networks(model: DrQv2EF) -> dict[str, th.nn.Module]:
+    return {"encoder": model.policy.encoder, "critic": model.critic, "actor": model.actor, "ef": model.ef}
 
 
-def zero_grads(model: DrQv2EF) -> None:
-    for module in (model.policy.encoder, model.actor, model.critic, model.ef):
-        module.zero_grad(set_to_none=True)
-
-
-def reached(module: th.nn.Module) -> bool:
-    return any(grad is not None and grad.abs().sum() > 0 for grad in grads(module))
+def reached_by(loss: th.Tensor, model: DrQv2EF) -> set[str]:
+    """The networks whose parameters get a nonzero gradient from ``loss`` alone."""
+    found = set()
+    for name, module in networks(model).items():
+        grads = th.autograd.grad(loss, list(module.parameters()), retain_graph=True, allow_unused=True)
+        if any(grad is not None and bool(grad.abs().sum() > 0) for grad in grads):
+            found.add(name)
+    return found
 
 
 def test_each_loss_reaches_only_its_networks():
+    # Through the product's own update code: a detach, no_grad or frozen missing there shows here.
     model = make_model()
     batch = filled_batch(model)
-    std = model.exploration_schedule(model.num_timesteps)
     model.policy.set_training_mode(True)
+    assert not any(param.requires_grad for param in model.critic_target.parameters())
 
-    observations, next_observations, window = model._augment(batch)
-    features = model.policy.encoder(observations)
-    with th.no_grad():
-        next_features = model.policy.encoder(next_observations)
-    critic_loss, _ = model._critic_loss(features, batch, next_features, std)
-    critic_loss.backward()
-    assert reached(model.policy.encoder) and reached(model.critic)
-    assert not reached(model.actor) and not reached(model.ef) and not reached(model.critic_target)
+    std = th.tensor(model.exploration_schedule(model.num_timesteps))
+    observations, next_observations, targets = model._augment(batch)
+    critic_loss, auxiliary_loss, _, _ = model._critic_and_auxiliary_loss(
+        observations, next_observations, targets, batch, std
+    )
+    assert reached_by(critic_loss, model) == {"encoder", "critic"}
+    assert reached_by(auxiliary_loss, model) == {"encoder", "ef"}
 
-    zero_grads(model)
-    features = model.policy.encoder(observations)
-    model.auxiliary(features, window)[0].backward()
-    assert reached(model.policy.encoder) and reached(model.ef)
-    assert not reached(model.critic) and not reached(model.actor)
+    # The update's two steps: the critic step sees the gradients of critic + EF; the actor's loss adds to the
+    # actor's alone, so the encoder, critic and EF still hold the critic step's gradients at the actor step.
+    at_step: dict[str, dict[str, list[th.Tensor | None]]] = {}
 
-    zero_grads(model)
-    features = model.policy.encoder(observations)
-    with frozen(model.critic):  # as the update computes the actor's loss
-        actor_loss = model._actor_loss(features.detach(), std)
-    actor_loss.backward()
-    assert reached(model.actor)
-    assert not reached(model.policy.encoder) and not reached(model.critic) and not reached(model.ef)
+    def record(step: str):
+        def hook(*_) -> None:
+            at_step[step] = {
+                name: [None if param.grad is None else param.grad.clone() for param in module.parameters()]
+                for name, module in networks(model).items()
+            }
+
+        return hook
+
+    model.critic.optimizer.register_step_pre_hook(record("critic"))
+    model.actor.optimizer.register_step_pre_hook(record("actor"))
+    model._update(batch)
+    critic_step, actor_step = at_step["critic"], at_step["actor"]
+    assert {name for name, grads in critic_step.items() if any(g is not None for g in grads)} == {
+        "encoder", "critic", "ef"
+    }  # fmt: skip
+    assert any(grad is not None and grad.abs().sum() > 0 for grad in actor_step["actor"])
+    for name in ("encoder", "critic", "ef"):
+        unchanged = [th.equal(a, b) for a, b in zip(critic_step[name], actor_step[name], strict=True)]
+        assert all(unchanged), f"the actor's loss reached the {name}"
     assert all(param.requires_grad for param in model.critic.parameters())
 
 
