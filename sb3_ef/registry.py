@@ -61,7 +61,7 @@ class AlgorithmEntry:
         return self.target.rpartition(":")[2]
 
     @property
-    def algorithm_class(self) -> type:
+    def algorithm_class(self) -> type[Any]:
         """The class (imported now)."""
         return import_target(self.target)
 

@@ -191,7 +191,7 @@ def legacy_algorithm(data: dict[str, Any]) -> type:
     module = (data.get("policy_class") or {}).get("__module__")
     candidates = [item for item in registry.ALGORITHMS.values() if item.legacy_policy_module == module]
     if not candidates:
-        modules = sorted({item.legacy_policy_module for item in registry.ALGORITHMS.values()} - {None})
+        modules = sorted({item.legacy_policy_module or "" for item in registry.ALGORITHMS.values()} - {""})
         raise ValueError(f"A file of sb3-ef 0.1.0 holds one of the policies of {modules}, got {module!r}")
     matching = [item for item in candidates if item.ef == with_ef] if len(candidates) > 1 else candidates
     return matching[0].algorithm_class
