@@ -15,16 +15,17 @@ from sb3_ef.common.layers import mlp
 from sb3_ef.ef.decoder import FrameDecoder
 from sb3_ef.ef.latent import (
     DEFAULT_HEAD_HIDDEN_DIM,
+    DEFAULT_LOSS_SCALE,
     DEFAULT_PROJECTION_DIM,
     DEFAULT_TARGET_TAU,
     DEFAULT_TEMPERATURE,
     LatentHead,
     LatentTargets,
     MomentumTarget,
+    check_loss_scale,
     check_target,
-    draw_other_steps,
     info_nce,
-    stacked_observations_at,
+    latent_targets,
 )
 
 if TYPE_CHECKING:
@@ -122,7 +123,9 @@ class EgoForesight(nn.Module):
         detached features by :meth:`probe_loss`, for analysis).
     :param projection_dim: latent EF's projection size (256); only with ``target="latent"``.
     :param head_hidden_dim: width of latent EF's projection and prediction MLPs (512); only with ``target="latent"``.
-    :param temperature: latent EF's InfoNCE temperature (0.1); only with ``target="latent"``.
+    :param temperature: latent EF's InfoNCE temperature (0.1), finite and positive; only with ``target="latent"``.
+    :param loss_scale: weight of latent EF's InfoNCE in the host's loss, times ``beta`` (3); only with
+        ``target="latent"`` (docs/ef.md, "Loss scale"). Pixel EF's is 1.
     """
 
     head: LatentHead  # latent EF only
@@ -144,12 +147,14 @@ class EgoForesight(nn.Module):
         projection_dim: int | None = None,
         head_hidden_dim: int | None = None,
         temperature: float | None = None,
+        loss_scale: float | None = None,
     ):
         super().__init__()
         latent_options = {
             "projection_dim": projection_dim,
             "head_hidden_dim": head_hidden_dim,
             "temperature": temperature,
+            "loss_scale": loss_scale,
         }
         self.target = check_target(target, decode_batch_size, **latent_options)
         if not 1 <= agent_dim < feature_dim:
@@ -172,7 +177,9 @@ class EgoForesight(nn.Module):
         self.decode_batch_size = decode_batch_size
         self.rollout_block = RolloutBlock(agent_dim, action_dim, rollout_hidden_dims)
         self.decoder = FrameDecoder(feature_dim, frame_shape, decoder_channels, skip_channels)
+        self.loss_scale = 1.0
         if target == "latent":
+            self.loss_scale = check_loss_scale(DEFAULT_LOSS_SCALE if loss_scale is None else loss_scale)
             projection = DEFAULT_PROJECTION_DIM if projection_dim is None else projection_dim
             hidden = DEFAULT_HEAD_HIDDEN_DIM if head_hidden_dim is None else head_hidden_dim
             self.head = LatentHead(
@@ -259,6 +266,7 @@ class EgoForesight(nn.Module):
         steps: th.Tensor,
         target: th.Tensor,
         valid: th.Tensor | None = None,
+        candidates_valid: th.Tensor | None = None,
     ) -> th.Tensor:
         """Latent EF's loss (``target="latent"`` only): the InfoNCE (:func:`~sb3_ef.ef.latent.info_nce`) of the head's
         prediction from ``[rolled-out h_a at k, h_s]`` against target projections, averaged over valid samples.
@@ -266,6 +274,7 @@ class EgoForesight(nn.Module):
         :param target: (N, projection_dim), N >= B, target projections (from
             :class:`~sb3_ef.ef.latent.MomentumTarget`): row ``i < B`` that of sample i's observation at t+k, all rows
             the candidates every prediction is told apart from. The other arguments are :meth:`loss`'s.
+        :param candidates_valid: optional (N,) bool: the candidates inside their episode (:func:`info_nce`).
         """
         if self.target != "latent":
             raise ValueError("latent_loss needs an Ego-Foresight built with target='latent'")
@@ -278,7 +287,8 @@ class EgoForesight(nn.Module):
             )
         predicted_agent = self._agent_at(h_agent, future_actions, steps, max_step)
         prediction = self.head(th.cat([predicted_agent, h_scene], dim=-1))
-        return _weighted_mean(info_nce(prediction, target.detach(), self.head.temperature), valid)
+        per_sample = info_nce(prediction, target.detach(), self.head.temperature, candidates_valid)
+        return _weighted_mean(per_sample, valid)
 
     def probe_loss(
         self,
@@ -418,26 +428,21 @@ class ForesightLoss(AuxiliaryLoss):
         self, batch: SequenceReplayBufferSamples, pad: int, generator: th.Generator | None = None
     ) -> tuple[th.Tensor, ForesightTargets | LatentTargets]:
         """Draw the rollout lengths k (from ``generator``, so that EF leaves the host's random draws as they are
-        without it) and random-shift the observations at t together with frame t+k (latent EF: with the stacked
-        observation at t+k)."""
+        without it) and random-shift the observations at t together with frame t+k (latent EF: the target views get
+        shifts of their own, :func:`~sb3_ef.ef.latent.latent_targets`)."""
         steps = self.ef.draw_steps(batch.future_mask, generator=generator)
         rows = th.arange(steps.shape[0], device=steps.device)
         valid = batch.future_mask[rows, steps - 1]
         if self.target_encoder is not None:
-            future = [stacked_observations_at(batch.observations, batch.future_frames, steps)]
-            others = draw_other_steps(batch.future_mask, steps, self.ef.horizon, generator)
-            if others is not None:
-                future.append(stacked_observations_at(batch.observations, batch.future_frames, others))
-            observations, *future = random_shift(batch.observations, *future, pad=pad)
-            negatives = future[1] if others is not None else None
-            return observations, LatentTargets(steps, future[0], valid, batch.future_actions, negatives)
+            return latent_targets(batch, steps, valid, self.ef.horizon, pad, generator)
         observations, target = random_shift(batch.observations, batch.future_frames[rows, steps - 1], pad=pad)
         return observations, ForesightTargets(steps, target, valid, batch.future_actions)
 
     def forward(
         self, features: th.Tensor, targets: ForesightTargets | LatentTargets
     ) -> tuple[th.Tensor, dict[str, th.Tensor]]:
-        """``beta`` times EF's loss on ``features`` of the prepared observations; logs the unweighted ``ef_loss``."""
+        """``beta`` (times latent EF's ``loss_scale``) times EF's loss on ``features`` of the prepared observations;
+        logs the unweighted ``ef_loss``."""
         if isinstance(targets, LatentTargets):
             if self.target_encoder is None:
                 raise ValueError("LatentTargets need a ForesightLoss built with ef_kwargs target='latent'")
@@ -445,10 +450,12 @@ class ForesightLoss(AuxiliaryLoss):
             if targets.negatives is not None:
                 future = th.cat([future, targets.negatives])
             target = self.target_encoder(future)
-            loss = self.ef.latent_loss(features, targets.actions, targets.steps, target, targets.valid)
+            loss = self.ef.latent_loss(
+                features, targets.actions, targets.steps, target, targets.valid, targets.candidates_valid()
+            )
         else:
             loss = self.ef.loss(features, targets.actions, targets.steps, targets.target, targets.valid)
-        return self.beta * loss, {"ef_loss": loss.detach()}
+        return self.beta * self.ef.loss_scale * loss, {"ef_loss": loss.detach()}
 
     def after_update(self, encoder: nn.Module) -> None:
         """Latent EF: the target encoder and projection follow the online ones (pixel EF: nothing)."""

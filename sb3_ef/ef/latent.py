@@ -12,7 +12,7 @@ reasons for each choice and the measurements behind them.
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable
+import math
 from typing import TYPE_CHECKING, NamedTuple
 
 import torch as th
@@ -25,7 +25,7 @@ from sb3_ef.common.env_checks import FRAME_CHANNELS
 from sb3_ef.common.layers import mlp
 
 if TYPE_CHECKING:
-    from sb3_ef.ef.foresight import EgoForesight
+    from sb3_ef.common.buffers import SequenceReplayBufferSamples
 
 #: What Ego-Foresight predicts: the frame at t+k (the paper) or the target encoder's features of the observation at t+k.
 TARGETS = ("pixel", "latent")
@@ -35,6 +35,9 @@ DEFAULT_PROJECTION_DIM = 256
 DEFAULT_HEAD_HIDDEN_DIM = 512
 #: Temperature of the InfoNCE on cosine similarities.
 DEFAULT_TEMPERATURE = 0.1
+#: Weight of the InfoNCE inside EF's loss (``beta * loss_scale * InfoNCE``), so that at the paper's ``beta`` latent EF
+#: pulls on the encoder about as hard as pixel EF does (``train/aux_grad_ratio``; docs/ef.md, "Loss scale").
+DEFAULT_LOSS_SCALE = 3.0
 
 
 def check_target(target: object, decode_batch_size: int | None = None, **latent_options: object) -> str:
@@ -52,14 +55,43 @@ def check_target(target: object, decode_batch_size: int | None = None, **latent_
     return target
 
 
+def check_temperature(temperature: object) -> float:
+    """``temperature`` as a float if it is a finite positive number, else a ``ValueError`` naming it."""
+    if (
+        isinstance(temperature, bool)
+        or not isinstance(temperature, (int, float))
+        or not math.isfinite(temperature)
+        or temperature <= 0
+    ):
+        raise ValueError(f"temperature must be a finite positive number, got {temperature!r}")
+    return float(temperature)
+
+
+def check_loss_scale(loss_scale: object) -> float:
+    """``loss_scale`` as a float if it is a finite number >= 0, else a ``ValueError`` naming it."""
+    if (
+        isinstance(loss_scale, bool)
+        or not isinstance(loss_scale, (int, float))
+        or not math.isfinite(loss_scale)
+        or loss_scale < 0
+    ):
+        raise ValueError(f"ef_kwargs loss_scale must be a finite number >= 0, got {loss_scale!r}")
+    return float(loss_scale)
+
+
 class LatentTargets(NamedTuple):
-    """What latent EF's loss compares against for one replay batch (from ``ForesightLoss.prepare``)."""
+    """What latent EF's loss compares against for one replay batch (from :func:`latent_targets`)."""
 
     steps: th.Tensor  # (B,) rollout lengths k
-    observations: th.Tensor  # (B, 3 * frame_stack, h, w) uint8 stacked observation at t+k, shifted with the one at t
+    observations: th.Tensor  # (B, 3 * frame_stack, h, w) uint8 stacked observation at t+k, its own random shift
     valid: th.Tensor  # (B,) bool: step t+k lies inside the episode
     actions: th.Tensor  # (B, H, action_dim) actions t .. t+H-1
     negatives: th.Tensor | None  # (B, 3 * frame_stack, h, w) each sample's observation at t+k', k' != k; None if H = 1
+    negatives_valid: th.Tensor | None  # (B,) bool: step t+k' lies inside the episode; None if H = 1
+
+    def candidates_valid(self) -> th.Tensor:
+        """(N,) bool over the candidates ``[observations, negatives]``: those that lie inside their episode."""
+        return self.valid if self.negatives_valid is None else th.cat([self.valid, self.negatives_valid])
 
 
 def draw_other_steps(
@@ -114,17 +146,26 @@ def stacked_observations_at(observations: th.Tensor, future_frames: th.Tensor, s
     return th.stack(stacked, dim=1).flatten(1, 2)
 
 
-def info_nce(prediction: th.Tensor, candidates: th.Tensor, temperature: float) -> th.Tensor:
+def info_nce(
+    prediction: th.Tensor, candidates: th.Tensor, temperature: float, candidates_valid: th.Tensor | None = None
+) -> th.Tensor:
     """Per-sample InfoNCE: the cross-entropy of picking candidate ``i`` for prediction ``i`` among all candidates,
     on cosine similarities divided by ``temperature``.
 
     :param prediction: (B, P) predictions.
     :param candidates: (N, P) with N >= B: row ``i < B`` is the positive of prediction ``i``, every row a negative of
         the other predictions.
+    :param candidates_valid: optional (N,) bool: candidates outside their episode (zero-filled observations) are left
+        out of every softmax but their own sample's (whose loss the host weights by its ``valid``).
     :return: (B,) losses.
     """
     logits = F.normalize(prediction, dim=-1) @ F.normalize(candidates, dim=-1).T / temperature
-    return F.cross_entropy(logits, th.arange(prediction.shape[0], device=prediction.device), reduction="none")
+    rows = th.arange(prediction.shape[0], device=prediction.device)
+    if candidates_valid is not None:
+        left_out = (~candidates_valid.to(device=logits.device, dtype=th.bool))[None, :].expand_as(logits).clone()
+        left_out[rows, rows] = False
+        logits = logits.masked_fill(left_out, float("-inf"))
+    return F.cross_entropy(logits, rows, reduction="none")
 
 
 class LatentHead(nn.Module):
@@ -146,10 +187,8 @@ class LatentHead(nn.Module):
         for name, value in (("projection_dim", projection_dim), ("head_hidden_dim", hidden_dim)):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive int, got {value!r}")
-        if isinstance(temperature, bool) or not isinstance(temperature, (int, float)) or not temperature > 0:
-            raise ValueError(f"temperature must be a positive number, got {temperature!r}")
         self.projection_dim = projection_dim
-        self.temperature = float(temperature)
+        self.temperature = check_temperature(temperature)
         self.projection = mlp(feature_dim, (hidden_dim,), projection_dim)
         self.prediction = mlp(projection_dim, (hidden_dim,), projection_dim)
 
@@ -250,32 +289,28 @@ class MomentumTarget(nn.Module):
             self.encoder.get_buffer(name).copy_(buffers[name])
 
 
-def latent_window_losses(
-    ef: EgoForesight,
-    target: MomentumTarget,
-    features: Callable[[th.Tensor], tuple[th.Tensor, th.Tensor | None]],
-    observations: th.Tensor,
-    frames: th.Tensor,
-    actions: th.Tensor,
+def latent_targets(
+    batch: SequenceReplayBufferSamples,
     steps: th.Tensor,
-    pad: int = 0,
-) -> tuple[th.Tensor, th.Tensor]:
-    """Latent EF's loss and its probe decoder's loss on a batch of full windows (offline pretraining, where every
-    step is valid): what ``ForesightLoss.prepare`` / ``forward`` compute for a host, plus the probe, which then
-    decodes the held-out predictions. Draws k' and the shift from the global generator.
-
-    :param features: ``(h, skip)`` of uint8 stacked observations (the offline model's ``features``).
-    :param frames: (B, H, 3, h, w) frames t+1 .. t+H; ``steps``: (B,) k; ``pad``: random shift of everything, 0: none.
-    """
-    rows = th.arange(steps.shape[0], device=steps.device)
-    valid = th.ones(steps.shape[0], ef.horizon, dtype=th.bool, device=steps.device)
-    others = draw_other_steps(valid, steps, ef.horizon)
-    future = [stacked_observations_at(observations, frames, steps)]
+    valid: th.Tensor,
+    horizon: int,
+    pad: int,
+    generator: th.Generator | None = None,
+) -> tuple[th.Tensor, LatentTargets]:
+    """Latent EF's part of ``ForesightLoss.prepare``: the observations at t with the host's random shift, and the
+    targets (the observation at t+k and each sample's other-step negative), every one shifted on its own from
+    ``generator``, so that no candidate shares the anchor's shift (a shift carries no answer)."""
+    future = [stacked_observations_at(batch.observations, batch.future_frames, steps)]
+    others = draw_other_steps(batch.future_mask, steps, horizon, generator)
+    negatives_valid = None
     if others is not None:
-        future.append(stacked_observations_at(observations, frames, others))
-    frame = frames[rows, steps - 1]
-    if pad:
-        observations, frame, *future = random_shift(observations, frame, *future, pad=pad)
-    h, skip = features(observations)
-    latent = ef.latent_loss(h, actions, steps, target(th.cat(future)))
-    return latent, ef.probe_loss(h, actions, steps, frame, skip=skip)
+        future.append(stacked_observations_at(batch.observations, batch.future_frames, others))
+        rows = th.arange(steps.shape[0], device=steps.device)
+        negatives_valid = batch.future_mask[rows, others - 1]
+    (observations,) = random_shift(batch.observations, pad=pad)
+    (shifted,) = random_shift(th.cat(future), pad=pad, generator=generator)
+    batch_size = steps.shape[0]
+    negatives = shifted[batch_size:] if others is not None else None
+    return observations, LatentTargets(
+        steps, shifted[:batch_size], valid, batch.future_actions, negatives, negatives_valid
+    )

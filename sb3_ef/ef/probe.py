@@ -10,6 +10,7 @@ to the rolled-out ``h_a`` against the agent mask (``sb3_ef.analysis``'s saliency
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import torch as th
@@ -17,6 +18,7 @@ import torch as th
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBuffer
 from sb3_ef.ef.foresight import EgoForesight
+from sb3_ef.ef.latent import MomentumTarget, draw_other_steps, stacked_observations_at
 
 
 def probe_step(
@@ -113,3 +115,37 @@ def fit_probe(
         if policy is not None:
             policy.set_training_mode(bool(was_training))
     return [float(loss) for loss in th.stack(losses)]
+
+
+def latent_window_losses(
+    ef: EgoForesight,
+    target: MomentumTarget,
+    features: Callable[[th.Tensor], tuple[th.Tensor, th.Tensor | None]],
+    observations: th.Tensor,
+    frames: th.Tensor,
+    actions: th.Tensor,
+    steps: th.Tensor,
+    pad: int = 0,
+) -> tuple[th.Tensor, th.Tensor]:
+    """Latent EF's loss and its probe decoder's loss on a batch of full windows (offline pretraining, where every
+    step is valid): what ``ForesightLoss.prepare`` / ``forward`` compute for a host, plus the probe, which then
+    decodes the held-out predictions. Draws k' and the shifts from the global generator: the context and frame t+k
+    (the probe's) share one, each target view has its own.
+
+    :param features: ``(h, skip)`` of uint8 stacked observations (the offline model's ``features``).
+    :param frames: (B, H, 3, h, w) frames t+1 .. t+H; ``steps``: (B,) k; ``pad``: random shift, 0: none.
+    """
+    rows = th.arange(steps.shape[0], device=steps.device)
+    valid = th.ones(steps.shape[0], ef.horizon, dtype=th.bool, device=steps.device)
+    others = draw_other_steps(valid, steps, ef.horizon)
+    future = [stacked_observations_at(observations, frames, steps)]
+    if others is not None:
+        future.append(stacked_observations_at(observations, frames, others))
+    frame = frames[rows, steps - 1]
+    candidates = th.cat(future)
+    if pad:
+        observations, frame = random_shift(observations, frame, pad=pad)
+        (candidates,) = random_shift(candidates, pad=pad)
+    h, skip = features(observations)
+    latent = ef.latent_loss(h, actions, steps, target(candidates))
+    return latent, ef.probe_loss(h, actions, steps, frame, skip=skip)

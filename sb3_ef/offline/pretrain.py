@@ -22,7 +22,7 @@ from sb3_ef.analysis.prediction import frame_grid, to_uint8_frames
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.files import write_atomically, write_text_atomically
 from sb3_ef.common.interrupt import Interrupted, sigint_deferred
-from sb3_ef.ef.latent import latent_window_losses
+from sb3_ef.ef.probe import latent_window_losses
 from sb3_ef.offline.dataset import EpisodeDataset
 from sb3_ef.offline.episodes import Episode, EpisodeError
 from sb3_ef.offline.evaluate import evaluate, predict_windows
