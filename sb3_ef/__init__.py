@@ -24,6 +24,7 @@ _PUBLIC = {
     "TQCEF": "sb3_ef.sb3_hosts",
     "SEAR": "sb3_ef.sear",
     "CURL": "sb3_ef.curl",
+    "DreamerV3": "sb3_ef.dreamerv3",  # the workbench's sheeprl wrapper, named here lazily: the library never imports it
     "MotorBabblingCallback": "sb3_ef.ef.babbling",
     "SequenceReplayBuffer": "sb3_ef.common.buffers",
     "make_env": "sb3_ef.envs",
