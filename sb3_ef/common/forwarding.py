@@ -12,8 +12,8 @@ def base_arguments(base: type, arguments: Mapping[str, Any], **overrides: Any) -
 
     A variant keeps SB3's written-out signature (``DrQv2EF`` repeats :class:`~sb3_ef.drqv2.DrQv2`'s arguments and
     adds its own) and passes its base's on in one call: ``super().__init__(**base_arguments(DrQv2, locals(),
-    _init_setup_model=False))``, with ``locals()`` read first thing in ``__init__``.
+    _init_setup_model=False))``, ``locals()`` holding its own arguments as they stand at that call.
     """
-    parameters = inspect.signature(base.__init__).parameters.values()
-    names = [p.name for p in parameters if p.name != "self" and p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)]
+    parameters = inspect.signature(base).parameters.values()
+    names = [p.name for p in parameters if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)]
     return {name: arguments[name] for name in names if name in arguments} | overrides
