@@ -11,6 +11,7 @@ from gymnasium import spaces
 from torch import nn
 
 from sb3_ef.common.env_checks import FRAME_CHANNELS
+from sb3_ef.common.validation import check_keyword_arguments
 from sb3_ef.drqv2.policies import DrQv2Encoder
 from sb3_ef.tdmpc2.world_model import FRAME_SIZE, WorldModel
 
@@ -67,11 +68,22 @@ class HostEncoder(nn.Module):
         return self.net(observations), None
 
 
+#: What each encoder's ``kwargs`` go to, and the arguments :func:`build_encoder` sets itself.
+_KWARGS_TARGETS: dict[str, tuple[type, tuple[str, ...]]] = {
+    "dcgan-unet": (DCGANUNetEncoder, ("in_channels",)),
+    "drqv2": (DrQv2Encoder, ("observation_space",)),
+    "tdmpc2": (WorldModel, ("in_channels", "action_dim", "mlp_dim", "num_q")),
+}
+
+
 def build_encoder(
     kind: str, frame_shape: tuple[int, int, int], context: int, action_dim: int, **kwargs
 ) -> DCGANUNetEncoder | HostEncoder:
     """The encoder ``kind`` (one of :data:`ENCODERS`) for ``context`` stacked frames of ``frame_shape``; ``kwargs``
     go to :class:`DCGANUNetEncoder`, ``DrQv2Encoder`` (``features_dim`` 2048) or TD-MPC2's ``WorldModel``."""
+    if kind in _KWARGS_TARGETS:
+        target, set_here = _KWARGS_TARGETS[kind]
+        check_keyword_arguments(f"the {kind} encoder's encoder_kwargs (--encoder-kwargs)", target, kwargs, set_here)
     _, height, width = frame_shape
     in_channels = FRAME_CHANNELS * context
     if kind == "dcgan-unet":

@@ -162,3 +162,19 @@ def test_held_out_evaluation_shows_progress(tmp_path, capsys):
     )
     err = capsys.readouterr().err
     assert "pretrain" in err and "held-out evaluation" in err and "3/3" in err  # 1 prediction batch + 2 saliency
+
+
+@pytest.mark.parametrize("encoder", ["dcgan-unet", "drqv2", "tdmpc2"])
+def test_a_mistyped_encoder_kwarg_is_one_line_naming_it(encoder, tmp_path, capsys):
+    from sb3_ef.cli import main
+    from sb3_ef.offline.episodes import write_episode
+
+    for seed in range(2):
+        write_episode(tmp_path / "data" / f"episode_{seed}.npz", square_episode(steps=16, size=64, seed=seed))
+    argv = ["pretrain", str(tmp_path / "data"), str(tmp_path / "run"), "--encoder", encoder, "--steps", "1"]
+    assert main([*argv, "--encoder-kwargs", '{"widht": 64, "in_channels": 3}', "--no-progress"]) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "unknown key 'widht'" in error and f"the {encoder} encoder's" in error
+    assert ("did you mean 'width'?" in error) == (encoder == "dcgan-unet")
+    set_by_pretrain = {"dcgan-unet": "in_channels", "drqv2": "observation_space", "tdmpc2": "action_dim"}[encoder]
+    assert set_by_pretrain not in error.split("expected one of")[1]
