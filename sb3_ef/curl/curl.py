@@ -13,6 +13,7 @@ from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import polyak_update
 from torch.nn import functional as F
 
+from sb3_ef.auxiliary.momentum import momentum_update
 from sb3_ef.auxiliary.step import AuxiliaryStepMixin
 from sb3_ef.common.buffers import SequenceReplayBufferSamples
 from sb3_ef.common.layers import frozen
@@ -212,7 +213,7 @@ class CURL(AuxiliaryStepMixin, SAC):
             target_heads = [q_network.parameters() for q_network in self.critic_target.q_networks]
             polyak_update(itertools.chain(*heads), itertools.chain(*target_heads), self.tau)
             encoder, target_encoder = self.critic.features_extractor, self.critic_target.features_extractor
-            polyak_update(encoder.parameters(), target_encoder.parameters(), self.encoder_tau)
+            momentum_update(encoder, target_encoder, self.encoder_tau, "encoder")
         logs.update(self._curl_step(batch))
         return logs
 

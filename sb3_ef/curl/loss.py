@@ -17,11 +17,11 @@ from typing import Any, cast
 
 import torch as th
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
-from stable_baselines3.common.utils import polyak_update
 from torch import nn
 from torch.nn import functional as F
 
 from sb3_ef.auxiliary.loss import AuxiliaryLoss
+from sb3_ef.auxiliary.momentum import momentum_update
 from sb3_ef.curl.crop import check_crop_size, random_crops
 
 
@@ -126,4 +126,4 @@ class CURLLoss(AuxiliaryLoss):
         ``key <- (1 - encoder_tau) key + encoder_tau online`` (a host's key encoder is moved by the host)."""
         self.updates += 1
         if self.owns_key_encoder and int(self.updates) % cast(int, self.key_update_interval) == 0:
-            polyak_update(encoder.parameters(), self.key_encoder.parameters(), cast(float, self.encoder_tau))
+            momentum_update(encoder, self.key_encoder, cast(float, self.encoder_tau), "encoder")

@@ -11,15 +11,14 @@ reasons for each choice and the measurements behind them.
 
 from __future__ import annotations
 
-import copy
 import math
 from typing import TYPE_CHECKING, NamedTuple
 
 import torch as th
-from stable_baselines3.common.utils import polyak_update
 from torch import nn
 from torch.nn import functional as F
 
+from sb3_ef.auxiliary.momentum import momentum_copy, momentum_update
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.env_checks import FRAME_CHANNELS
 from sb3_ef.common.layers import mlp
@@ -197,18 +196,6 @@ class LatentHead(nn.Module):
         return self.prediction(self.projection(features))
 
 
-def momentum_copy(module: nn.Module) -> nn.Module:
-    """A copy of ``module`` whose parameters are buffers: in its state dict (saved and loaded with the module that
-    holds it), moved by ``.to``, never in ``parameters()`` and so never given to an optimiser, never requiring grad."""
-    copied = copy.deepcopy(module)
-    for submodule in copied.modules():
-        for name, parameter in list(submodule._parameters.items()):
-            if parameter is not None:
-                del submodule._parameters[name]
-                submodule.register_buffer(name, parameter.detach())
-    return copied.eval()
-
-
 class MomentumTarget(nn.Module):
     """The target of latent EF: momentum copies of the host's encoder and of the online projection.
 
@@ -240,9 +227,6 @@ class MomentumTarget(nn.Module):
             raise ValueError(f"input_scaling's divisor must be positive, got {input_scaling!r}")
         self.tau = float(tau)
         self.divisor, self.offset = float(divisor), float(offset)
-        self._encoder_names = [name for name, _ in encoder.named_parameters()]
-        self._encoder_buffers = [name for name, _ in encoder.named_buffers()]
-        self._projection_names = [name for name, _ in projection.named_parameters()]
         self.encoder = momentum_copy(encoder)
         self.projection = momentum_copy(projection)
 
@@ -262,31 +246,17 @@ class MomentumTarget(nn.Module):
         """The target projections ``(B, projection_dim)`` of uint8 stacked observations."""
         return self.projection(self.features(observations))
 
-    @th.no_grad()
     def copy_from(self, encoder: nn.Module, projection: nn.Module) -> None:
         """Set the copies to the online ``encoder`` and ``projection`` (after their weights were loaded)."""
         self._move(encoder, projection, 1.0)
 
-    @th.no_grad()
     def update(self, encoder: nn.Module, projection: nn.Module) -> None:
         """Move the copies towards the online ``encoder`` and ``projection`` (the modules they were copied from)."""
         self._move(encoder, projection, self.tau)
 
     def _move(self, encoder: nn.Module, projection: nn.Module, tau: float) -> None:
-        for online, copied, names, what in (
-            (encoder, self.encoder, self._encoder_names, "encoder"),
-            (projection, self.projection, self._projection_names, "projection"),
-        ):
-            parameters = dict(online.named_parameters())
-            if list(parameters) != names:
-                raise ValueError(
-                    f"The target {what} was copied from a module with parameters {names[:3]}..., got one with "
-                    f"{list(parameters)[:3]}...: pass the host's {what} the target was built from"
-                )
-            polyak_update([parameters[n] for n in names], [copied.get_buffer(n) for n in names], tau)
-        buffers = dict(encoder.named_buffers())
-        for name in self._encoder_buffers:
-            self.encoder.get_buffer(name).copy_(buffers[name])
+        momentum_update(encoder, self.encoder, tau, "encoder")
+        momentum_update(projection, self.projection, tau, "projection")
 
 
 def latent_targets(

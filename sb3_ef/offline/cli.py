@@ -42,9 +42,13 @@ holdout_value = _number_type(
 
 
 def json_object(text: str) -> dict[str, Any]:
-    """argparse type: a JSON object such as ``{"width": 32}``."""
+    """argparse type: a JSON object such as ``{"width": 32}``, of finite numbers (no ``Infinity`` or ``NaN``)."""
+
+    def refuse(constant: str) -> None:
+        raise argparse.ArgumentTypeError(f"expected finite numbers, got {constant} in {text!r}")
+
     try:
-        value = json.loads(text)
+        value = json.loads(text, parse_constant=refuse)
     except json.JSONDecodeError as error:
         raise argparse.ArgumentTypeError(
             f"expected a JSON object such as '{{\"decoder_channels\": 32}}' (keys and strings in double quotes), "

@@ -8,12 +8,12 @@ import torch as th
 from torch import nn
 from torch.nn import functional as F
 
+from sb3_ef.auxiliary.momentum import momentum_copy
 from sb3_ef.ef import EgoForesight, ForesightLoss
 from sb3_ef.ef.latent import (
     MomentumTarget,
     draw_other_steps,
     info_nce,
-    momentum_copy,
     stacked_observations_at,
 )
 from sb3_ef.ef.probe import probe_step
@@ -109,7 +109,7 @@ def test_the_target_moves_by_tau_and_copies_the_online_buffers():
     weight = target.encoder.get_buffer("0.weight")
     th.testing.assert_close(weight, 0.75 * old[0] + 0.25 * online[0].weight)
     assert th.equal(target.encoder.get_buffer("1.running_mean"), online[1].running_mean)
-    with pytest.raises(ValueError, match="pass the host's encoder the target was built from"):
+    with pytest.raises(ValueError, match="pass the encoder the copy was built from"):
         target.update(nn.Linear(4, 3), projection)
     with pytest.raises(ValueError, match=r"target_tau must be a number in \(0, 1\], got 0"):
         MomentumTarget(online, projection, tau=0)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch as th
 
+from sb3_ef.cli import main
 from sb3_ef.ef.latent import MomentumTarget
 from sb3_ef.offline.model import OfflineEF, load_pretrained
 from sb3_ef.offline.pretrain import CHECKPOINT, METRICS, MODEL, pretrain
@@ -59,3 +60,16 @@ def test_resumed_latent_pretraining_continues_from_the_checkpoints_target_and_pr
 def test_a_target_tau_is_refused_for_pixel_pretraining(tmp_path):
     with pytest.raises(ValueError, match="target_tau applies to target='latent' only"):
         pretrain(episodes(), tmp_path, steps=1, ef_kwargs={"target_tau": 0.1}, **ARGUMENTS)
+
+
+@pytest.mark.parametrize("temperature", [float("inf"), float("nan"), 0.0])
+def test_a_temperature_that_is_not_finite_and_positive_is_refused_for_latent_pretraining(temperature, tmp_path):
+    with pytest.raises(ValueError, match=f"temperature must be a finite positive number, got {temperature}"):
+        pretrain(episodes(), tmp_path, steps=1, ef_kwargs={**LATENT, "temperature": temperature}, **ARGUMENTS)
+
+
+@pytest.mark.parametrize("constant", ["Infinity", "-Infinity", "NaN"])
+def test_sb3_ef_pretrain_refuses_a_temperature_that_is_not_finite(constant, capsys):
+    with pytest.raises(SystemExit):
+        main(["pretrain", "unused", "unused", "--ef-kwargs", f'{{"target": "latent", "temperature": {constant}}}'])
+    assert f"argument --ef-kwargs: expected finite numbers, got {constant} in" in capsys.readouterr().err
