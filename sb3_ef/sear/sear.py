@@ -5,16 +5,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any, ClassVar
 
-import torch as th
 from gymnasium import spaces
-from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_ef.common.compile import CompileOption
-from sb3_ef.common.forwarding import base_arguments
-from sb3_ef.common.schedules import StepSchedule
 from sb3_ef.drqv2.drqv2 import DrQv2
 from sb3_ef.drqv2.policies import DrQv2Policy
 from sb3_ef.sear.loss import SEAR_LATENT_DIM, SEARLoss, resolve_coefficients
@@ -60,11 +55,12 @@ class SEAR(DrQv2):
     (``SequenceReplayBuffer(store_masks=True)``, set here) and shifts each with its frames.
 
     :param buffer_size: replay buffer capacity in transitions (250000, SEAR's).
+    :param replay_buffer_kwargs: extra buffer arguments, as :class:`DrQv2`'s (``store_masks`` is set here).
     :param coefficients: ``"sear"`` (reconstruction 1, mask 0.25: the SEAR authors'), ``"efrl"`` (0.01, 0.0025:
         the Ego-Foresight authors' copy) or a pair ``(reconstruction_coef, mask_coef)``.
     :param policy_kwargs: see :class:`SEARPolicy` (``features_dim`` 4096, and :class:`DrQv2Policy`'s).
 
-    The other arguments are :class:`DrQv2`'s.
+    The other arguments (keywords) are :class:`DrQv2`'s.
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"CnnPolicy": SEARPolicy}
@@ -73,29 +69,12 @@ class SEAR(DrQv2):
         self,
         policy: str | type[DrQv2Policy],
         env: GymEnv | str,
-        learning_rate: float | Schedule = 1e-4,
+        *,
         buffer_size: int = 250_000,
-        learning_starts: int = 2000,
-        batch_size: int = 256,
-        tau: float = 0.01,
-        gamma: float = 0.99,
-        train_freq: int | tuple[int, str] = 2,
-        gradient_steps: int = 1,
-        n_steps: int = 3,
-        exploration_std: float | str | StepSchedule = "linear(1.0,0.1,500000)",
-        target_noise_clip: float = 0.3,
         coefficients: str | Sequence[float] = "sear",
-        check_finite_losses: bool = False,
-        compile: CompileOption = False,
-        replay_buffer_class: type[ReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
-        stats_window_size: int = 100,
-        tensorboard_log: str | None = None,
-        policy_kwargs: dict[str, Any] | None = None,
-        verbose: int = 0,
-        seed: int | None = None,
-        device: th.device | str = "auto",
         _init_setup_model: bool = True,
+        **kwargs: Any,
     ):
         resolve_coefficients(coefficients)  # a bad preset or pair fails here, before anything is built
         store_masks = (replay_buffer_kwargs or {}).get("store_masks", True)
@@ -104,8 +83,14 @@ class SEAR(DrQv2):
                 f"SEAR reads the agent masks from the replay buffer: replay_buffer_kwargs must not set store_masks "
                 f"to {store_masks!r}"
             )
-        masks_kept = {**(replay_buffer_kwargs or {}), "store_masks": True}
-        super().__init__(**base_arguments(DrQv2, locals(), replay_buffer_kwargs=masks_kept, _init_setup_model=False))
+        super().__init__(
+            policy,
+            env,
+            buffer_size=buffer_size,
+            replay_buffer_kwargs={**(replay_buffer_kwargs or {}), "store_masks": True},
+            _init_setup_model=False,
+            **kwargs,
+        )
         if self.env is not None:
             check_agent_masks(self.env)
         self.coefficients = coefficients
