@@ -20,14 +20,13 @@ Row ``i`` pairs frame ``i`` with action ``i``: the last action has no frame afte
 from __future__ import annotations
 
 import glob
-import io
 import json
 import os
 from typing import Any
 
 import numpy as np
 
-from sb3_ef.offline.dataset import EpisodeDataset, check_image_size
+from sb3_ef.offline.dataset import EpisodeDataset, check_image_size, decode_image
 from sb3_ef.offline.episodes import Episode, EpisodeError, make_episode
 from sb3_ef.offline.lerobot_format import (
     INFO,
@@ -251,18 +250,11 @@ class LeRobotDataset(EpisodeDataset):
         return frame.to_ndarray(format="rgb24", **kwargs).transpose(2, 0, 1)
 
     def _decode_images(self, values: list[Any], source: str) -> np.ndarray:
-        from PIL import Image
-
         images = []
         for step, value in enumerate(values):
-            data: Any = value.get("bytes") if isinstance(value, dict) else value
-            try:
-                image = Image.open(io.BytesIO(data)).convert("RGB")
-            except Exception as error:
-                raise EpisodeError(f"{source}: frame {step} of {self.camera!r} is not a PNG / JPEG image") from error
-            if self.image_size:
-                image = image.resize((self.image_size, self.image_size), Image.Resampling.BILINEAR)
-            images.append(np.asarray(image).transpose(2, 0, 1))
+            data = value.get("bytes") if isinstance(value, dict) else value
+            error = f"{source}: frame {step} of {self.camera!r} is not a PNG / JPEG image"
+            images.append(decode_image(data, self.image_size, error))
         return np.stack(images)
 
 
