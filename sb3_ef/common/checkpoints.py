@@ -1,25 +1,12 @@
-"""Checkpoints a long run can be resumed from: model, replay buffer and random states, written atomically.
+"""Resumable checkpoints: model, replay buffer and random states, each file written atomically.
 
-SB3's ``CheckpointCallback`` saves the model after a step, before that step's transition reaches the replay buffer,
-and never the random states, so a resumed run neither sees the same data nor draws the same numbers.
-:class:`ResumableCheckpointCallback` saves between two iterations of ``learn`` (at the start of a rollout, after
-the previous update): the model zip, the replay buffer and the random states the learner owns. Each file is
-written to a temporary name and renamed, so a kill during a write leaves the previous checkpoint intact, and only
-the newest ``keep`` checkpoints are kept. :func:`load_checkpoint` restores all of it, so that
-``model.learn(n, reset_num_timesteps=False)`` continues the run.
-
-Files of the checkpoint at ``step`` (the model name is SB3's and rl-zoo3's)::
-
-    <prefix>_<step>_steps.zip                    model (``num_timesteps``, optimisers, schedules' progress)
-    <prefix>_replay_buffer_<step>_steps.pkl      replay buffer (optional)
-    <prefix>_rng_<step>_steps.pkl                random states: torch (CPU, CUDA), NumPy's global generator, Python's
-                                                 ``random``, the action space's sampler, the action noise and the
-                                                 envs' ``np_random``
-
-The envs' generators are recorded one agent step before the checkpoint, before the env reset that ends an episode
-there; a resumed run resets its envs from them. A resumed run therefore repeats the uninterrupted one exactly when
-the checkpoint falls on an episode boundary of every env and the env draws random numbers only in ``reset``, from
-its ``np_random`` (as ``make_env``'s envs do; simulator state inside the env is never saved).
+Unlike SB3's ``CheckpointCallback``, :class:`ResumableCheckpointCallback` saves between two iterations of ``learn``
+(after an update, before the next rollout) and records the random states (torch, NumPy, ``random``, the action
+space, the action noise, and the envs' ``np_random`` one agent step before the checkpoint), so that
+:func:`load_checkpoint` then ``learn(n, reset_num_timesteps=False)`` repeats the uninterrupted run when the checkpoint
+falls on an episode boundary of every env and the envs draw only in ``reset`` (as ``make_env``'s do). Files at
+``step``: ``<prefix>_<step>_steps.zip`` (model, written last), ``<prefix>_replay_buffer_<step>_steps.pkl`` (optional),
+``<prefix>_rng_<step>_steps.pkl``.
 """
 
 from __future__ import annotations
@@ -31,9 +18,7 @@ import random
 import re
 import warnings
 import zipfile
-from collections.abc import Iterator
-from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -91,25 +76,17 @@ def _checkpoint_step(file_name: str, name_prefix: str) -> int | None:
 
 
 def list_checkpoints(run_dir: str | os.PathLike, name_prefix: str = "rl_model") -> list[Checkpoint]:
-    """The complete checkpoints in ``run_dir``, oldest first. A checkpoint is complete once its model zip exists
-    (written last); its buffer and random states are listed when present."""
-    found = []
-    folder = Path(run_dir)
-    if not folder.is_dir():
-        return []
-    for path in folder.iterdir():
-        step = _checkpoint_step(path.name, name_prefix)
-        if step is not None:
-            paths = checkpoint_paths(folder, name_prefix, step)
-            found.append(
-                Checkpoint(
-                    paths.step,
-                    paths.model_path,
-                    paths.replay_buffer_path if paths.replay_buffer_path.is_file() else None,
-                    paths.rng_path if paths.rng_path.is_file() else None,
-                )
-            )
-    return sorted(found, key=lambda checkpoint: checkpoint.step)
+    """The complete checkpoints (model zip written) in ``run_dir``, oldest first, with their buffer and random
+    states when present."""
+    found = (_checkpoint_step(path.name, name_prefix) for path in Path(run_dir).glob("*.zip"))
+    steps = sorted(step for step in found if step is not None)
+    return [_existing(checkpoint_paths(run_dir, name_prefix, step)) for step in steps]
+
+
+def _existing(paths: CheckpointPaths) -> Checkpoint:
+    """The checkpoint of ``paths``, without the buffer and random-state files that do not exist."""
+    buffer, rng = paths.replay_buffer_path, paths.rng_path
+    return Checkpoint(paths.step, paths.model_path, *(path if path.is_file() else None for path in (buffer, rng)))
 
 
 def latest_checkpoint(
@@ -127,51 +104,19 @@ def latest_checkpoint(
     return None
 
 
-def resume_note(run_dir: str | os.PathLike, resume_command: str, name_prefix: str = "rl_model") -> str:
-    """What a run that stopped part-way in ``run_dir`` can continue from: its newest intact checkpoint and
-    ``resume_command`` (the command that continues it), or that it saved none."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # a damaged newest checkpoint is passed over: the note names the one used
-        checkpoint = latest_checkpoint(run_dir, name_prefix, intact=True)
-    if checkpoint is None:
-        return f"The run in {run_dir} saved no checkpoint to resume from (checkpoints need a save frequency)"
-    where = f"{checkpoint.model_path} (step {checkpoint.step})"
-    return f"The run's last checkpoint is {where}: continue with `{resume_command}`"
-
-
-@contextmanager
-def noting_last_checkpoint(
-    run_dir: str | os.PathLike, resume_command: str, name_prefix: str = "rl_model"
-) -> Iterator[None]:
-    """Add :func:`resume_note` to any error that escapes the block (as a note: ``error.__notes__``, shown under its
-    traceback), so that a run that fails part-way says where it can continue from. Ctrl-C passes unchanged."""
-    try:
-        yield
-    except Exception as error:
-        error.add_note(resume_note(run_dir, resume_command, name_prefix))
-        raise
-
-
 def checkpoint_for(model_path: str | os.PathLike, name_prefix: str = "rl_model") -> Checkpoint:
     """The checkpoint a model zip belongs to: the files beside a ``<prefix>_<step>_steps.zip``, or for any other zip
     (a final model) the ``replay_buffer.pkl`` beside it (rl-zoo3's ``--save-replay-buffer``) and no random states."""
     path = Path(model_path)
     if not path.is_file():
         raise FileNotFoundError(f"No model zip at {path}")
+    with zipfile.ZipFile(path) as archive:
+        num_timesteps = int(json.loads(archive.read("data"))["num_timesteps"])
     step = _checkpoint_step(path.name, name_prefix)
     if step is not None:
-        paths = checkpoint_paths(path.parent, name_prefix, step)
-        buffer_path, rng_path = paths.replay_buffer_path, paths.rng_path
-    else:
-        buffer_path, rng_path = path.parent / "replay_buffer.pkl", None
-    with zipfile.ZipFile(path) as archive:
-        step = int(json.loads(archive.read("data"))["num_timesteps"])
-    return Checkpoint(
-        step,
-        path,
-        buffer_path if buffer_path.is_file() else None,
-        rng_path if rng_path is not None and rng_path.is_file() else None,
-    )
+        return replace(_existing(checkpoint_paths(path.parent, name_prefix, step)), step=num_timesteps)
+    buffer_path = path.parent / "replay_buffer.pkl"
+    return Checkpoint(num_timesteps, path, buffer_path if buffer_path.is_file() else None, None)
 
 
 def _env_generators(model: BaseAlgorithm) -> list[Any] | None:

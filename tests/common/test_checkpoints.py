@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import json
-import zipfile
-
 import numpy as np
 import pytest
 import torch as th
@@ -16,7 +13,6 @@ from sb3_ef.common.checkpoints import (
     latest_checkpoint,
     list_checkpoints,
     load_checkpoint,
-    noting_last_checkpoint,
 )
 from sb3_ef.envs.toy import ToyAgentEnv
 
@@ -168,27 +164,3 @@ def test_a_checkpoint_without_buffer_or_random_states_still_loads(tmp_path):
 def test_bad_arguments_are_named(arguments, named, tmp_path):
     with pytest.raises(ValueError, match=named):
         ResumableCheckpointCallback(save_path=str(tmp_path), **arguments)
-
-
-def _model_zip(path) -> None:
-    with zipfile.ZipFile(path, "w") as archive:
-        archive.writestr("data", json.dumps({"num_timesteps": 1}))
-
-
-def test_a_run_that_fails_part_way_names_its_last_checkpoint_and_how_to_resume(tmp_path):
-    resume = f"sb3-ef train --resume {tmp_path}"
-    with pytest.raises(RuntimeError) as raised, noting_last_checkpoint(tmp_path, resume):
-        raise RuntimeError("the env broke")
-    assert raised.value.__notes__ == [
-        f"The run in {tmp_path} saved no checkpoint to resume from (checkpoints need a save frequency)"
-    ]
-    _model_zip(tmp_path / "rl_model_100_steps.zip")
-    (tmp_path / "rl_model_200_steps.zip").write_bytes(b"cut")  # damaged: passed over
-    with pytest.raises(ValueError) as raised, noting_last_checkpoint(tmp_path, resume):
-        raise ValueError("bad frame")
-    assert raised.value.__notes__ == [
-        f"The run's last checkpoint is {tmp_path / 'rl_model_100_steps.zip'} (step 100): continue with `{resume}`"
-    ]
-    with pytest.raises(KeyboardInterrupt) as interrupted, noting_last_checkpoint(tmp_path, resume):
-        raise KeyboardInterrupt
-    assert not hasattr(interrupted.value, "__notes__")
