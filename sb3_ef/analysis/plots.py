@@ -38,20 +38,23 @@ def _save(figure, path: str | os.PathLike) -> str:
 
 def plot_learning_curves(scores: pd.DataFrame, out_dir: str | os.PathLike, xlabel: str = "step") -> list[str]:
     """One PNG per task: each algorithm's mean score over seeds against step, with a 95% confidence band
-    (mean +- 1.96 standard errors over seeds; no band for a single seed).
+    (mean +- 1.96 standard errors over seeds; no band for a single seed), the seeds on one common grid
+    (:func:`~sb3_ef.analysis.reference.seed_band`: up to the last step every seed reached).
 
     :return: the written paths, ``<out_dir>/curve_<task>.png``.
     """
+    from sb3_ef.analysis.reference import seed_band
+
     check_columns(scores, SCORE_COLUMNS)
     plt = pyplot()
     paths = []
     for task, task_scores in scores.groupby("task"):
         figure, axis = plt.subplots(figsize=(5, 3.5))
         for algo, group in task_scores.groupby("algo"):
-            stats = group.groupby("step")["score"].agg(["mean", "std", "count"]).sort_index()
-            axis.plot(stats.index, stats["mean"], label=str(algo))
-            half_width = 1.96 * stats["std"].fillna(0.0) / np.sqrt(stats["count"])
-            axis.fill_between(stats.index, stats["mean"] - half_width, stats["mean"] + half_width, alpha=0.25)
+            band = seed_band(group, x="step", y="score")
+            axis.plot(band["x"], band["mean"], label=f"{algo} ({group['seed'].nunique()} seeds)")
+            half_width = 1.96 * band["std"].fillna(0.0) / np.sqrt(band["seeds"])
+            axis.fill_between(band["x"], band["mean"] - half_width, band["mean"] + half_width, alpha=0.25)
         axis.set(title=str(task), xlabel=xlabel, ylabel="score")
         axis.legend()
         paths.append(_save(figure, os.path.join(os.fspath(out_dir), f"curve_{_safe_name(str(task))}.png")))
@@ -60,11 +63,12 @@ def plot_learning_curves(scores: pd.DataFrame, out_dir: str | os.PathLike, xlabe
 
 def plot_reference_curves(records: pd.DataFrame, name: str, out_dir: str | os.PathLike) -> list[str]:
     """One PNG per task the reference has: each algorithm's mean return over seeds (band: min-max over seeds)
-    and the official mean with its min-max band, up to the end of your runs (plus 10%).
+    and the official mean with its min-max band, up to the end of your runs (plus 10%); each set of seeds on its own
+    common grid (:func:`~sb3_ef.analysis.reference.seed_band`), the legend naming the reference's version.
 
     :return: the written paths, ``<out_dir>/reference_<name>_<task>.png``.
     """
-    from sb3_ef.analysis.reference import get_reference, load_reference, official_band, reference_task
+    from sb3_ef.analysis.reference import get_reference, load_reference, reference_task, seed_band
 
     check_columns(records, RECORD_COLUMNS)
     plt = pyplot()
@@ -77,12 +81,12 @@ def plot_reference_curves(records: pd.DataFrame, name: str, out_dir: str | os.Pa
             continue
         figure, axis = plt.subplots(figsize=(5, 3.5))
         for algo, runs in group.groupby("algo"):
-            stats = runs.groupby(reference.x_column)["return"].agg(["mean", "min", "max"]).sort_index()
-            axis.plot(stats.index, stats["mean"], label=str(algo))
-            axis.fill_between(stats.index, stats["min"], stats["max"], alpha=0.2)
-        end = 1.1 * float(group[reference.x_column].max())
-        band = official_band(curves, np.unique(curves.loc[curves["x"] <= end, "x"]))
-        axis.plot(band["x"], band["mean"], color="black", linestyle="--", label=reference.label)
+            yours = seed_band(runs, x=reference.x_column)
+            axis.plot(yours["x"], yours["mean"], label=f"{algo} ({runs['seed'].nunique()} seeds)")
+            axis.fill_between(yours["x"], yours["min"], yours["max"], alpha=0.2)
+        band = seed_band(curves, end=1.1 * float(group[reference.x_column].max()))
+        label = f"{reference.label} ({curves['seed'].nunique()} seeds)"
+        axis.plot(band["x"], band["mean"], color="black", linestyle="--", label=label)
         axis.fill_between(band["x"], band["min"], band["max"], color="black", alpha=0.1)
         axis.set(title=str(task), xlabel=reference.axis, ylabel="episode return")
         axis.legend()

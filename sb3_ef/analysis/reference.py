@@ -1,23 +1,32 @@
 """Published learning curves, shipped with the package, and a user's runs put beside them.
 
-Four references, read from ``reference_data/`` (sources, licences and units in ``reference_data/SOURCES.md``):
+Five references, read from ``reference_data/`` (sources, licences and units in ``reference_data/SOURCES.md``); each
+names the agent's version (and, for Dreamer-v3, its model size) and the source commit:
 
 - ``"drqv2"``: DrQ-v2's official DMC curves (facebookresearch/drqv2, ``curves/``; 24 tasks, 8-10 seeds), episode
   return against **frames** (agent steps x action repeat 2);
 - ``"tdmpc2"``: TD-MPC2's official DMC pixel results (nicklashansen/tdmpc2, ``results/tdmpc2-pixels/``; 12 tasks,
   3 seeds), episode return against **agent steps** (action repeat 2);
-- ``"dreamerv3"``: Dreamer-v3's DMC vision scores (danijar/dreamerv3, ``scores/dmc_vision-dreamerv3.json.gz``;
-  20 tasks, 8-10 seeds), the return of each training episode against **frames** (action repeat 2);
+- ``"dreamerv3"``: Dreamer-v3's DMC vision scores of the authors' 2024 release (danijar/dreamerv3,
+  ``scores/dmc_vision-dreamerv3.json.gz``; 20 tasks, 8-10 seeds), the return of each training episode against
+  **frames** (action repeat 2);
+- ``"dreamerv3-2023"``: those of the 2023 paper's release (``scores/data/dmcvision_dreamerv3.json.gz`` of its
+  history), the agent that sheeprl's Dreamer-v3 and the zoo's ``dreamerv3`` entries follow, read as the authors
+  wrote the file (:func:`authors_scores`), on the same axis;
 - ``"curl"``: the CURL scores of the same repository (``scores/dmc_vision-curl.json.gz``; 20 tasks, 10 seeds),
   episode return against **frames**, every 20k frames.
 
 A run's evaluation records hold both ``step`` (agent steps) and ``frame``; each reference is compared on its own
-axis (frames from the records' ``frame`` column, not from an assumed action repeat). Official seeds are
-interpolated linearly between their points and never extrapolated beyond their last one.
+axis (frames from the records' ``frame`` column, not from an assumed action repeat). Seeds are put on one common
+grid (:func:`seed_band`): each interpolated linearly between its points, never extrapolated beyond its first or last
+one.
 """
 
 from __future__ import annotations
 
+import gzip
+import json
+import os
 import re
 from dataclasses import dataclass
 from functools import lru_cache
@@ -49,6 +58,7 @@ class Reference:
     unit: str
     source: str
     action_repeat: int | None  # of the official runs, where the source records it
+    version: str = "official"  # the agent's version (and model size) where more than one was published
 
 
 REFERENCES = {
@@ -71,13 +81,24 @@ REFERENCES = {
         2,
     ),
     "dreamerv3": Reference(
-        "Dreamer-v3 (official)",
+        "Dreamer-v3 (official, 2024 release, model 200M)",
         "dreamerv3_dmc_vision.csv.xz",
         "frame",
         "frames",
         "frames (agent steps x action repeat; official runs at action repeat 2; one point per training episode)",
-        "danijar/dreamerv3 scores/dmc_vision-dreamerv3.json.gz (MIT licence)",
+        "danijar/dreamerv3 scores/dmc_vision-dreamerv3.json.gz at commit e3f0224 (MIT licence)",
         2,
+        "2024 release (the 2025 article's scores), model 200M (the release's default size)",
+    ),
+    "dreamerv3-2023": Reference(
+        "Dreamer-v3 (official, 2023 release, model S)",
+        "dmcvision_dreamerv3_2023.json.gz",
+        "frame",
+        "frames",
+        "frames (agent steps x action repeat; official runs at action repeat 2; one point per training episode)",
+        "danijar/dreamerv3 scores/data/dmcvision_dreamerv3.json.gz at commit 8fa35f8 (MIT licence)",
+        2,
+        "2023 paper's release, model S (its dmc_vision preset: 512 recurrent units, CNN depth 32, 2 x 512 MLPs)",
     ),
     "curl": Reference(
         "CURL (Dreamer-v3's baseline scores)",
@@ -105,11 +126,50 @@ def reference_task(task: str) -> str:
     return re.sub(r"-v\d+$", "", name).replace("_", "-")
 
 
+def check_reference_data(name: str) -> None:
+    """Raise ``FileNotFoundError`` naming the file to add when the data of reference ``name`` is not installed."""
+    reference = get_reference(name)
+    if not (resources.files("sb3_ef.analysis") / "reference_data" / reference.file).is_file():
+        raise FileNotFoundError(
+            f"The reference {name!r} ({reference.label}) needs its data file, not installed here: save "
+            f"{reference.source.removesuffix(' (MIT licence)')} as it is to sb3_ef/analysis/reference_data/"
+            f"{reference.file} (reference_data/SOURCES.md)"
+        )
+
+
+def authors_scores(path: str | os.PathLike, method: str = "dreamerv3") -> pd.DataFrame:
+    """The scores file of danijar/dreamerv3 (gzipped JSON: a list of runs, each ``task`` as ``dmc_<domain>_<task>``,
+    ``method``, ``seed``, ``xs`` and ``ys``), the runs of ``method`` one row per point: columns ``task`` (sb3-ef's
+    name: ``walker-walk``), ``seed``, ``x`` (the file's ``xs``) and ``return`` (its ``ys``, rounded to 0.01 as in
+    the shipped CSVs)."""
+    pandas = require("pandas")
+    with gzip.open(path, "rt") as file:
+        runs = json.load(file)
+    frames = [
+        pandas.DataFrame(
+            {
+                "task": reference_task(re.sub(r"^dmc[a-z]*_", "", str(run["task"]))),
+                "seed": int(run["seed"]),
+                "x": np.asarray(run["xs"], dtype=np.int64),
+                "return": np.round(np.asarray(run["ys"], dtype=float), 2),
+            }
+        )
+        for run in runs
+        if run.get("method", method) == method
+    ]
+    if not frames:
+        raise ValueError(f"{path} holds no runs of the method {method!r}")
+    return pandas.concat(frames, ignore_index=True)
+
+
 @lru_cache(maxsize=len(REFERENCES))
 def _read_reference(name: str) -> pd.DataFrame:
     pandas = require("pandas")
     reference = get_reference(name)
+    check_reference_data(name)
     with resources.as_file(resources.files("sb3_ef.analysis") / "reference_data" / reference.file) as path:
+        if reference.file.endswith(".json.gz"):
+            return authors_scores(path)
         table = pandas.read_csv(path)  # gzip or xz, by the file's suffix
     return table.rename(columns={reference.x_column: "x"})[list(REFERENCE_COLUMNS)]
 
@@ -119,16 +179,37 @@ def load_reference(name: str) -> pd.DataFrame:
     return _read_reference(name).copy()
 
 
-def _seed_values(official: pd.DataFrame, xs: np.ndarray) -> np.ndarray:
-    """(official seeds, len(xs)): each seed's return at each x, linear between its points, NaN outside them."""
-    seeds = list(official.groupby("seed"))
+def _seed_values(curves: pd.DataFrame, xs: np.ndarray, x: str = "x", y: str = "return") -> np.ndarray:
+    """(seeds, len(xs)): each seed's ``y`` at each of ``xs``, linear between its points, NaN outside them."""
+    seeds = list(curves.groupby("seed"))
     values = np.full((len(seeds), len(xs)), np.nan)
     for index, (_, run) in enumerate(seeds):
-        run = run.sort_values("x")
-        x, y = run["x"].to_numpy(float), run["return"].to_numpy(float)
-        inside = (xs >= x[0]) & (xs <= x[-1])
-        values[index, inside] = np.interp(xs[inside], x, y)
+        run = run.sort_values(x)
+        points, ys = run[x].to_numpy(float), run[y].to_numpy(float)
+        inside = (xs >= points[0]) & (xs <= points[-1])
+        values[index, inside] = np.interp(xs[inside], points, ys)
     return values
+
+
+def seed_band(curves: pd.DataFrame, x: str = "x", y: str = "return", end: float = np.inf) -> pd.DataFrame:
+    """Seeds (``seed``, ``x``, ``y``) on one common grid, the union of their points up to ``end`` where every seed
+    has points on both sides: each seed interpolated linearly onto it, none extrapolated. Seeds that log at other
+    steps (another evaluation grid, bursts of training episodes) thus average at the same x, and the band does not
+    jump where a seed's points start or stop.
+
+    :return: columns ``x``, ``mean``, ``std`` (over seeds, ``ddof=1``; NaN for one seed), ``min``, ``max``,
+        ``seeds``.
+    """
+    pandas = require("pandas")
+    spans = curves.groupby("seed")[x].agg(["min", "max"])
+    low, high = float(spans["min"].max()), min(float(spans["max"].min()), end)
+    points = curves[x].to_numpy(float)
+    xs = np.unique(points[(points >= low) & (points <= high)])
+    values = _seed_values(curves, xs, x, y)
+    return pandas.DataFrame({
+        "x": xs, "mean": values.mean(axis=0), "std": values.std(axis=0, ddof=1) if len(values) > 1 else np.nan,
+        "min": values.min(axis=0), "max": values.max(axis=0), "seeds": len(values),
+    })  # fmt: skip
 
 
 def official_at(official: pd.DataFrame, x: float) -> np.ndarray:
@@ -136,21 +217,6 @@ def official_at(official: pd.DataFrame, x: float) -> np.ndarray:
     left out."""
     values = _seed_values(official, np.asarray([x], dtype=float))[:, 0]
     return values[~np.isnan(values)]
-
-
-def official_band(official: pd.DataFrame, xs: np.ndarray) -> pd.DataFrame:
-    """Mean, min and max over the official seeds at each of ``xs``, each seed interpolated as in
-    :func:`official_at` (so seeds with grids of their own are averaged at the same x); an x no seed spans is left
-    out."""
-    pandas = require("pandas")
-    xs = np.asarray(xs, dtype=float)
-    values = _seed_values(official, xs)
-    spanned = ~np.isnan(values).all(axis=0) if len(values) else np.zeros(len(xs), dtype=bool)
-    values = values[:, spanned]
-    return pandas.DataFrame({
-        "x": xs[spanned], "mean": np.nanmean(values, axis=0), "min": np.nanmin(values, axis=0),
-        "max": np.nanmax(values, axis=0),
-    })  # fmt: skip
 
 
 def _frames_per_step(group: pd.DataFrame) -> float:
@@ -167,8 +233,9 @@ def reference_table(records: pd.DataFrame, name: str, at: tuple[int, ...] = ()) 
     DrQ-v2, Dreamer-v3 and CURL, read from the records' ``frame`` column, agent steps for TD-MPC2). Tasks the
     reference lacks are left out (see :func:`missing_tasks`).
 
-    :return: columns ``algo, task, step, x, unit, seeds, mean, std, official_seeds, official_mean, official_min,
-        official_max``; ``official_*`` are NaN (and ``official_seeds`` 0) where no official seed reached ``x``.
+    :return: columns ``reference`` (its label: agent, version, model size), ``algo, task, step, x, unit, seeds, mean,
+        std, official_seeds, official_mean, official_min, official_max``; ``official_*`` are NaN (and
+        ``official_seeds`` 0) where no official seed reached ``x``.
     """
     pandas = require("pandas")
     check_columns(records, RECORD_COLUMNS)
@@ -192,7 +259,7 @@ def reference_table(records: pd.DataFrame, name: str, at: tuple[int, ...] = ()) 
             ])  # fmt: skip
             theirs = official_at(curves, step * scale)
             rows.append({
-                "algo": algo, "task": task, "step": int(step), "x": round(step * scale),
+                "reference": reference.label, "algo": algo, "task": task, "step": int(step), "x": round(step * scale),
                 "unit": reference.x_column, "seeds": len(yours),
                 "mean": yours.mean() if len(yours) else np.nan,
                 "std": yours.std(ddof=1) if len(yours) > 1 else np.nan,
@@ -203,8 +270,8 @@ def reference_table(records: pd.DataFrame, name: str, at: tuple[int, ...] = ()) 
             })  # fmt: skip
     return pandas.DataFrame(
         rows,
-        columns=["algo", "task", "step", "x", "unit", "seeds", "mean", "std", "official_seeds", "official_mean",
-                 "official_min", "official_max"],
+        columns=["reference", "algo", "task", "step", "x", "unit", "seeds", "mean", "std", "official_seeds",
+                 "official_mean", "official_min", "official_max"],
     )  # fmt: skip
 
 

@@ -18,7 +18,7 @@ def check_results_arguments(
     directory: str, out: str, return_scale: float, reps: int, at: tuple[int, ...], reference: str | None
 ) -> None:
     """Raise a ``ValueError`` / ``FileNotFoundError`` naming the first argument that cannot work, before any read."""
-    from sb3_ef.analysis.reference import get_reference
+    from sb3_ef.analysis.reference import check_reference_data, get_reference
 
     if not os.path.isdir(directory):
         what = "is a file, not a folder" if os.path.exists(directory) else "does not exist"
@@ -33,6 +33,7 @@ def check_results_arguments(
         raise ValueError(f"Steps (--at) must be non-negative agent steps, got {list(at)}")
     if reference is not None:
         get_reference(reference)
+        check_reference_data(reference)
 
 
 @dataclass
@@ -51,6 +52,7 @@ def _aggregate(records: pd.DataFrame, return_scale: float, reps: int, at: tuple[
     """Scores, ENS and rliable metrics (both over the tasks every algorithm has; rliable with even seed counts there)
     and ``returns_at``."""
     from sb3_ef.analysis.metrics import (
+        ENS_THRESHOLDS,
         efficiency_normalized_score,
         ens_table,
         records_to_scores,
@@ -77,19 +79,40 @@ def _aggregate(records: pd.DataFrame, return_scale: float, reps: int, at: tuple[
         result.tables["ens_details.csv"] = (ens_table(compared), False)
         result.ens = efficiency_normalized_score(compared)
         result.tables["ens.csv"] = (result.ens, True)
-        result.lines.append(result.ens.to_string())
+        thresholds = "/".join(f"{100 * threshold:g}%" for threshold in ENS_THRESHOLDS)
+        result.lines.append(
+            "ENS (Efficiency Normalised Score, 0 to 1; each algorithm's score where the best curve first reaches "
+            f"{thresholds} of the best score, over the best score, averaged over thresholds and tasks):"
+        )
+        result.lines.append(result.ens.rename("ENS").rename_axis("algo").to_frame().to_string(float_format="%.3f"))
     uneven = uneven_seed_counts(compared)
     if uneven:
         result.lines.append(f"rliable metrics skipped: they need as many seeds on every task, seeds per task: {uneven}")
     elif shared:
         result.rliable = rliable_metrics(compared, reps=reps)
         result.tables["rliable.csv"] = (result.rliable, False)
-        result.lines.append(result.rliable.to_string(index=False))
+        result.lines.append(
+            f"rliable aggregates of each run's best score ({_score_scale(records, return_scale)}), with 95% "
+            f"stratified-bootstrap confidence intervals over {reps} resamples:"
+        )
+        result.lines.append(result.rliable.to_string(index=False, float_format="%.3f"))
     if at:
         at_steps = returns_at(records, at)
         result.tables["returns_at.csv"] = (at_steps, False)
+        result.lines.append("Evaluation return at the --at agent steps (episode returns, not scaled), over seeds:")
         result.lines.append(at_steps.to_string(index=False, float_format="%.1f"))
     return result
+
+
+def _score_scale(records: pd.DataFrame, return_scale: float) -> str:
+    """How scores come from the records: returns over ``return_scale``, success rates as they are."""
+    with_success = records.groupby("task")["success"].agg(lambda column: column.notna().all())
+    parts = []
+    if not with_success.all():
+        parts.append(f"score = episode return / {return_scale:g} (--return-scale)")
+    if with_success.any():
+        parts.append("score = success rate on the tasks that record one")
+    return "; ".join(parts)
 
 
 def _against_reference(records: pd.DataFrame, name: str, at: tuple[int, ...], result: ResultTables) -> None:
@@ -104,8 +127,12 @@ def _against_reference(records: pd.DataFrame, name: str, at: tuple[int, ...], re
     result.lines += [f"Warning: {warning}" for warning in result.unit_warnings]
     table = reference_table(records, name, at)
     result.tables[f"reference_{name}.csv"] = (table, False)
-    result.lines.append(f"Against {reference.label} ({reference.source}), x in {reference.unit}:")
-    result.lines.append(table.to_string(index=False, float_format="%.1f") if not table.empty else "no task in common")
+    result.lines.append(
+        f"Against {reference.label}: {reference.source}; x in {reference.unit}; mean, std, min and max are episode "
+        "returns (not scaled), yours over your seeds, official_* over the official seeds at the same x:"
+    )
+    shown = table.drop(columns="reference")
+    result.lines.append(shown.to_string(index=False, float_format="%.1f") if not table.empty else "no task in common")
 
 
 def analyze_results(
@@ -119,7 +146,8 @@ def analyze_results(
 ) -> dict[str, Any]:
     """Write ``scores.csv``, ``ens.csv``, ``ens_details.csv``, ``rliable.csv`` and the plots to ``out``, and
     ``returns_at.csv`` for the steps ``at``; ``finished_only`` reads only finished runs. With ``reference``
-    (``drqv2``, ``tdmpc2``, ``dreamerv3`` or ``curl``), also the published curves beside the runs
+    (a key of :data:`sb3_ef.analysis.reference.REFERENCES`: ``drqv2``, ``tdmpc2``, ``dreamerv3``, ``dreamerv3-2023``
+    or ``curl``), also the published curves beside the runs
     (``reference_<name>_<task>.png``) and ``reference_<name>.csv``: your mean at each step of ``at`` (default: the
     last step all seeds reached) against the official mean and min-max, with warnings where the units look wrong.
 

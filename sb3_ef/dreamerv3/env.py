@@ -52,8 +52,10 @@ class NewestFrame(gym.ObservationWrapper):
         return observation[-FRAME_CHANNELS:]
 
 
-class StopTraining(Exception):
-    """Raised from the env's ``step`` when an SB3 callback returns ``False``: it ends sheeprl's loop there."""
+class StopTraining(BaseException):
+    """Raised from the env's ``step`` when an SB3 callback returns ``False``: it ends sheeprl's loop there. A
+    ``BaseException``, so that sheeprl's ``RestartOnException`` (which rebuilds an env that raised an ``Exception``)
+    lets it through."""
 
 
 class StepCallbacks(gym.Wrapper):

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import gzip
+import json
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -13,15 +16,18 @@ from sb3_ef.analysis.cli import main as analyze_main
 from sb3_ef.analysis.records import RECORD_COLUMNS
 from sb3_ef.analysis.reference import (
     REFERENCES,
+    authors_scores,
+    check_reference_data,
     get_reference,
     load_reference,
     missing_tasks,
     official_at,
-    official_band,
     reference_table,
     reference_task,
+    seed_band,
     unit_warnings,
 )
+from sb3_ef.analysis.results import analyze_results
 from sb3_ef.grid import load_grid
 from sb3_ef.grid.run import execute_run
 
@@ -29,6 +35,11 @@ REPO = Path(__file__).resolve().parents[2]
 #: A finished benchmark grid's results (tests/analysis/data/README.md): DrQ-v2 and DrQv2-EF on two cartpole tasks.
 CPU_GRID_RESULTS = Path(__file__).resolve().parent / "data" / "cpu_grid"
 TINY_GRID = REPO / "tests" / "grid" / "tiny_grid.yml"
+
+
+def installed(name: str) -> bool:
+    """Whether the data file of reference ``name`` is installed (the 2023 Dreamer-v3 scores are added by hand)."""
+    return (resources.files("sb3_ef.analysis") / "reference_data" / get_reference(name).file).is_file()
 
 
 def _records(algo: str, task: str, returns: dict[int, list[float]], action_repeat: int = 2) -> pd.DataFrame:
@@ -67,11 +78,53 @@ def test_every_reference_names_its_unit_and_source():
     for name, reference in REFERENCES.items():
         assert reference.x_column in ("frame", "step") and "MIT" in reference.source
         assert reference.unit.startswith(reference.axis)
-        assert set(load_reference(name)["task"]) >= {"cartpole-swingup-sparse", "walker-walk", "reacher-easy"}
+        if installed(name):
+            assert set(load_reference(name)["task"]) >= {"cartpole-swingup-sparse", "walker-walk", "reacher-easy"}
     assert sorted(REFERENCE_NAMES) == sorted(REFERENCES)  # the command line offers every reference
-    expected = r"Unknown reference 'dreamer': expected one of \['curl', 'dreamerv3', 'drqv2', 'tdmpc2'\]"
+    expected = r"Unknown reference 'dreamer': expected one of \['curl', 'dreamerv3', 'dreamerv3-2023', 'drqv2', "
     with pytest.raises(ValueError, match=expected):
         get_reference("dreamer")
+
+
+def test_both_dreamerv3_score_sets_name_their_version_model_size_and_commit():
+    current, paper = get_reference("dreamerv3"), get_reference("dreamerv3-2023")
+    assert "2024 release" in current.label and "model 200M" in current.label and "e3f0224" in current.source
+    assert "2023 release" in paper.label and "model S" in paper.label and "8fa35f8" in paper.source
+    assert (current.x_column, paper.x_column) == ("frame", "frame")
+    records = _records("mine", "dmc/walker-walk-v0", {0: [0.0, 10.0]})
+    assert set(reference_table(records, "dreamerv3")["reference"]) == {current.label}
+
+
+@pytest.mark.skipif(installed("dreamerv3-2023"), reason="the 2023 scores are installed")
+def test_a_reference_without_its_data_file_names_the_file_to_add(tmp_path):
+    with pytest.raises(
+        FileNotFoundError,
+        match=r"save danijar/dreamerv3 scores/data/dmcvision_dreamerv3.json.gz at "
+        r"commit 8fa35f8 as it is to sb3_ef/analysis/reference_data/dmcvision_dreamerv3_2023.json.gz",
+    ):
+        check_reference_data("dreamerv3-2023")
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    _records("mine", "dmc/walker-walk-v0", {0: [0.0, 1.0]}).to_csv(runs / "records.csv", index=False)
+    with pytest.raises(FileNotFoundError, match="needs its data file"):
+        analyze_results(str(runs), str(tmp_path / "out"), reference="dreamerv3-2023")
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_authors_scores_files_are_read_as_they_are(tmp_path):
+    runs = [
+        {"task": "dmc_walker_walk", "method": "dreamerv3", "seed": "0", "xs": [1000, 2000], "ys": [10.123, 20.0]},
+        {"task": "dmc_ball_in_cup_catch", "method": "dreamerv3", "seed": 1, "xs": [1000], "ys": [5.0]},
+        {"task": "dmc_walker_walk", "method": "curl", "seed": 0, "xs": [1000], "ys": [1.0]},
+    ]
+    with gzip.open(tmp_path / "scores.json.gz", "wt") as file:
+        json.dump(runs, file)
+    table = authors_scores(tmp_path / "scores.json.gz")
+    assert table.values.tolist() == [
+        ["walker-walk", 0, 1000, 10.12], ["walker-walk", 0, 2000, 20.0], ["ball-in-cup-catch", 1, 1000, 5.0]
+    ]  # fmt: skip
+    with pytest.raises(ValueError, match="holds no runs of the method 'dreamer'"):
+        authors_scores(tmp_path / "scores.json.gz", method="dreamer")
 
 
 def test_dreamerv3_and_curl_are_on_the_frame_axis():
@@ -92,14 +145,24 @@ def test_ball_in_cup_catch_has_sb3_efs_name_in_every_reference():
         assert reference_table(records, name, at=(10_000,))["official_seeds"].iloc[0] > 0
 
 
-def test_official_band_averages_seeds_on_their_own_grids():
-    official = pd.DataFrame({"task": "t", "seed": [0, 0, 1, 1], "x": [0, 10, 5, 15], "return": [0.0, 10.0, 20.0, 30.0]})
-    band = official_band(official, np.array([0.0, 5.0, 10.0, 20.0]))
-    # x=0: seed 0 only; x=5: 5 (seed 0) and 20 (seed 1); x=10: 10 and 25; x=20: no seed reaches it.
-    assert band["x"].tolist() == [0.0, 5.0, 10.0]
-    assert band["mean"].tolist() == [0.0, 12.5, 17.5] and band["min"].tolist() == [0.0, 5.0, 10.0]
-    assert band["max"].tolist() == [0.0, 20.0, 25.0]
-    assert official_at(official, 12.5).tolist() == [27.5]
+def test_seed_band_puts_seeds_on_other_grids_on_one_common_grid():
+    official = pd.DataFrame({"task": "t", "seed": [0, 0, 0, 1, 1], "x": [0, 10, 20, 5, 15],
+                             "return": [0.0, 10.0, 20.0, 20.0, 30.0]})  # fmt: skip
+    band = seed_band(official)
+    # The union of the points that both seeds span (5 to 15); seed 0 at 5 and 15 and seed 1 at 10, interpolated.
+    assert band["x"].tolist() == [5.0, 10.0, 15.0] and band["seeds"].tolist() == [2, 2, 2]
+    assert band["mean"].tolist() == [12.5, 17.5, 22.5]
+    assert band["min"].tolist() == [5.0, 10.0, 15.0] and band["max"].tolist() == [20.0, 25.0, 30.0]
+    assert seed_band(official, end=10)["x"].tolist() == [5.0, 10.0]
+    assert official_at(official, 12.5).tolist() == [12.5, 27.5]
+
+
+def test_the_official_dreamerv3_band_has_every_seed_at_every_point():
+    # The seeds' training episodes end at different frames: on their union each x holds all of them.
+    walker = load_reference("dreamerv3").query("task == 'walker-walk'")
+    band = seed_band(walker, end=200_000)
+    assert set(band["seeds"]) == {walker["seed"].nunique()} and len(band) > 100
+    assert band["x"].iloc[0] == walker.groupby("seed")["x"].min().max()
 
 
 def test_task_names_map_onto_the_references():
@@ -193,7 +256,10 @@ def test_units_that_look_wrong_are_warned_about(tmp_path, capsys):
     assert analyze_main(["results", str(runs), "--out", str(tmp_path / "out"), "--reps", "10", "--reference",
                          "dreamerv3"]) == 0  # fmt: skip
     printed = capsys.readouterr().out
-    assert printed.count("Warning: ") == 2 and "Dreamer-v3 (official) holds DMC episode returns" in printed
+    assert (
+        printed.count("Warning: ") == 2
+        and "Dreamer-v3 (official, 2024 release, model 200M) holds DMC episode returns" in printed
+    )
 
 
 def test_results_command_on_a_fresh_run_beside_the_references(tmp_path, capsys):
