@@ -36,6 +36,7 @@ from sb3_ef.envs.toy import ToyAgentEnv
 FRAME, BATCH, HIDDEN, TRUNK, FEATURES, AGENT, HORIZON = 32, 6, 16, 8, 64, 8, 3
 # A tau, clip and std schedule far from the defaults, so that a swapped constant shows.
 TAU, LR, CLIP, STD_SCHEDULE = 0.3, 2e-3, 0.2, (0.9, 0.2, 40)  # the std: "linear(0.9,0.2,40)"
+BETA = 0.7  # EF's weight, away from 1 so that a missing beta shows
 TIMESTEPS = (0, 17, 60)  # the std of each update: on the schedule's slope, then past its end
 PAD = 4
 # Adam divides by the root of the squared gradient: a gradient at rounding level moves a weight by up to LR, in a
@@ -110,7 +111,7 @@ def soft_update_params(net: nn.Module, target_net: nn.Module, tau: float) -> Non
         target_param.data.copy_(tau * param.data + (1 - tau) * target_param.data)
 
 
-def ef_loss(rollout: nn.Module, decoder: nn.Module, h: th.Tensor, targets: Any, beta: float = 1.0) -> th.Tensor:
+def ef_loss(rollout: nn.Module, decoder: nn.Module, h: th.Tensor, targets: Any) -> tuple[th.Tensor, dict]:
     """The EF authors' loss: h_a rolled forward k actions, decoded with h_s, squared error summed over pixels."""
     h_agent, h_scene = h[:, :AGENT], h[:, AGENT:]
     states = []
@@ -120,17 +121,18 @@ def ef_loss(rollout: nn.Module, decoder: nn.Module, h: th.Tensor, targets: Any, 
     agent_k = th.stack(states, dim=1)[th.arange(h.shape[0]), targets.steps - 1]
     error = (decoder(th.cat([agent_k, h_scene], dim=-1)) - targets.target.float() / 255.0).pow(2).flatten(1).sum(1)
     valid = targets.valid.float()
-    return beta * (error * valid).sum() / valid.sum().clamp(min=1.0)
+    loss = (error * valid).sum() / valid.sum().clamp(min=1.0)
+    return BETA * loss, {"ef_loss": loss}
 
 
-def sear_loss(frame_decoder: nn.Module, mask_decoder: nn.Module, h: th.Tensor, targets: Any) -> th.Tensor:
+def sear_loss(frame_decoder: nn.Module, mask_decoder: nn.Module, h: th.Tensor, targets: Any) -> tuple[th.Tensor, dict]:
     """sear-rl's loss: reconstruction of the frames and prediction of the agent masks from the latent's halves."""
     first, second = h.chunk(2, dim=1)
     frames = th.clamp(frame_decoder(first), -0.5, 0.5)
     reconstruction = (frames - (targets.frames.float() / 255.0 - 0.5)).pow(2).flatten(1).sum(1).mean()
     masks = th.sigmoid(mask_decoder(second))
     mask = F.binary_cross_entropy(masks, targets.masks.float(), reduction="none").flatten(1).sum(1).mean()
-    return 1.0 * reconstruction + 0.25 * mask
+    return 1.0 * reconstruction + 0.25 * mask, {"reconstruction_loss": reconstruction, "mask_loss": mask}
 
 
 class RefAgent:
@@ -155,9 +157,10 @@ class RefAgent:
             target_Q = reward + (discount * target_V)
         Q1, Q2 = self.critic(obs, action)
         critic_loss = F.mse_loss(Q1, target_Q) + F.mse_loss(Q2, target_Q)
-        loss = critic_loss
+        loss, parts = critic_loss, {}
         if self.auxiliary_loss is not None:
-            loss = critic_loss + self.auxiliary_loss(obs, targets)
+            auxiliary_loss, parts = self.auxiliary_loss(obs, targets)
+            loss = critic_loss + auxiliary_loss
             self.auxiliary_opt.zero_grad(set_to_none=True)
         self.encoder_opt.zero_grad(set_to_none=True)
         self.critic_opt.zero_grad(set_to_none=True)
@@ -166,7 +169,7 @@ class RefAgent:
         self.encoder_opt.step()
         if self.auxiliary_opt is not None:
             self.auxiliary_opt.step()
-        return {"critic_loss": critic_loss, "q_values": th.cat([Q1, Q2], dim=1).mean()}
+        return {"critic_loss": critic_loss, "q_values": th.cat([Q1, Q2], dim=1).mean(), **parts}
 
     def update_actor(self, obs, step) -> th.Tensor:
         mu, std = self.actor(obs, schedule(step))
@@ -198,7 +201,7 @@ def make_model(algorithm: type) -> DrQv2:
         "policy_kwargs": {"net_arch": [HIDDEN, HIDDEN], "trunk_dim": TRUNK},
     }  # fmt: skip
     if algorithm is DrQv2EF:
-        arguments.update(ef_horizon=HORIZON, babbling_steps=0)
+        arguments.update(ef_horizon=HORIZON, babbling_steps=0, beta=BETA)
         ef_kwargs = {"rollout_hidden_dims": (16,), "decoder_channels": 8}
         arguments["policy_kwargs"].update(features_dim=FEATURES, agent_dim=AGENT, ef_kwargs=ef_kwargs)
     elif algorithm is SEAR:
@@ -327,6 +330,7 @@ def test_three_updates_match_drqv2s_update_to_float_rounding(algorithm):
             observations, batch.actions, batch.rewards, (1.0 - batch.dones) * batch.discounts, next_observations,
             timesteps, targets,
         )  # fmt: skip
+        assert set(expected) <= set(logs)
         for name, value in expected.items():
             th.testing.assert_close(logs[name], value, msg=lambda m, where=f"{name} at {update}": f"{where}: {m}")
         for name, (ours, theirs) in pairs(model, reference).items():
