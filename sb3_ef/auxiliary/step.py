@@ -8,12 +8,14 @@ are SB3's own. (CURL, which follows its authors' update, owns its ``train()`` an
 
 from __future__ import annotations
 
+import itertools
 from typing import Any
 
 import torch as th
 from stable_baselines3.common.base_class import maybe_make_env
 from stable_baselines3.common.type_aliases import GymEnv
 
+from sb3_ef.auxiliary.diagnostics import aux_grad_ratio_due, gradient_norm, gradient_norm_ratio
 from sb3_ef.auxiliary.host import AuxiliaryHostMixin
 from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.common.batch_norm import running_stats_kept
@@ -101,21 +103,53 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
         return self.critic.extract_features(observations.to(self.device), self.critic.features_extractor)
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
-        """The host's ``gradient_steps`` updates, unchanged, then as many auxiliary steps (:meth:`_auxiliary_step`)."""
-        super().train(gradient_steps, batch_size)  # type: ignore[misc]
+        """The host's ``gradient_steps`` updates, unchanged, then as many auxiliary steps (:meth:`_auxiliary_step`);
+        on the updates :func:`aux_grad_ratio_due` picks, the encoder-gradient norm of the critic's loss is read at
+        the critic optimiser's step (:meth:`_read_host_gradients`) for ``aux_grad_ratio``."""
+        first = self._n_updates + 1  # type: ignore[has-type]
+        host_norms: dict[int, th.Tensor] = {}
+        hook = self._read_host_gradients(first, host_norms) if self.auxiliary is not None else None
+        try:
+            super().train(gradient_steps, batch_size)  # type: ignore[misc]
+        finally:
+            if hook is not None:
+                hook.remove()
         if self.auxiliary is None:
             return
         if self.auxiliary_learning_rate is None:
             self._update_learning_rate(self.auxiliary_optimizer)  # type: ignore[attr-defined]
         self.auxiliary.train(True)
         updates = [
-            self._auxiliary_step(self.replay_buffer.sample(batch_size, env=self._vec_normalize_env))  # type: ignore[attr-defined]
-            for _ in range(gradient_steps)
+            self._auxiliary_step(
+                self.replay_buffer.sample(batch_size, env=self._vec_normalize_env),  # type: ignore[attr-defined]
+                host_norms.get(first + step),
+            )
+            for step in range(gradient_steps)
         ]
         self._record_updates(updates)
 
-    def _auxiliary_step(self, batch: SequenceReplayBufferSamples) -> dict[str, th.Tensor]:
-        """One step on the critic's encoder and the auxiliary module; returns the (detached) logs, without a sync."""
+    def _read_host_gradients(self, first: int, host_norms: dict[int, th.Tensor]) -> Any:
+        """A step pre-hook on the critic's optimiser that stores, in ``host_norms`` by update number (from
+        ``first``), the gradient norm the critic's loss left on its encoder, on the updates that compute the ratio;
+        its handle, or ``None`` when that optimiser does not step the encoder (``share_features_extractor``)."""
+        encoder = list(self.critic.features_extractor.parameters())
+        held = {id(param) for group in self.critic.optimizer.param_groups for param in group["params"]}
+        if not all(id(param) in held for param in encoder):
+            return None
+        updates = itertools.count(first)
+
+        def read(optimizer: th.optim.Optimizer, args: Any, kwargs: Any) -> None:
+            update = next(updates)
+            if aux_grad_ratio_due(update):
+                host_norms[update] = gradient_norm(encoder)
+
+        return self.critic.optimizer.register_step_pre_hook(read)
+
+    def _auxiliary_step(
+        self, batch: SequenceReplayBufferSamples, host_norm: th.Tensor | None = None
+    ) -> dict[str, th.Tensor]:
+        """One step on the critic's encoder and the auxiliary module; returns the (detached) logs, without a sync,
+        with ``aux_grad_ratio`` when given the critic loss's encoder-gradient norm ``host_norm`` of the update."""
         assert self.auxiliary is not None
         pad = 0 if isinstance(self.replay_buffer, ShiftedSequenceReplayBuffer) else self.shift_pad  # type: ignore[attr-defined]
         observations, targets = self._augment_observations(batch, pad=pad)
@@ -125,6 +159,8 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
         self._check_finite(**logs)
         self.auxiliary_optimizer.zero_grad()
         loss.backward()
+        if host_norm is not None:
+            logs["aux_grad_ratio"] = gradient_norm_ratio(self.critic.features_extractor.parameters(), host_norm)
         self.auxiliary_optimizer.step()
         self.auxiliary.after_update(self.critic.features_extractor)
         return logs

@@ -13,6 +13,7 @@ from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import polyak_update
 from torch.nn import functional as F
 
+from sb3_ef.auxiliary.diagnostics import aux_grad_ratio_due, gradient_norm, gradient_norm_ratio
 from sb3_ef.auxiliary.momentum import momentum_update
 from sb3_ef.auxiliary.step import AuxiliaryStepMixin
 from sb3_ef.common.buffers import SequenceReplayBufferSamples
@@ -206,6 +207,8 @@ class CURL(AuxiliaryStepMixin, SAC):
         """One update of the authors' ``CurlSacAgent.update`` (``step``: the update's index over the run)."""
         alpha = self._temperature()
         logs = {"critic_loss": self._critic_step(batch, alpha), "ent_coef": alpha.reshape(())}
+        # The critic loss's gradient on the encoder, as its step left it, for aux_grad_ratio (no extra pass).
+        host_norm = gradient_norm(self.critic.features_extractor.parameters()) if aux_grad_ratio_due(step + 1) else None
         if step % self.actor_update_interval == 0:
             logs.update(self._actor_and_temperature_step(batch.observations, alpha))
         if step % self.target_update_interval == 0:
@@ -214,7 +217,7 @@ class CURL(AuxiliaryStepMixin, SAC):
             polyak_update(itertools.chain(*heads), itertools.chain(*target_heads), self.tau)
             encoder, target_encoder = self.critic.features_extractor, self.critic_target.features_extractor
             momentum_update(encoder, target_encoder, self.encoder_tau, "encoder")
-        logs.update(self._curl_step(batch))
+        logs.update(self._curl_step(batch, host_norm))
         return logs
 
     def _critic_step(self, batch: CURLBatch, alpha: th.Tensor) -> th.Tensor:
@@ -254,8 +257,9 @@ class CURL(AuxiliaryStepMixin, SAC):
             logs["ent_coef_loss"] = ent_coef_loss.detach()
         return logs
 
-    def _curl_step(self, batch: CURLBatch) -> dict[str, th.Tensor]:
-        """The authors' ``update_cpc`` on the critic's anchor crop: both Adams step the encoder on one gradient."""
+    def _curl_step(self, batch: CURLBatch, host_norm: th.Tensor | None = None) -> dict[str, th.Tensor]:
+        """The authors' ``update_cpc`` on the critic's anchor crop: both Adams step the encoder on one gradient;
+        with the critic loss's encoder-gradient norm ``host_norm``, logs ``aux_grad_ratio``."""
         assert self.auxiliary is not None
         features = self.critic.extract_features(batch.observations, self.critic.features_extractor)
         loss, logs = self.auxiliary(features, batch.positives)
@@ -263,6 +267,8 @@ class CURL(AuxiliaryStepMixin, SAC):
         self.encoder_optimizer.zero_grad()
         self.auxiliary_optimizer.zero_grad()
         loss.backward()
+        if host_norm is not None:
+            logs["aux_grad_ratio"] = gradient_norm_ratio(self.critic.features_extractor.parameters(), host_norm)
         self.encoder_optimizer.step()
         self.auxiliary_optimizer.step()
         self.auxiliary.after_update(self.critic.features_extractor)
