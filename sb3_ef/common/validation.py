@@ -1,9 +1,6 @@
-"""Checks of user input shared by every algorithm and command: constructor arguments, ``learn``'s step count,
-``predict``'s observations, and close-match suggestions for mistyped names.
-
-Each check raises ``ValueError`` (or warns, when the input is usable but probably not what was meant) at the first
-moment the mistake can be seen, naming what was expected and what was received. The module imports only the
-standard library and NumPy at load time, so the command line can use it before torch is imported.
+"""Checks of user input shared by every algorithm and command, each raising ``ValueError`` (or warning) naming what
+was expected and what was received, and close-match suggestions for mistyped names. Imports only the standard library
+and NumPy at load time, so the command line can use it before torch is imported.
 """
 
 from __future__ import annotations
@@ -55,53 +52,34 @@ def _received(value: Any) -> str:
     return repr(value) if _is_number(value) else f"{type(value).__name__} {value!r}"
 
 
-def _positive_int(name: str, value: Any) -> None:
-    if not _is_int(value) or value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {_received(value)}")
+def _requires(expected: str, test: Callable[[Any], bool]) -> Callable[[str, Any], None]:
+    """A check raising ``ValueError("<name> must be <expected>, got <value>")`` where ``test(value)`` is false."""
+
+    def check(name: str, value: Any) -> None:
+        if not test(value):
+            raise ValueError(f"{name} must be {expected}, got {_received(value)}")
+
+    return check
+
+
+_positive_int = _requires("a positive integer", lambda value: _is_int(value) and value >= 1)
+_non_negative_number = _requires("a number >= 0", lambda value: _is_number(value) and value >= 0)
+_positive_number = _requires("a number > 0", lambda value: _is_number(value) and value > 0)
+_unit_interval = _requires("a number in [0, 1]", lambda value: _is_number(value) and 0 <= value <= 1)
+_learning_rate = _requires(
+    "a number >= 0 or a schedule (a function of the remaining progress)",
+    lambda value: callable(value) or (_is_number(value) and value >= 0),
+)
+_gradient_steps = _requires(
+    "an integer >= 0 (0: collect without training) or -1 (as many as env steps)",
+    lambda value: _is_int(value) and value >= -1,
+)
 
 
 def _non_negative_int(name: str, value: Any) -> None:
-    if not _is_int(value):
-        raise ValueError(f"{name} must be an integer >= 0, got {_received(value)}")
+    _requires("an integer >= 0", _is_int)(name, value)
     if value < 0:
         raise ValueError(f"{name} must be >= 0, got {value}")
-
-
-def _non_negative_number(name: str, value: Any) -> None:
-    if not _is_number(value) or value < 0:
-        raise ValueError(f"{name} must be a number >= 0, got {_received(value)}")
-
-
-def _number(name: str, value: Any) -> None:
-    if not _is_number(value):
-        raise ValueError(f"{name} must be a number, got {_received(value)}")
-
-
-def _positive_number(name: str, value: Any) -> None:
-    if not _is_number(value) or value <= 0:
-        raise ValueError(f"{name} must be a number > 0, got {_received(value)}")
-
-
-def _unit_interval(name: str, value: Any) -> None:
-    if not _is_number(value) or not 0 <= value <= 1:
-        raise ValueError(f"{name} must be a number in [0, 1], got {_received(value)}")
-
-
-def _learning_rate(name: str, value: Any) -> None:
-    if callable(value):
-        return
-    if not _is_number(value) or value < 0:
-        raise ValueError(
-            f"{name} must be a number >= 0 or a schedule (a function of the remaining progress), got {_received(value)}"
-        )
-
-
-def _gradient_steps(name: str, value: Any) -> None:
-    if not _is_int(value) or value < -1:
-        raise ValueError(
-            f"{name} must be an integer >= 0 (0: collect without training) or -1 (as many as env steps), "
-            f"got {_received(value)}"
-        )
 
 
 def _train_freq(name: str, value: Any) -> None:
@@ -266,14 +244,9 @@ def _check_policy_fits_observations(name: str, policy: Any, env: Any, aliases: M
 
 
 def check_algorithm_arguments(algo_class: type, arguments: Mapping[str, Any]) -> None:
-    """Check the constructor arguments of an sb3-ef algorithm; call first thing in ``__init__`` with
-    ``locals()`` (``kwargs`` forwarded to an SB3 host class are checked too).
-
-    Raises ``TypeError`` for an argument the class does not take, and ``ValueError`` naming the argument, what it must
-    be and what it got, for: numbers given as strings or of the wrong sign, a policy name the class does not know,
-    ``"MlpPolicy"`` on image observations, a ``policy_kwargs`` entry the policy does not take. Warns when ``device``
-    asks for CUDA that is not there (SB3 falls back to the CPU without a word).
-    """
+    """Check an sb3-ef algorithm's constructor arguments (``locals()`` first thing in ``__init__``, forwarded
+    ``kwargs`` included): ``TypeError`` for an argument the class does not take, ``ValueError`` for a bad value, policy
+    name or ``policy_kwargs`` entry, or ``"MlpPolicy"`` on images; a warning for CUDA that is not there."""
     values = {key: value for key, value in arguments.items() if key not in ("self", "kwargs", "__class__")}
     forwarded = arguments.get("kwargs") or {}
     values.update(forwarded)
@@ -331,11 +304,8 @@ def check_device(device: Any) -> None:
 
 
 def check_learn(model: Any, total_timesteps: Any, reset_num_timesteps: bool) -> None:
-    """Check ``learn``'s step count, and warn when ``learning_starts`` leaves no step to train on; raise when a
-    batch cannot be filled from the replay buffer's capacity.
-
-    :param model: the algorithm (``learning_starts``, ``batch_size``, ``buffer_size``, ``num_timesteps``).
-    """
+    """Check ``learn``'s step count; warn when ``learning_starts`` leaves no step to train on; raise when
+    ``model.batch_size`` exceeds its ``buffer_size``."""
     valid = _is_int(total_timesteps) or (_is_number(total_timesteps) and float(total_timesteps).is_integer())
     if not valid or total_timesteps < 0:
         raise ValueError(f"total_timesteps must be a whole number of steps >= 0, got {_received(total_timesteps)}")
@@ -359,11 +329,8 @@ def check_learn(model: Any, total_timesteps: Any, reset_num_timesteps: bool) -> 
 
 
 def check_observation(observation: Any, observation_space: Any) -> None:
-    """Raise ``ValueError`` when ``predict`` gets an array whose dtype differs from a uint8 image space's: float
-    frames in [0, 1] would be divided by 255 again and give actions of an all-black image.
-
-    The shape is SB3's to check: it transposes channels-last images to the space's channels-first layout.
-    """
+    """Raise ``ValueError`` when ``predict`` gets a non-uint8 array for a uint8 image space (float frames in [0, 1]
+    would be divided by 255 again); the shape is SB3's to check."""
     space_dtype = getattr(observation_space, "dtype", None)
     if isinstance(observation, np.ndarray) and space_dtype == np.uint8 and observation.dtype != np.uint8:
         raise ValueError(
@@ -397,10 +364,8 @@ def _is_torch_file(path: Path) -> bool:
 
 
 def check_model_path(path: Any) -> Path | None:
-    """Raise when ``path`` (str or path-like; file objects pass) names no readable model zip: ``FileNotFoundError``
-    naming the path as given (SB3 would report ``<path>.zip`` when ``path`` already ends in ``.zip``), or
-    ``ValueError`` for a PyTorch file (saying what reads it) or a damaged file (:func:`is_intact`). Returns the zip's
-    path (``None`` for a file object)."""
+    """The model zip ``path`` names (``None`` for a file object); ``FileNotFoundError`` naming the path as given, or
+    ``ValueError`` for a PyTorch file (saying what reads it) or a damaged zip (:func:`is_intact`)."""
     if not isinstance(path, (str, os.PathLike)):
         return None
     given = Path(path)
