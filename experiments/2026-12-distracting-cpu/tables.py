@@ -1,12 +1,15 @@
-"""Print NOTES.md's tables from the finished runs: every run's evaluation return by step, and per algorithm and
-task the mean +- sample std at 10k and 20k agent steps with rliable's IQM of each run's best return / 1000 and its
-95% stratified-bootstrap interval. The undistracted DrQ-v2 and pixel DrQv2-EF runs are the CPU grid's.
+"""Print NOTES.md's tables from the finished runs: every run's evaluation return by step, per algorithm and task
+the mean +- sample std at 10k and 20k agent steps with rliable's IQM of each run's best return / 1000 and its 95%
+stratified-bootstrap interval, and the distracted arms side by side (final return and area under the curve). The
+undistracted DrQ-v2 and pixel DrQv2-EF runs are the CPU grid's; the latent rerun (drqv2_ef_latent_v2) is in
+results/latent-v2.
 
     python experiments/2026-12-distracting-cpu/tables.py
 """
 
 import os
 
+import numpy as np
 import pandas as pd
 
 from sb3_ef.analysis.metrics import load_records, records_to_scores, returns_at, rliable_metrics
@@ -14,7 +17,12 @@ from sb3_ef.analysis.metrics import load_records, records_to_scores, returns_at,
 HERE = os.path.dirname(os.path.abspath(__file__))
 FOLDERS = (os.path.join(HERE, "results"), os.path.join(HERE, "..", "2026-cpu-grid", "results", "cpu"))
 TASKS = {"dmc-distracting/cartpole-balance-v0": "distracted", "dmc/cartpole-balance-v0": "undistracted"}
-NAMES = {"DrQv2": "DrQ-v2", "DrQv2EF": "DrQv2-EF pixel", "drqv2_ef_latent": "DrQv2-EF latent"}
+NAMES = {
+    "DrQv2": "DrQ-v2",
+    "DrQv2EF": "DrQv2-EF pixel",
+    "drqv2_ef_latent": "DrQv2-EF latent",
+    "drqv2_ef_latent_v2": "DrQv2-EF latent v2",
+}
 STEPS = tuple(range(2000, 20001, 2000))
 
 
@@ -55,7 +63,24 @@ def summary(records: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=columns)
 
 
+def side_by_side(records: pd.DataFrame, task: str = "dmc-distracting/cartpole-balance-v0") -> pd.DataFrame:
+    """Per algorithm on ``task``: mean +- sample std over the seeds of the final (20k) return and of the area under
+    the evaluation curve from 2k to 20k steps (trapezoids, divided by the 18k steps: the curve's mean level)."""
+    wide = records[records["task"] == task].pivot_table(index=["algo", "seed"], columns="step", values="return")
+    wide = wide.reindex(columns=STEPS)
+    area = wide.apply(lambda row: np.trapezoid(row.to_numpy(), STEPS) / (STEPS[-1] - STEPS[0]), axis=1)
+    rows = []
+    for algo in NAMES:
+        if algo not in wide.index.get_level_values("algo"):
+            continue
+        final, auc = wide.loc[algo][STEPS[-1]], area.loc[algo]
+        rows.append([NAMES[algo], f"{final.mean():.0f} +- {final.std():.0f}", f"{auc.mean():.0f} +- {auc.std():.0f}",
+                     len(final)])  # fmt: skip
+    return pd.DataFrame(rows, columns=["arm", "final return (20k steps)", "area under the curve / 18k", "seeds"])
+
+
 if __name__ == "__main__":
     records = finished_records()
     print(markdown(per_run(records)), end="\n\n")
-    print(markdown(summary(records)))
+    print(markdown(summary(records)), end="\n\n")
+    print(markdown(side_by_side(records)))
