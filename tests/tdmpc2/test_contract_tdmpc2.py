@@ -55,8 +55,9 @@ def test_deterministic_predict_repeats_and_leaves_the_global_generator(eval_acti
     second, _ = model.predict(obs, episode_start=start(), deterministic=True)
     np.testing.assert_array_equal(first, second)
     th.testing.assert_close(th.random.get_rng_state(), before, rtol=0, atol=0)
-    # Not a constant: another observation gets another plan.
-    other, _ = model.predict(observations(4)[2:], episode_start=start(), deterministic=True)
+    # Not a constant: another observation (random pixels, far from the toy frames) gets another plan.
+    noise = np.random.default_rng(0).integers(0, 256, size=obs.shape, dtype=np.uint8)
+    other, _ = model.predict(noise, episode_start=start(), deterministic=True)
     assert not np.array_equal(first, other)
 
     # Exploration draws from the global generator, as training does.
