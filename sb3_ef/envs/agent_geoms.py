@@ -1,13 +1,7 @@
-"""Which geoms of a MuJoCo model belong to the agent's own body.
-
-Rule (the same for every suite): the agent is every kinematic tree hanging off the world body that the agent
-drives. A tree is driven when it contains a body moved by an actuator (through a joint, a tendon's joints or
-sites, a site or a body) or a body welded to a mocap body (how Meta-World moves the Sawyer arm). The agent geoms
-are all geoms of those trees. The world body (floor, walls, fixed cameras), free objects and targets (trees no
-actuator reaches) and the mocap handles themselves are never agent geoms.
-
-Examples: cartpole -> cart and pole; reacher -> the arm (not the target); walker, cheetah, quadruped -> the whole
-body; finger -> the finger (not the spinner); Meta-World -> the Sawyer robot (arm, gripper, pedestal).
+"""Which geoms of a MuJoCo model belong to the agent's own body, by one rule for every suite: all geoms of the
+kinematic trees (off the world body) holding a body that an actuator moves or that is welded to a mocap body (how
+Meta-World moves the Sawyer arm). The world body, free objects, targets and mocap handles never are: cartpole -> cart
+and pole; reacher -> the arm, not the target; finger -> the finger, not the spinner; Meta-World -> the Sawyer robot.
 """
 
 from __future__ import annotations

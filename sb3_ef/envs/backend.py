@@ -1,8 +1,5 @@
-"""Choice of MuJoCo's headless OpenGL backend (``MUJOCO_GL``), made before MuJoCo is imported.
-
-MuJoCo and dm-control read ``MUJOCO_GL`` once, when they are imported, so the choice must happen first. Each
-candidate is tried in a subprocess (a failed OpenGL initialisation can abort the process that tries it).
-"""
+"""Choice of MuJoCo's headless OpenGL backend (``MUJOCO_GL``, read once when MuJoCo is imported), each candidate
+tried in a subprocess (a failed OpenGL initialisation can abort the process that tries it)."""
 
 from __future__ import annotations
 
@@ -44,12 +41,8 @@ def _backend_works(backend: str) -> tuple[bool, str]:
 
 
 def ensure_gl_backend(candidates: dict[str, str] | None = None) -> str:
-    """Return the ``MUJOCO_GL`` backend in use, choosing and setting the first working one if it is unset.
-
-    :param candidates: backends to try in order, each with an install hint (default :data:`GL_BACKENDS`).
-    :raises RenderingBackendError: if ``MUJOCO_GL`` names a backend whose library is missing, or it is unset and no
-        candidate works; the message says what to install.
-    """
+    """The ``MUJOCO_GL`` backend in use, else the first of ``candidates`` (backend -> install hint, default
+    :data:`GL_BACKENDS`) that works, set; ``RenderingBackendError`` saying what to install when none does."""
     chosen = os.environ.get("MUJOCO_GL")
     if chosen:
         library = GL_LIBRARIES.get(chosen)

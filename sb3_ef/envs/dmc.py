@@ -1,10 +1,5 @@
-"""DeepMind Control Suite tasks from pixels, through shimmy's gymnasium wrapper of dm-control.
-
-shimmy provides the gymnasium step/reset/seed semantics; frames come from our own renderer on dm-control's
-``physics`` (shimmy's render would go through dm-control's slower render path once per call and gives no
-control over shadows or segmentation). The dm-control time limit is lifted so that ours
-(``episode_length``, 1000 simulator steps as in the suite) decides truncation.
-"""
+"""DeepMind Control Suite tasks from pixels: shimmy's gymnasium wrapper of dm-control for the dynamics, sb3-ef's
+renderer for the frames; dm-control's time limit is lifted so that ``episode_length`` decides truncation."""
 
 from __future__ import annotations
 
@@ -36,31 +31,11 @@ DEFAULT_CAMERAS: dict[str, int] = {"quadruped": 2}
 
 
 class DMCPixelEnv(PixelEnv):
-    """A dm-control suite task with pixel observations (see :class:`~sb3_ef.envs.pixel_env.PixelEnv`).
+    """A dm-control suite task (:data:`~sb3_ef.envs.tasks.DMC_TASKS`, e.g. ``"cartpole-swingup"``) with pixel
+    observations; the arguments are :func:`~sb3_ef.envs.factory.make_env`'s (camera 0 by default, 2 for quadruped;
+    ``episode_length`` 1000 simulator steps as in the suite; ``options``: :meth:`PixelEnv._setup`'s)."""
 
-    :param task: task name as in :data:`~sb3_ef.envs.tasks.DMC_TASKS`, e.g. ``"cartpole-swingup"``.
-    :param size: frame height and width.
-    :param frame_stack: frames stacked along channels, oldest first.
-    :param action_repeat: simulator steps per agent step.
-    :param camera: camera index or name (default: 0, 2 for quadruped).
-    :param fast_render: shadows, reflections and multisampling off (several times faster on CPU).
-    :param seed: seed of the task's random initial states.
-    :param episode_length: simulator steps before truncation (1000 as in the suite).
-    :param render_mode: ``None`` or ``"rgb_array"`` (``render()`` returns the newest frame).
-    """
-
-    def __init__(
-        self,
-        task: str,
-        size: int = 84,
-        frame_stack: int = 3,
-        action_repeat: int = 2,
-        camera: int | str | None = None,
-        fast_render: bool = False,
-        seed: int | None = None,
-        episode_length: int = 1000,
-        render_mode: str | None = None,
-    ) -> None:
+    def __init__(self, task: str, camera: int | str | None = None, seed: int | None = None, **options: Any) -> None:
         domain, suite_task = DMC_TASKS[task]
         self.task = task
         dm_env = suite.load(domain, suite_task, task_kwargs={"random": seed, "time_limit": float("inf")})
@@ -68,20 +43,8 @@ class DMCPixelEnv(PixelEnv):
         spec = dm_env.action_spec()
         self._action_low, self._action_high = spec.minimum.astype(np.float64), spec.maximum.astype(np.float64)
         try:
-            self._setup(
-                self._physics()[0],
-                action_dim=spec.shape[0],
-                sim_timestep=dm_env.control_timestep(),
-                size=size,
-                frame_stack=frame_stack,
-                action_repeat=action_repeat,
-                episode_length=episode_length,
-                camera=DEFAULT_CAMERAS.get(domain, 0) if camera is None else camera,
-                fast_render=fast_render,
-                flip=False,
-                render_mode=render_mode,
-                seed=seed,
-            )
+            camera = DEFAULT_CAMERAS.get(domain, 0) if camera is None else camera
+            self._setup(self._physics()[0], spec.shape[0], dm_env.control_timestep(), camera, False, seed, **options)
         except Exception:
             self._env.close()
             raise

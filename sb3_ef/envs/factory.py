@@ -22,18 +22,11 @@ if TYPE_CHECKING:  # imported when an env is made (each needs its simulator)
 MIN_SIZE, MAX_SIZE = 32, 512
 
 #: Options of each suite's env class beyond :func:`make_env`'s own arguments.
+_DMC_OPTIONS = ("episode_length", "render_mode")
 SUITE_OPTIONS = {
-    "dmc": ("episode_length", "render_mode"),
+    "dmc": _DMC_OPTIONS,
     "metaworld": ("episode_length", "resample_task", "repeat_discount", "render_mode"),
-    "dmc-distracting": (
-        "episode_length",
-        "render_mode",
-        "distraction",
-        "difficulty",
-        "dynamic",
-        "background_dir",
-        "background_videos",
-    ),
+    "dmc-distracting": (*_DMC_OPTIONS, "distraction", "difficulty", "dynamic", "background_dir", "background_videos"),
 }
 
 
@@ -57,12 +50,10 @@ def make_env(
     :param action_repeat: simulator steps per agent step (rewards summed, success OR-ed).
     :param camera: camera index or name; default camera 0 for DMC (2 for quadruped), ``"corner"`` for Meta-World.
     :param fast_render: shadows, reflections and multisampling off: several times faster on CPU, other frames
-        (no shadows: analyse and evaluate with the same setting).
+        (analyse and evaluate with the same setting).
     :param seed: seed of the initial states (and of the Meta-World task variant).
-    :param agent_masks: render the agent mask of every frame and put the masks in the infos (``info["agent_masks"]``:
-        reset's ``(frame_stack, size, size)`` for the observation's frames, step's ``(frame_stack + 1, size, size)``
-        for the previous observation's frames and the new one, oldest first), as ``SequenceReplayBuffer(...,
-        store_masks=True)`` stores them; ``env.agent_masks`` tells. One more render per step.
+    :param agent_masks: every frame's agent mask in the infos (:attr:`~sb3_ef.envs.pixel_env.PixelEnv.agent_masks`),
+        as ``SequenceReplayBuffer(..., store_masks=True)`` stores them; one more render per step.
     :param kwargs: suite options: ``episode_length`` (simulator steps; 1000 DMC, 500 Meta-World),
         ``render_mode`` (``"rgb_array"``), ``resample_task`` (Meta-World), ``repeat_discount`` (Meta-World: the
         reward of an agent step is ``r1 + repeat_discount * r2``; 0.99 with ``gamma=authors_gamma()`` is the EF
@@ -95,15 +86,8 @@ def make_env(
         from sb3_ef.envs.distracting.env import DistractingDMCPixelEnv as env_class
     else:
         from sb3_ef.envs.meta_world import MetaWorldPixelEnv as env_class
-    options = dict(
-        size=int(size),
-        frame_stack=frame_stack,
-        action_repeat=action_repeat,
-        camera=camera,
-        fast_render=fast_render,
-        seed=seed,
-        **kwargs,
-    )
+    options: dict[str, Any] = {"size": int(size), "frame_stack": frame_stack, "action_repeat": action_repeat}
+    options.update(camera=camera, fast_render=fast_render, seed=seed, **kwargs)
     env = env_class(task.task, **options)
     env.agent_masks = bool(agent_masks)
     if agent_masks:

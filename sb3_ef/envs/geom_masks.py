@@ -1,11 +1,6 @@
-"""Pixel masks of named parts of a MuJoCo scene (a tool, a door, a distractor) next to the agent's mask.
-
-A part is a set of geoms: the geoms named directly plus every geom of each named body's subtree (the body and all
-bodies attached below it, e.g. Meta-World's ``hammerbody`` or the door's ``door_link``). :func:`part_geoms` turns
-names into a boolean array over the model's geoms; :func:`part_mask` looks a segmentation frame
-(:meth:`~sb3_ef.envs.pixel_env.PixelEnv.segmentation`) up in it. A pixel belongs to a part where one of its geoms is
-the front-most surface, so an occluded part shows only where it is visible. :class:`PartMasks` gives the agent's
-mask and any number of parts' masks from one segmentation render.
+"""Pixel masks of named parts of a MuJoCo scene (a tool, a door, a distractor) next to the agent's mask. A part is
+the geoms named plus every geom of each named body's subtree (e.g. Meta-World's ``hammerbody``); a pixel belongs to
+it where one of its geoms is the front-most surface. :class:`PartMasks` gives all masks from one segmentation render.
 """
 
 from __future__ import annotations

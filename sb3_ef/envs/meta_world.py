@@ -1,13 +1,7 @@
-"""Meta-World (metaworld 3.x, ``-v3`` tasks) from pixels.
-
-Single-task setting as in the paper: one task variant (object and goal positions) drawn from the env's seed and
-kept for every episode, or re-drawn at each reset with ``resample_task=True``. Episodes are truncated after 500
-simulator steps; ``info["is_success"]`` carries Meta-World's success flag.
-
-``repeat_discount`` reproduces the EF authors' Meta-World protocol (their public code): the discount 0.99 applied
-per simulator step inside action repeat, so one agent step's reward is ``r1 + 0.99 r2``; with their agent
-discount on top, the matching ``gamma`` is :func:`authors_gamma` (0.99^3 = 0.970299 per agent step).
-"""
+"""Meta-World (metaworld 3.x, ``-v3`` tasks) from pixels, single-task as in the paper: one task variant drawn from
+the env's seed and kept (or re-drawn at each reset with ``resample_task=True``); 500 simulator steps an episode;
+``info["is_success"]`` is Meta-World's success flag. ``repeat_discount=0.99`` with ``gamma=authors_gamma()`` is the
+EF authors' protocol: one agent step's reward is ``r1 + 0.99 r2``."""
 
 from __future__ import annotations
 
@@ -29,45 +23,29 @@ AUTHORS_DISCOUNT = 0.99
 
 
 def authors_gamma(action_repeat: int = 2, discount: float = AUTHORS_DISCOUNT) -> float:
-    """The per-agent-step ``gamma`` that, with ``repeat_discount=discount``, gives the EF authors' discounting.
-
-    Their action-repeat wrapper discounts by ``discount`` per simulator step (``discount ** action_repeat`` per agent
-    step) and their replay buffer multiplies by ``discount`` again: ``discount ** (action_repeat + 1)``, 0.970299 at
-    action repeat 2 (n-step factor 0.970299^3 = 0.9135 for 3 steps).
-    """
+    """The per-agent-step ``gamma`` of the EF authors (with ``repeat_discount=discount``): their action repeat
+    discounts by ``discount`` per simulator step and their buffer once more, ``discount ** (action_repeat + 1)``."""
     return discount ** (action_repeat + 1)
 
 
 class MetaWorldPixelEnv(PixelEnv):
-    """A Meta-World task with pixel observations (see :class:`~sb3_ef.envs.pixel_env.PixelEnv`).
+    """A Meta-World task (:data:`~sb3_ef.envs.tasks.METAWORLD_TASKS`, e.g. ``"door-open"``) with pixel observations;
+    the arguments are :func:`~sb3_ef.envs.factory.make_env`'s (camera ``"corner"`` by default; ``seed`` also draws
+    the task variant; ``options``: :meth:`PixelEnv._setup`'s).
 
-    :param task: task name without version, e.g. ``"door-open"`` (see :data:`~sb3_ef.envs.tasks.METAWORLD_TASKS`).
-    :param size: frame height and width.
-    :param frame_stack: frames stacked along channels, oldest first.
-    :param action_repeat: simulator steps per agent step.
-    :param camera: camera index or name (default ``"corner"``; also corner2, corner3, corner4, topview, ...).
-    :param fast_render: shadows, reflections and multisampling off (several times faster on CPU).
-    :param seed: seed of the task variant and of the env's randomness.
-    :param episode_length: simulator steps before truncation (500 as in the paper).
     :param resample_task: draw a new task variant at every reset instead of keeping the seed's one.
-    :param repeat_discount: weight of each further simulator step's reward inside one agent step: the reward is
-        ``r1 + repeat_discount * r2 + ...``; 1 (default) sums them, 0.99 is the EF authors' protocol.
-    :param render_mode: ``None`` or ``"rgb_array"`` (``render()`` returns the newest frame).
+    :param repeat_discount: the reward of an agent step is ``r1 + repeat_discount * r2 + ...`` (1: summed).
     """
 
     def __init__(
         self,
         task: str,
-        size: int = 84,
-        frame_stack: int = 3,
-        action_repeat: int = 2,
         camera: int | str | None = None,
-        fast_render: bool = False,
         seed: int | None = None,
         episode_length: int = 500,
         resample_task: bool = False,
         repeat_discount: float = 1.0,
-        render_mode: str | None = None,
+        **options: Any,
     ) -> None:
         if not isinstance(repeat_discount, (int, float)) or not 0 < repeat_discount <= 1:
             raise ValueError(f"repeat_discount must be a number in (0, 1], got {repeat_discount!r}")
@@ -87,20 +65,9 @@ class MetaWorldPixelEnv(PixelEnv):
             assert isinstance(action_space, spaces.Box)  # Meta-World's is Box(4,)
             model = self._env.model
             camera_index = camera_id(model, "corner" if camera is None else camera)
-            self._setup(
-                model,
-                action_dim=action_space.shape[0],
-                sim_timestep=self._env.dt,
-                size=size,
-                frame_stack=frame_stack,
-                action_repeat=action_repeat,
-                episode_length=episode_length,
-                camera=camera_index,
-                fast_render=fast_render,
-                flip=model.camera(camera_index).name in FLIPPED_CAMERAS,
-                render_mode=render_mode,
-                seed=seed,
-            )
+            flip = model.camera(camera_index).name in FLIPPED_CAMERAS
+            options["episode_length"] = episode_length
+            self._setup(model, action_space.shape[0], self._env.dt, camera_index, flip, seed, **options)
         except Exception:
             self._env.close()
             raise
@@ -132,8 +99,7 @@ class MetaWorldPixelEnv(PixelEnv):
         return reward, terminated, {**info, "is_success": bool(info["success"])}
 
     def state_observation(self) -> np.ndarray:
-        """Meta-World's own state vector (hand position, gripper, object poses, goal): the input of the
-        scripted policies in ``metaworld.policies``."""
+        """Meta-World's state vector (hand, gripper, object poses, goal), the input of ``metaworld.policies``."""
         return self._env._get_obs()
 
     def close(self) -> None:

@@ -1,8 +1,5 @@
-"""Base class of the pixel environments: action repeat, frame stack, time limit, rendering, agent masks.
-
-A suite subclass owns the simulator and implements three hooks (``_physics``, ``_reset_sim``, ``_step_sim``);
-everything the observation contract of docs/architecture.md asks for lives here, once.
-"""
+"""Base class of the pixel environments: action repeat, frame stack, time limit, rendering, agent masks. A suite
+subclass owns the simulator and implements three hooks (``_physics``, ``_reset_sim``, ``_step_sim``)."""
 
 from __future__ import annotations
 
@@ -24,22 +21,15 @@ AGENT_MASKS_INFO_KEY = "agent_masks"
 
 
 class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
-    """Pixel observations of a MuJoCo simulation, stacked oldest first, with action repeat.
-
-    Observations are ``uint8`` arrays of shape ``(3 * frame_stack, size, size)``; ``obs[-3:]`` is the newest
-    frame; after ``reset`` the stack holds the first frame ``frame_stack`` times. One agent step applies the
-    action ``action_repeat`` times (rewards summed, ``info["is_success"]`` OR-ed when the suite reports success)
-    and renders once. The episode is truncated after ``episode_length`` simulator steps.
-
-    Subclasses call :meth:`_setup` once their simulator exists.
-    """
+    """Pixel observations of a MuJoCo simulation: ``uint8`` ``(3 * frame_stack, size, size)``, oldest frame first
+    (``reset`` repeats the first). One agent step applies the action ``action_repeat`` times (rewards summed,
+    ``info["is_success"]`` OR-ed) and renders once; truncation after ``episode_length`` simulator steps.
+    Subclasses call :meth:`_setup` once their simulator exists."""
 
     metadata: dict[str, Any] = {"render_modes": ["rgb_array"]}
-    #: When True, every frame's agent mask is rendered with it and infos carry them under ``"agent_masks"``:
-    #: ``reset``'s the ``(frame_stack, size, size)`` bool masks of the observation's frames, ``step``'s the
-    #: ``(frame_stack + 1, size, size)`` masks of the frames of the observation the action was taken from and of the
-    #: new frame, oldest first (``[:-1]`` for that observation, ``[1:]`` for the returned one). An algorithm reads it
-    #: through ``VecEnv.get_attr("agent_masks")``. Set by ``make_env(..., agent_masks=True)``, before ``reset()``.
+    #: Infos carry each frame's agent mask under ``"agent_masks"``: reset's ``(frame_stack, size, size)``, step's
+    #: ``(frame_stack + 1, size, size)`` (``[:-1]``: the observation acted on, ``[1:]``: the new one). Set by
+    #: ``make_env(..., agent_masks=True)``; algorithms read it with ``VecEnv.get_attr("agent_masks")``.
     agent_masks: bool = False
 
     def _setup(
@@ -47,18 +37,18 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
         model: mujoco.MjModel,
         action_dim: int,
         sim_timestep: float,
-        size: int,
-        frame_stack: int,
-        action_repeat: int,
-        episode_length: int,
         camera: int | str,
-        fast_render: bool,
         flip: bool,
-        render_mode: str | None,
         seed: int | None = None,
+        size: int = 84,
+        frame_stack: int = 3,
+        action_repeat: int = 2,
+        episode_length: int = 1000,
+        fast_render: bool = False,
+        render_mode: str | None = None,
     ) -> None:
-        """Called by a suite's constructor once its simulator exists; ``seed`` seeds ``np_random``, from which the
-        suite draws its simulator's seeds (:meth:`_simulator_seed`)."""
+        """Called by a suite's constructor once its simulator exists, with the options of
+        :func:`~sb3_ef.envs.factory.make_env`; ``seed`` seeds ``np_random``."""
         for argument, value in (("frame_stack", frame_stack), ("action_repeat", action_repeat)):
             if not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"{argument} must be an int >= 1, got {value!r}")
@@ -68,7 +58,7 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         if seed is not None:
             self.np_random, _ = seeding.np_random(seed)
-        self.size = size
+        self.size, self.fast_render = size, fast_render
         self.frame_stack = frame_stack
         self.action_repeat = action_repeat
         self.episode_length = episode_length
@@ -86,7 +76,6 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
         self._sim_steps = 0
         self._episode_over = True
 
-    # Hooks for the suites.
     def _physics(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
         """The simulator's current model and data."""
         raise NotImplementedError
@@ -100,8 +89,7 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
         raise NotImplementedError
 
     def _simulator_seed(self) -> int:
-        """A seed for the simulator's own generator, drawn from ``np_random``: the generator that gymnasium seeds
-        and a checkpoint records then decides every episode, so a resumed run repeats the uninterrupted one."""
+        """A seed for the simulator's generator, drawn from ``np_random`` (which checkpoints record)."""
         return int(self.np_random.integers(2**31))
 
     @property
@@ -167,17 +155,11 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
         return np.stack(self._masks)
 
     def agent_mask(self) -> np.ndarray:
-        """``(size, size)`` bool mask of the pixels showing the agent's body in the newest frame.
-
-        Which geoms are the agent's is decided by :func:`sb3_ef.envs.agent_geoms.agent_geoms`.
-        """
+        """``(size, size)`` bool mask of the agent's pixels (:func:`~sb3_ef.envs.agent_geoms.agent_geoms`) now."""
         return self._frame_renderer().agent_mask(self._physics()[1])
 
     def segmentation(self) -> np.ndarray:
-        """``(size, size)`` int array: the id of the geom seen at each pixel of the newest frame, -1 where none.
-
-        Turn it into masks of named bodies or geoms with :mod:`sb3_ef.envs.geom_masks`.
-        """
+        """``(size, size)`` ids of the geom seen at each pixel now, -1 where none (:mod:`sb3_ef.envs.geom_masks`)."""
         return self._frame_renderer().geom_ids(self._physics()[1])
 
     @property
@@ -192,8 +174,7 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
         return self._frames[-1].transpose(1, 2, 0)
 
     def close(self) -> None:
-        """Free the renderer's OpenGL context. The simulator is kept (freed with the env), so that the env can be
-        reset again after ``close()``, as Gymnasium envs can; a new context is opened then."""
+        """Free the renderer's OpenGL context; the simulator is kept, so a later ``reset()`` opens a new one."""
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None

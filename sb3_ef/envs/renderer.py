@@ -1,9 +1,5 @@
-"""Square RGB and segmentation frames from one MuJoCo camera.
-
-Uses ``mujoco.Renderer`` directly (not dm-control's or gymnasium's render paths) so both suites share one code
-path with control over the scene flags (fast rendering) and segmentation (gymnasium's crashes under numpy 2).
-Import this module only after :func:`sb3_ef.envs.backend.ensure_gl_backend`.
-"""
+"""Square RGB and segmentation frames from one MuJoCo camera, through ``mujoco.Renderer`` for every suite (scene
+flags for fast rendering; gymnasium's segmentation crashes under numpy 2). Import after ``ensure_gl_backend``."""
 
 from __future__ import annotations
 
@@ -36,12 +32,8 @@ def _close_live_renderers() -> None:
 
 @functools.cache
 def _close_renderers_at_exit() -> None:
-    """Register the exit hook once, *after* MuJoCo's EGL module registered its own ``eglTerminate``.
-
-    ``atexit`` runs hooks last-in first-out, so ours then frees the contexts while the display still exists.
-    ``weakref.finalize``'s own exit hook cannot be relied on for this: it is registered by whichever library
-    first creates a finalizer (``tempfile`` and many others), often before MuJoCo, and then runs too late.
-    """
+    """Register the exit hook once, after MuJoCo's EGL ``eglTerminate`` (``atexit`` is last-in first-out), so the
+    contexts are freed while the display exists; ``weakref.finalize``'s own hook may be registered earlier."""
     atexit.register(_close_live_renderers)
 
 
@@ -51,8 +43,7 @@ class FrameRenderer:
     :param model: the MuJoCo model (its offscreen buffer is enlarged to ``size`` if needed).
     :param size: frame height and width in pixels.
     :param camera: camera index or name.
-    :param fast: turn shadows, reflections and multisampling off (5-15x faster on a CPU renderer; frames stay
-        correct on this render path, for Meta-World too: see docs/envs.md).
+    :param fast: turn shadows, reflections and multisampling off (5-15x faster on a CPU renderer).
     :param flip: flip frames vertically (for cameras that render upside down).
     :param agent_geoms: boolean array over the model's geoms marking the agent's body, for :meth:`agent_mask`.
     """
@@ -81,8 +72,7 @@ class FrameRenderer:
         # Index 0 stands for "no geom" (segmentation id -1), so geom g is looked up at g + 1.
         geoms = np.zeros(model.ngeom, bool) if agent_geoms is None else np.asarray(agent_geoms, bool)
         self._agent_lookup = np.concatenate([[False], geoms])
-        # Frees the GL context at close(), when the renderer is collected, or at interpreter exit (see
-        # _close_renderers_at_exit: weakref's own exit pass may come after EGL is gone, so it is turned off).
+        # Frees the GL context at close(), at collection, or at exit through _close_renderers_at_exit.
         self._finalizer = weakref.finalize(self, self._renderer.close)
         self._finalizer.atexit = False
         _LIVE_RENDERERS.add(self)
@@ -112,10 +102,8 @@ class FrameRenderer:
         return self._agent_lookup[self.geom_ids(data) + 1]
 
     def upload_texture(self, texture: int) -> None:
-        """Send the model's texture ``texture`` (its data changed) to this renderer's OpenGL context.
-
-        ``mujoco.Renderer`` copies the textures when it is created and has no public call for a later change.
-        """
+        """Send the model's changed texture ``texture`` to this renderer's OpenGL context (``mujoco.Renderer`` has
+        no public call for it)."""
         self._renderer._gl_context.make_current()
         mujoco.mjr_uploadTexture(self._model, self._renderer._mjr_context, texture)
 

@@ -17,23 +17,14 @@ AGENT_MASKS_INFO_KEY = "agent_masks"
 
 
 class ToyAgentEnv(gym.Env):
-    """A red square moved by the actions, a green square on a random walk, a static blue wall, on black.
-
-    The agent moves by ``speed * action`` pixels per step on each axis; the distractor moves ``+-speed`` per axis
-    independently of the actions; the wall is placed at random per episode (scene content). Both squares stop at
-    the borders, the agent is drawn on top. Reward: minus the agent's distance to the frame centre (in frame sizes).
-
-    Observations follow the project's contract: uint8 ``(3 * frame_stack, size, size)``, channels-first, frames
-    stacked oldest first, the first frame repeated at reset; actions ``Box(-1, 1, (2,))``.
+    """A red square moved by ``speed * action`` pixels per step, a green distractor on a random walk, a blue wall
+    placed at random per episode, on black; the squares stop at the borders. Reward: minus the agent's distance to the
+    frame centre (in frame sizes). Observations and ``agent_masks`` as :class:`~sb3_ef.envs.pixel_env.PixelEnv`'s.
 
     :param size: frame height and width in pixels.
     :param frame_stack: number of stacked frames.
     :param max_episode_steps: episode length, reported as ``truncated``.
     :param distractor: whether to draw the distractor.
-    :param agent_masks: put the agent masks of the frames in the infos, as ``make_env(..., agent_masks=True)``'s
-        envs do (``info["agent_masks"]``: ``reset``'s the ``(frame_stack, size, size)`` masks of the observation's
-        frames, ``step``'s the ``(frame_stack + 1, size, size)`` masks of the previous observation's frames and of
-        the new frame, oldest first).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}

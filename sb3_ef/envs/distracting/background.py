@@ -12,14 +12,9 @@ from sb3_ef.envs.renderer import FrameRenderer
 
 
 class BackgroundDistraction:
-    """Shows frames of DAVIS videos as the sky and makes the floor (partly) transparent.
-
-    At each reset: one of ``videos`` is drawn, then (static) one of its frames or (dynamic) all of them with a
-    start frame and a direction (forwards or backwards). When dynamic, each simulator step moves one frame in that
-    direction, and the direction turns at the first and the last frame (the video plays back and forth). The image
-    covers every face of the skybox (the skybox texture becomes one square face, repeated), resized to it; the
-    floor's material (``grid``) gets ``ground_alpha``. The skybox is no geom, so segmentation (agent masks) never
-    sees it.
+    """Shows frames of DAVIS videos on every face of the skybox (no geom: agent masks never see it) and gives the
+    floor's ``grid`` material ``ground_alpha``. Each reset draws a video, then one frame (static) or a start frame and
+    direction (dynamic: one frame a simulator step, turning at either end).
 
     :param model: the task's MuJoCo model (its skybox texture and ``grid`` material are changed).
     :param videos: folders of JPEG frames (:func:`~sb3_ef.envs.distracting.davis.video_folders`).

@@ -1,16 +1,10 @@
 """Camera distraction: the rendering camera moved and rolled within the suite's ranges, per episode and per step.
 
-At each reset the camera's range is set around its own pose (position in spherical coordinates about the world
-origin for a fixed camera, about the agent's centre of mass for a centre-of-mass tracking one), and a start
-position, roll and velocities are drawn in it. At every step (and once at reset) the velocity takes a Gaussian
-random-walk step, is capped, and moves the camera; a coordinate that would leave its range is clipped and the
-velocity becomes the move actually made, so the camera stops at the edge and only a later kick takes it back.
-The camera then turns to the point it looked at (a fixed camera: the point at the agent's distance along its
-initial axis; a tracking one: that point now), and rolls. Static settings have zero velocities: the drawn pose
-stays for the episode (a tracking camera still follows the agent).
-
-The pose is written to ``data.cam_xpos`` / ``data.cam_xmat`` after the simulator step, where MuJoCo computed
-the camera: both the RGB and the segmentation render read it there, so agent masks follow the moved camera.
+At reset a position (spherical, about the world origin or, for a tracking camera, the agent's centre of mass), roll
+and velocities are drawn around the camera's own pose. At every step the velocity takes a capped Gaussian random-walk
+step and moves the camera, clipped at its range's edge; the camera turns to the point it looked at, then rolls
+(static settings: zero velocities). The pose is written to ``data.cam_xpos`` / ``cam_xmat`` after the simulator step,
+so the RGB and segmentation renders (agent masks) both see the moved camera.
 """
 
 from __future__ import annotations

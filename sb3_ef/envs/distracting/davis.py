@@ -1,10 +1,5 @@
-"""DAVIS 2017 videos for the background distraction: the suite's video lists, folder checks, frame loading.
-
-A DAVIS video is a folder of JPEG frames (``DAVIS/JPEGImages/480p/<video>/00000.jpg, ...``); the folder passed
-as ``background_dir`` is ``DAVIS/JPEGImages/480p``. The training and validation lists are those of the
-Distracting Control Suite (DAVIS 2017's own train / val split): train on ``"train"``, evaluate generalisation on
-``"val"``.
-"""
+"""DAVIS 2017 videos for the background distraction: the suite's train / val lists, folder checks, frame loading.
+``background_dir`` is ``DAVIS/JPEGImages/480p``, a folder of one JPEG folder per video (``<video>/00000.jpg``)."""
 
 from __future__ import annotations
 
@@ -63,15 +58,11 @@ def frame_files(folder: Path) -> list[Path]:
 
 
 def video_names(videos: str | Sequence[str], difficulty: str) -> tuple[str, ...]:
-    """The videos a difficulty draws from: the first 4 (easy), 8 (medium) or all (hard) of ``videos``.
-
-    :param videos: ``"train"``, ``"val"`` or a list of video folder names.
-    """
-    if isinstance(videos, str):
-        if videos not in VIDEO_LISTS:
-            raise ValueError(f"background_videos must be 'train', 'val' or a list of DAVIS video names, got {videos!r}")
+    """The videos a difficulty draws from: the first 4 (easy), 8 (medium) or all (hard) of ``videos`` (``"train"``,
+    ``"val"`` or a list of video folder names)."""
+    if isinstance(videos, str) and videos in VIDEO_LISTS:
         names = VIDEO_LISTS[videos]
-    elif isinstance(videos, Sequence) and videos and all(isinstance(name, str) and name for name in videos):
+    elif not isinstance(videos, str) and videos and all(isinstance(name, str) and name for name in videos):
         names = tuple(videos)
     else:
         raise ValueError(f"background_videos must be 'train', 'val' or a list of DAVIS video names, got {videos!r}")
@@ -110,12 +101,7 @@ def video_folders(
     background_dir: str | os.PathLike[str] | None, videos: str | Sequence[str], difficulty: str
 ) -> tuple[Path, ...]:
     """The folders of the videos a background distraction draws from, each checked to hold JPEG frames that all
-    decode (:func:`check_frames`).
-
-    :raises ValueError: when no folder is given (and ``$SB3_EF_DAVIS_DIR`` is unset), some videos are missing (the
-        message says where to download DAVIS and which folder to pass) or a frame is damaged.
-    :raises FileNotFoundError: when ``background_dir`` is not a folder.
-    """
+    decode; ``ValueError`` saying where to download DAVIS when videos are missing, naming a damaged frame."""
     names = video_names(videos, difficulty)
     root = background_root(background_dir)
     missing = [name for name in names if not frame_files(root / name)]
@@ -145,12 +131,8 @@ def _frame_error(path: Path, error: OSError) -> ValueError:
 
 
 def check_frames(folders: Sequence[Path]) -> None:
-    """Decode every JPEG frame of ``folders`` (at an eighth of its size: the whole file is read) so that a damaged
-    one is named when the env is made, not at the reset that draws it. A folder whose frames decoded before, and
-    have not changed since, is not decoded again.
-
-    :raises ValueError: naming the first damaged frame and how to replace it.
-    """
+    """Decode every JPEG frame of ``folders`` (at an eighth of its size) so that a damaged one is named when the env
+    is made, not at the reset that draws it; unchanged folders that decoded before are skipped."""
     for folder in folders:
         files = frame_files(folder)
         signature = tuple((path.name, path.stat().st_size, path.stat().st_mtime_ns) for path in files)

@@ -1,11 +1,6 @@
-"""Distracting Control Suite tasks: DMC pixel envs with background, colour and camera distractions.
-
-The distractions of Stone et al. (2021) implemented on dm-control's physics: each changes the model or the
-camera pose after a reset and after every simulator step (so, as in the suite, a dynamic distraction moves
-``action_repeat`` times per agent step), before the frame is rendered. Their random draws come from a generator
-seeded at every reset from the env's ``np_random``: an episode is decided by the state of ``np_random`` at its
-reset, which sb3-ef's checkpoints record, so seeded envs repeat their frames and resumed runs their episodes.
-"""
+"""Distracting Control Suite tasks (Stone et al., 2021): DMC pixel envs whose background, colours and camera change
+after each reset and simulator step, before rendering. Their draws come from a generator seeded at every reset from
+``np_random``, so seeded envs repeat their frames and resumed runs their episodes."""
 
 from __future__ import annotations
 
@@ -44,11 +39,10 @@ class Distraction(Protocol):
 
 
 class DistractingDMCPixelEnv(DMCPixelEnv):
-    """A Distracting Control task (see :class:`~sb3_ef.envs.dmc.DMCPixelEnv` for the arguments they share).
+    """A Distracting Control task (:data:`~sb3_ef.envs.tasks.DISTRACTING_TASKS`, e.g. ``"walker-walk"``); the other
+    arguments are :class:`~sb3_ef.envs.dmc.DMCPixelEnv`'s.
 
-    :param task: a task of :data:`~sb3_ef.envs.tasks.DISTRACTING_TASKS`, e.g. ``"walker-walk"``.
-    :param distraction: ``"background"``, ``"camera"``, ``"color"`` or a list of them (default: all three, as the
-        suite's benchmark).
+    :param distraction: ``"background"``, ``"camera"``, ``"color"`` or a list of them (default: all three).
     :param difficulty: ``"easy"``, ``"medium"`` or ``"hard"``: colour and camera ranges scaled by 0.1, 0.2, 0.3;
         backgrounds from the first 4, 8 or all of the videos.
     :param dynamic: distractions move within the episode (the video plays, colours and camera drift) instead of
@@ -62,19 +56,12 @@ class DistractingDMCPixelEnv(DMCPixelEnv):
     def __init__(
         self,
         task: str,
-        size: int = 84,
-        frame_stack: int = 3,
-        action_repeat: int = 2,
-        camera: int | str | None = None,
-        fast_render: bool = False,
-        seed: int | None = None,
-        episode_length: int = 1000,
-        render_mode: str | None = None,
         distraction: str | Sequence[str] = DISTRACTIONS,
         difficulty: str = "easy",
         dynamic: bool = False,
         background_dir: str | os.PathLike[str] | None = None,
         background_videos: str | Sequence[str] = "train",
+        **options: Any,
     ) -> None:
         domain = DISTRACTING_TASKS[task][0]
         self.distractions = parse_distractions(distraction)
@@ -90,23 +77,13 @@ class DistractingDMCPixelEnv(DMCPixelEnv):
                 f"background_dir and background_videos are options of the 'background' distraction, which "
                 f"distraction={list(self.distractions)} leaves out"
             )
-        super().__init__(
-            task,
-            size=size,
-            frame_stack=frame_stack,
-            action_repeat=action_repeat,
-            camera=camera,
-            fast_render=fast_render,
-            seed=seed,
-            episode_length=episode_length,
-            render_mode=render_mode,
-        )
+        super().__init__(task, **options)
         model = self._physics()[0]
         self._background: BackgroundDistraction | None = None
         self._active: list[Distraction] = []
         try:
             if videos is not None:
-                side = FAST_TEXELS_PER_PIXEL * size if fast_render else None
+                side = FAST_TEXELS_PER_PIXEL * self.size if self.fast_render else None
                 self._background = BackgroundDistraction(
                     model, videos, self.dynamic, GROUND_PLANE_ALPHA[domain], texture_side=side
                 )

@@ -1,11 +1,6 @@
-"""The Distracting Control Suite's settings: distraction names, difficulty scales, per-domain constants.
-
-The numbers are those of the suite's reference code (Stone et al. 2021, "The Distracting Control Suite",
-arXiv 2101.02722; ``distracting_control/suite_utils.py``). One difficulty scale ``s`` (easy 0.1, medium 0.2,
-hard 0.3) sets the colour and camera ranges; the background's difficulty is the number of DAVIS videos drawn from
-(4, 8, or the whole list). ``dynamic`` adds the per-step drift (colour, camera) and plays the background video.
-No MuJoCo import: ``make_env`` checks these options before building anything.
-"""
+"""The Distracting Control Suite's settings, the numbers of its reference code (Stone et al. 2021, arXiv 2101.02722,
+``distracting_control/suite_utils.py``): a difficulty scale ``s`` sets the colour and camera ranges and the number of
+DAVIS videos; ``dynamic`` adds per-step drift. No MuJoCo import: ``make_env`` checks these options first."""
 
 from __future__ import annotations
 
@@ -27,14 +22,7 @@ DIFFICULTY_VIDEOS: dict[str, int | None] = {"easy": 4, "medium": 8, "hard": None
 
 #: Alpha of the ground plane (material ``grid``) under the background distraction: the video shows through
 #: a transparent floor, except where the floor carries the task (walker, cheetah).
-GROUND_PLANE_ALPHA: dict[str, float] = {
-    "ball_in_cup": 0.3,
-    "cartpole": 0.3,
-    "cheetah": 1.0,
-    "finger": 0.3,
-    "reacher": 0.0,
-    "walker": 1.0,
-}
+GROUND_PLANE_ALPHA = {"ball_in_cup": 0.3, "cartpole": 0.3, "cheetah": 1.0, "finger": 0.3, "reacher": 0.0, "walker": 1.0}
 
 
 @dataclass(frozen=True)
@@ -47,14 +35,9 @@ class ColorSettings:
 
 @dataclass(frozen=True)
 class CameraSettings:
-    """Camera distraction: the camera's position in spherical coordinates (distance, azimuth, polar angle) around
-    the world origin (a fixed camera) or the agent's centre of mass (a tracking camera), and a roll about its axis.
-
-    Angles in radians, each within ``delta`` of the camera's own; ``max_zoom_in`` / ``max_zoom_out`` are fractions of
-    its distance; velocities are world units per step for a camera 4 units away (scaled with the distance).
-    ``upper_quadrant`` keeps the camera above the ground on the scene's front side and turns it to look at the
-    scene without roll (all domains but reacher, whose top-down camera would spin around the pole there).
-    """
+    """Camera distraction ranges: angles (radians) within ``delta`` of the camera's own, zoom as fractions of its
+    distance, velocities in world units per step for a camera 4 units away. ``upper_quadrant`` keeps the camera above
+    the ground on the front side, looking without roll (all domains but reacher, whose top-down camera would spin)."""
 
     horizontal_delta: float
     vertical_delta: float
@@ -101,10 +84,7 @@ def camera_settings(domain: str, difficulty: str, dynamic: bool) -> CameraSettin
 
 
 def parse_distractions(distraction: str | Sequence[str]) -> tuple[str, ...]:
-    """The distractions named by ``distraction`` (one name or a non-empty list), in application order.
-
-    :raises ValueError: for an unknown name (with the closest ones), a repeated name or an empty list.
-    """
+    """The distractions named by ``distraction`` (one name or a non-empty list, no repeats), in application order."""
     names = [distraction] if isinstance(distraction, str) else distraction
     if not isinstance(names, Sequence) or not names:
         raise ValueError(
