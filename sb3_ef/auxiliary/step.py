@@ -106,7 +106,7 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
         """The host's ``gradient_steps`` updates, unchanged, then as many auxiliary steps (:meth:`_auxiliary_step`);
         on the updates :func:`aux_grad_ratio_due` picks, the encoder-gradient norm of the critic's loss is read at
         the critic optimiser's step (:meth:`_read_host_gradients`) for ``aux_grad_ratio``."""
-        first = self._n_updates + 1  # type: ignore[has-type]
+        first = self._n_updates + 1
         host_norms: dict[int, th.Tensor] = {}
         hook = self._read_host_gradients(first, host_norms) if self.auxiliary is not None else None
         try:
