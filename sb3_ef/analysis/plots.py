@@ -20,6 +20,10 @@ if TYPE_CHECKING:
     from sb3_ef.analysis.report import ForesightReport
 
 
+#: The even grid the official curves are drawn on (``seed_band``'s ``points``).
+REFERENCE_POINTS = 200
+
+
 def _safe_name(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
 
@@ -84,12 +88,12 @@ def plot_reference_curves(records: pd.DataFrame, name: str, out_dir: str | os.Pa
             yours = seed_band(runs, x=reference.x_column)
             axis.plot(yours["x"], yours["mean"], label=f"{algo} ({runs['seed'].nunique()} seeds)")
             axis.fill_between(yours["x"], yours["min"], yours["max"], alpha=0.2)
-        band = seed_band(curves, end=1.1 * float(group[reference.x_column].max()))
+        band = seed_band(curves, end=1.1 * float(group[reference.x_column].max()), points=REFERENCE_POINTS)
         label = f"{reference.label} ({curves['seed'].nunique()} seeds)"
         axis.plot(band["x"], band["mean"], color="black", linestyle="--", label=label)
         axis.fill_between(band["x"], band["min"], band["max"], color="black", alpha=0.1)
         axis.set(title=str(task), xlabel=reference.axis, ylabel="episode return")
-        axis.legend()
+        axis.legend(fontsize="small")
         paths.append(_save(figure, os.path.join(os.fspath(out_dir), f"reference_{name}_{_safe_name(str(task))}.png")))
     return paths
 

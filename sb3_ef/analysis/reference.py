@@ -191,11 +191,15 @@ def _seed_values(curves: pd.DataFrame, xs: np.ndarray, x: str = "x", y: str = "r
     return values
 
 
-def seed_band(curves: pd.DataFrame, x: str = "x", y: str = "return", end: float = np.inf) -> pd.DataFrame:
-    """Seeds (``seed``, ``x``, ``y``) on one common grid, the union of their points up to ``end`` where every seed
-    has points on both sides: each seed interpolated linearly onto it, none extrapolated. Seeds that log at other
-    steps (another evaluation grid, bursts of training episodes) thus average at the same x, and the band does not
-    jump where a seed's points start or stop.
+def seed_band(
+    curves: pd.DataFrame, x: str = "x", y: str = "return", end: float = np.inf, points: int | None = None
+) -> pd.DataFrame:
+    """Seeds (``seed``, ``x``, ``y``) on one common grid where every seed has points on both sides (up to ``end``):
+    the union of their points, or ``points`` evenly spaced x's; each seed interpolated linearly onto it, none
+    extrapolated. Seeds that log at other steps (another evaluation grid, bursts of training episodes) thus average
+    at the same x, and the band does not jump where a seed's points start or stop. An even grid suits curves of one
+    point per training episode (Dreamer-v3's), whose consecutive episodes differ by a lot: the union would draw
+    every episode of a burst.
 
     :return: columns ``x``, ``mean``, ``std`` (over seeds, ``ddof=1``; NaN for one seed), ``min``, ``max``,
         ``seeds``.
@@ -203,8 +207,9 @@ def seed_band(curves: pd.DataFrame, x: str = "x", y: str = "return", end: float 
     pandas = require("pandas")
     spans = curves.groupby("seed")[x].agg(["min", "max"])
     low, high = float(spans["min"].max()), min(float(spans["max"].min()), end)
-    points = curves[x].to_numpy(float)
-    xs = np.unique(points[(points >= low) & (points <= high)])
+    given = curves[x].to_numpy(float)
+    union = np.unique(given[(given >= low) & (given <= high)])
+    xs = union if points is None or len(union) < 2 else np.linspace(union[0], union[-1], points)
     values = _seed_values(curves, xs, x, y)
     return pandas.DataFrame({
         "x": xs, "mean": values.mean(axis=0), "std": values.std(axis=0, ddof=1) if len(values) > 1 else np.nan,

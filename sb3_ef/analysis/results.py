@@ -84,7 +84,8 @@ def _aggregate(records: pd.DataFrame, return_scale: float, reps: int, at: tuple[
             "ENS (Efficiency Normalised Score, 0 to 1; each algorithm's score where the best curve first reaches "
             f"{thresholds} of the best score, over the best score, averaged over thresholds and tasks):"
         )
-        result.lines.append(result.ens.rename("ENS").rename_axis("algo").to_frame().to_string(float_format="%.3f"))
+        table = result.ens.rename("ENS").rename_axis("algo").reset_index()
+        result.lines.append(table.to_string(index=False, float_format="%.3f"))
     uneven = uneven_seed_counts(compared)
     if uneven:
         result.lines.append(f"rliable metrics skipped: they need as many seeds on every task, seeds per task: {uneven}")

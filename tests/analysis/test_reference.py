@@ -95,6 +95,22 @@ def test_both_dreamerv3_score_sets_name_their_version_model_size_and_commit():
     assert set(reference_table(records, "dreamerv3")["reference"]) == {current.label}
 
 
+@pytest.mark.parametrize(
+    ("name", "scores"),
+    [
+        ("dreamerv3", {"finger-spin": 589, "quadruped-walk": 809, "reacher-hard": 855, "hopper-hop": 227}),
+        ("dreamerv3-2023", {"finger-spin": 830, "quadruped-walk": 434, "reacher-hard": 574, "hopper-hop": 383}),
+    ],
+)
+def test_the_two_dreamerv3_score_sets_differ_as_docs_say(name, scores):
+    """docs/dreamerv3.md: the mean of the training episodes past 950k frames, in each set."""
+    if not installed(name):
+        pytest.skip(f"the data of {name} is not installed")
+    curves = load_reference(name)
+    late = curves[curves["x"] > 950_000].groupby("task")["return"].mean()
+    assert {task: round(late[task]) for task in scores} == pytest.approx(scores, abs=1)
+
+
 @pytest.mark.skipif(installed("dreamerv3-2023"), reason="the 2023 scores are installed")
 def test_a_reference_without_its_data_file_names_the_file_to_add(tmp_path):
     with pytest.raises(
@@ -154,6 +170,9 @@ def test_seed_band_puts_seeds_on_other_grids_on_one_common_grid():
     assert band["mean"].tolist() == [12.5, 17.5, 22.5]
     assert band["min"].tolist() == [5.0, 10.0, 15.0] and band["max"].tolist() == [20.0, 25.0, 30.0]
     assert seed_band(official, end=10)["x"].tolist() == [5.0, 10.0]
+    even = seed_band(official, points=5)  # an even grid over the same span
+    assert even["x"].tolist() == [5.0, 7.5, 10.0, 12.5, 15.0]
+    assert even["mean"].tolist() == [12.5, 15.0, 17.5, 20.0, 22.5]
     assert official_at(official, 12.5).tolist() == [12.5, 27.5]
 
 
