@@ -5,10 +5,11 @@
 Each subcommand forwards the rest of the command line untouched, so ``sb3-ef train --help`` shows rl-zoo3's
 training options with sb3-ef's and ``sb3-ef analyze --help`` the analysis ones. The arguments are checked before
 the command's heavy imports (torch, rl-zoo3), so a mistyped option is reported at once. A user error (bad argument,
-missing file, missing package or rendering backend) is printed as one line, ``sb3-ef <command>: error: ...``, with
-exit status 2; set ``SB3_EF_TRACEBACK=1`` to see the traceback instead. Ctrl-C that reaches this level (a command
-stops and saves its work itself where it can) is one line too, ``sb3-ef <command>: interrupted[: what was kept]``,
-exit status 130 (``sb3_ef.common.interrupt``).
+missing file, missing package or rendering backend) is printed as one line, ``sb3-ef <command>: error: ...`` (with
+the error's notes, such as the checkpoint a failed run continues from), with exit status 2; set
+``SB3_EF_TRACEBACK=1`` to see the traceback instead. Ctrl-C that reaches this level (a command stops and saves its
+work itself where it can) is one line too, ``sb3-ef <command>: interrupted[: what was kept]``, exit status 130
+(``sb3_ef.common.interrupt``).
 """
 
 from __future__ import annotations
@@ -102,7 +103,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except USER_ERRORS as error:
         if os.environ.get("SB3_EF_TRACEBACK") == "1":
             raise
-        message = " ".join(str(error).split()) or type(error).__name__
+        notes = getattr(error, "__notes__", ())  # e.g. the checkpoint a failed run continues from
+        message = " ".join(" ".join([str(error), *notes]).split()) or type(error).__name__
         print(f"sb3-ef {argv[0]}: error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as interrupt:

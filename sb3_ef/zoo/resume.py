@@ -22,6 +22,8 @@ algorithm:
   not exist before);
 - progress is printed every 10 s of wall time (:class:`~sb3_ef.zoo.progress.ProgressLogCallback`); ``-P``'s bar
   only when the output is a terminal, where it draws;
+- an error during training gets a note naming the run's last checkpoint and the ``sb3-ef train --resume`` command
+  that continues from it (``sb3-ef train`` prints it with the error);
 - Ctrl-C stops training (rl-zoo3 then saves the final model) and, with ``--save-freq``, writes a resumable
   checkpoint of the step reached (with the replay buffer under ``--checkpoint-buffer``); ``sb3-ef train`` then
   prints one line saying what was kept and exits with status 130.
@@ -34,6 +36,9 @@ import json
 import os
 import shutil
 import sys
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -46,7 +51,13 @@ from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback,
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_ef.analysis.records import EvalRecorderCallback, truncate_records
-from sb3_ef.common.checkpoints import Checkpoint, ResumableCheckpointCallback, checkpoint_for, load_checkpoint
+from sb3_ef.common.checkpoints import (
+    Checkpoint,
+    ResumableCheckpointCallback,
+    checkpoint_for,
+    latest_checkpoint,
+    load_checkpoint,
+)
 from sb3_ef.common.evaluation import StepSeededEvalCallback
 from sb3_ef.common.interrupt import Interrupted
 from sb3_ef.zoo.progress import ProgressLogCallback
@@ -99,6 +110,31 @@ def continue_evaluations(callback: EvalCallback) -> None:
             callback.evaluations_successes = evaluations["successes"].tolist()
     if callback.evaluations_results:
         callback.best_mean_reward = max(float(np.mean(returns)) for returns in callback.evaluations_results)
+
+
+def resume_note(run_dir: str | os.PathLike, resume_command: str) -> str:
+    """Where a run that stopped part-way in ``run_dir`` continues from: its newest intact checkpoint and
+    ``resume_command``, or that it saved none."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a damaged newest checkpoint is passed over: the note names the one used
+        checkpoint = latest_checkpoint(run_dir, intact=True)
+    if checkpoint is None:
+        return f"The run in {run_dir} saved no checkpoint to resume from (checkpoints need --save-freq)"
+    return (
+        f"The run's last checkpoint is {checkpoint.model_path} (step {checkpoint.step}): continue with "
+        f"`{resume_command}`"
+    )
+
+
+@contextmanager
+def noting_last_checkpoint(run_dir: str | os.PathLike, resume_command: str) -> Iterator[None]:
+    """Add :func:`resume_note` to an error that escapes the block (``error.__notes__``: shown under its traceback,
+    and by ``sb3-ef`` on the error's line). Ctrl-C passes unchanged."""
+    try:
+        yield
+    except Exception as error:
+        error.add_note(resume_note(run_dir, resume_command))
+        raise
 
 
 class _Watched:
@@ -216,7 +252,8 @@ class ResumingExperimentManager(ExperimentManager):
         its counters kept. A run that reaches its total is marked finished; one stopped early writes a resumable
         checkpoint when ``--save-freq`` is set."""
         total = self.n_timesteps
-        self._learn(model)
+        with noting_last_checkpoint(self.save_path, self.resume_command):  # a failure names where to continue from
+            self._learn(model)
         if model.num_timesteps >= total:
             finish_run(self.save_path, self.env_name, model.num_timesteps)
             return
@@ -232,8 +269,13 @@ class ResumingExperimentManager(ExperimentManager):
         if self.interrupted:
             raise Interrupted(
                 f"stopped at step {model.num_timesteps}, model saved to {self.save_path}/{self.env_name}.zip; "
-                f"continue with `sb3-ef train --resume {self.save_path}`"
+                f"continue with `{self.resume_command}`"
             )
+
+    @property
+    def resume_command(self) -> str:
+        """The command that continues this run from its newest checkpoint or final model."""
+        return f"sb3-ef train --resume {self.save_path}"
 
     def _learn(self, model: BaseAlgorithm) -> None:
         if self.checkpoint is None:
