@@ -1,13 +1,8 @@
-"""Resumable checkpoints: model, replay buffer and random states, each file written atomically.
-
-Unlike SB3's ``CheckpointCallback``, :class:`ResumableCheckpointCallback` saves between two iterations of ``learn``
-(after an update, before the next rollout) and records the random states (torch, NumPy, ``random``, the action
-space, the action noise, and the envs' ``np_random`` one agent step before the checkpoint), so that
-:func:`load_checkpoint` then ``learn(n, reset_num_timesteps=False)`` repeats the uninterrupted run when the checkpoint
-falls on an episode boundary of every env and the envs draw only in ``reset`` (as ``make_env``'s do). Files at
-``step``: ``<prefix>_<step>_steps.zip`` (model, written last), ``<prefix>_replay_buffer_<step>_steps.pkl`` (optional),
-``<prefix>_rng_<step>_steps.pkl``.
-"""
+"""Resumable checkpoints, each file written atomically: ``<prefix>_<step>_steps.zip`` (the model, written last),
+``<prefix>_replay_buffer_<step>_steps.pkl`` and ``<prefix>_rng_<step>_steps.pkl``. Unlike SB3's, they are saved
+between two iterations of ``learn`` with the random states (torch, NumPy, ``random``, action space and noise, the envs'
+``np_random``), so a resumed run repeats the uninterrupted one when the checkpoint falls on an episode boundary of
+every env and the envs draw only in ``reset`` (as ``make_env``'s do)."""
 
 from __future__ import annotations
 
@@ -18,7 +13,7 @@ import random
 import re
 import warnings
 import zipfile
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -48,25 +43,13 @@ class Checkpoint:
     rng_path: Path | None
 
 
-@dataclass(frozen=True)
-class CheckpointPaths:
-    """Where the files of the checkpoint at ``step`` go, whether or not they exist."""
+def _paths(folder: str | os.PathLike, name_prefix: str, step: int) -> tuple[Path, Path, Path]:
+    """Where the model, replay buffer and random states of the checkpoint at ``step`` go."""
 
-    step: int
-    model_path: Path
-    replay_buffer_path: Path
-    rng_path: Path
+    def path(part: str, suffix: str) -> Path:
+        return Path(folder, f"{name_prefix}{part}_{step}_steps.{suffix}")
 
-
-def checkpoint_paths(save_path: str | os.PathLike, name_prefix: str, step: int) -> CheckpointPaths:
-    """Where the checkpoint at ``step`` lives (whether or not its files exist)."""
-    folder = Path(save_path)
-    return CheckpointPaths(
-        step,
-        folder / f"{name_prefix}_{step}_steps.zip",
-        folder / f"{name_prefix}_replay_buffer_{step}_steps.pkl",
-        folder / f"{name_prefix}_rng_{step}_steps.pkl",
-    )
+    return path("", "zip"), path("_replay_buffer", "pkl"), path("_rng", "pkl")
 
 
 def _checkpoint_step(file_name: str, name_prefix: str) -> int | None:
@@ -80,13 +63,13 @@ def list_checkpoints(run_dir: str | os.PathLike, name_prefix: str = "rl_model") 
     states when present."""
     found = (_checkpoint_step(path.name, name_prefix) for path in Path(run_dir).glob("*.zip"))
     steps = sorted(step for step in found if step is not None)
-    return [_existing(checkpoint_paths(run_dir, name_prefix, step)) for step in steps]
+    return [_existing(step, *_paths(run_dir, name_prefix, step)) for step in steps]
 
 
-def _existing(paths: CheckpointPaths) -> Checkpoint:
-    """The checkpoint of ``paths``, without the buffer and random-state files that do not exist."""
-    buffer, rng = paths.replay_buffer_path, paths.rng_path
-    return Checkpoint(paths.step, paths.model_path, *(path if path.is_file() else None for path in (buffer, rng)))
+def _existing(step: int, model_path: Path, *others: Path) -> Checkpoint:
+    """The checkpoint at ``step``, without the buffer and random-state files that do not exist."""
+    buffer_path, rng_path = (path if path.is_file() else None for path in others)
+    return Checkpoint(step, model_path, buffer_path, rng_path)
 
 
 def latest_checkpoint(
@@ -114,7 +97,7 @@ def checkpoint_for(model_path: str | os.PathLike, name_prefix: str = "rl_model")
         num_timesteps = int(json.loads(archive.read("data"))["num_timesteps"])
     step = _checkpoint_step(path.name, name_prefix)
     if step is not None:
-        return replace(_existing(checkpoint_paths(path.parent, name_prefix, step)), step=num_timesteps)
+        return _existing(num_timesteps, *_paths(path.parent, name_prefix, step))
     buffer_path = path.parent / "replay_buffer.pkl"
     return Checkpoint(num_timesteps, path, buffer_path if buffer_path.is_file() else None, None)
 
@@ -183,12 +166,8 @@ class ResumableCheckpointCallback(BaseCallback):
     """Save a resumable checkpoint every ``save_freq`` calls (agent steps of all envs: ``save_freq * n_envs``
     timesteps), counted on ``num_timesteps`` so the schedule carries on across a resume.
 
-    :param save_freq: calls between checkpoints, as in SB3's ``CheckpointCallback``.
-    :param save_path: folder of the checkpoints (created when missing).
-    :param name_prefix: file-name prefix.
     :param save_replay_buffer: also save the replay buffer (off-policy algorithms).
     :param keep: how many of the newest checkpoints to keep (older ones are deleted); ``None`` keeps them all.
-    :param verbose: 1 to print each checkpoint's path.
     """
 
     def __init__(
@@ -234,19 +213,18 @@ class ResumableCheckpointCallback(BaseCallback):
 
     def save(self) -> Checkpoint:
         """Write the checkpoint of the current step (buffer, random states, then the model zip), then prune."""
-        paths = checkpoint_paths(self.save_path, self.name_prefix, self.num_timesteps)
+        model_path, buffer_path, rng_path = _paths(self.save_path, self.name_prefix, self.num_timesteps)
         before = self.num_timesteps - self.training_env.num_envs
         states = random_states(self.model, self._env_generators.get(before))
-        buffer_path = None
-        if self.save_replay_buffer and isinstance(self.model, OffPolicyAlgorithm):
-            buffer_path = paths.replay_buffer_path
+        saves_buffer = self.save_replay_buffer and isinstance(self.model, OffPolicyAlgorithm)
+        if saves_buffer:
             write_atomically(buffer_path, self.model.save_replay_buffer)
-        write_atomically(paths.rng_path, lambda file: pickle.dump(states, file, protocol=pickle.HIGHEST_PROTOCOL))
-        write_atomically(paths.model_path, self.model.save)
+        write_atomically(rng_path, lambda file: pickle.dump(states, file, protocol=pickle.HIGHEST_PROTOCOL))
+        write_atomically(model_path, self.model.save)
         if self.verbose >= 1:
-            print(f"Saving checkpoint to {paths.model_path}")
+            print(f"Saving checkpoint to {model_path}")
         self._prune()
-        return Checkpoint(paths.step, paths.model_path, buffer_path, paths.rng_path)
+        return Checkpoint(self.num_timesteps, model_path, buffer_path if saves_buffer else None, rng_path)
 
     def _prune(self) -> None:
         if self.keep is None:
