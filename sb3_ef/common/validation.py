@@ -1,7 +1,5 @@
-"""Checks of user input shared by every algorithm and command, each raising ``ValueError`` (or warning) naming what
-was expected and what was received, and close-match suggestions for mistyped names. Imports only the standard library
-and NumPy at load time, so the command line can use it before torch is imported.
-"""
+"""Checks of user input shared by every algorithm and command, naming what was expected and what was received, and
+close-match suggestions for mistyped names; imports no torch at load time (the command line uses it first)."""
 
 from __future__ import annotations
 
@@ -127,32 +125,19 @@ def _ent_coef(name: str, value: Any) -> None:
     )
 
 
+_POSITIVE_INTS = ("buffer_size", "batch_size", "n_steps", "stats_window_size", "ef_horizon", "horizon", "agent_dim")
+_COEFFICIENTS = ("target_noise_clip", "target_policy_noise", "consistency_coef", "reward_coef", "value_coef")
 #: Argument name -> its check, for every algorithm that has the argument. ``None`` is accepted where the
 #: constructor's default is ``None`` (e.g. TD-MPC2's ``gamma``) and for EF's ``beta``/``ef_horizon`` (EF off).
 ARGUMENT_CHECKS: dict[str, Callable[[str, Any], None]] = {
+    **dict.fromkeys(_POSITIVE_INTS, _positive_int),
+    **dict.fromkeys(("learning_starts", "babbling_steps", "shift_pad"), _non_negative_int),
+    **dict.fromkeys(("tau", "gamma", "rho"), _unit_interval),
+    **dict.fromkeys((*_COEFFICIENTS, "entropy_coef"), _non_negative_number),
     "learning_rate": _learning_rate,
-    "buffer_size": _positive_int,
-    "batch_size": _positive_int,
-    "learning_starts": _non_negative_int,
-    "tau": _unit_interval,
-    "gamma": _unit_interval,
     "train_freq": _train_freq,
     "gradient_steps": _gradient_steps,
-    "n_steps": _positive_int,
-    "stats_window_size": _positive_int,
-    "ef_horizon": _positive_int,
-    "horizon": _positive_int,
-    "agent_dim": _positive_int,
-    "babbling_steps": _non_negative_int,
-    "shift_pad": _non_negative_int,
-    "target_noise_clip": _non_negative_number,
-    "target_policy_noise": _non_negative_number,
-    "consistency_coef": _non_negative_number,
-    "reward_coef": _non_negative_number,
-    "value_coef": _non_negative_number,
-    "entropy_coef": _non_negative_number,
     "max_grad_norm": _positive_number,
-    "rho": _unit_interval,
     "exploration_std": _exploration_std,
     "ent_coef": _ent_coef,
 }
@@ -160,28 +145,23 @@ ARGUMENT_CHECKS: dict[str, Callable[[str, Any], None]] = {
 _EF_OFF = frozenset({"beta", "ef_horizon"})
 
 
+def _functions(target: Callable[..., Any]) -> list[Any]:
+    """A function itself, or the ``__init__`` functions a class defines along its MRO."""
+    functions = [vars(base).get("__init__") for base in target.__mro__] if isinstance(target, type) else [target]
+    return [function for function in functions if inspect.isfunction(function)]
+
+
 def _defaults(algo_class: type) -> dict[str, Any]:
     """Constructor defaults of ``algo_class``, its own first, then those of the classes it forwards ``**kwargs`` to."""
-    defaults: dict[str, Any] = {}
-    for cls in reversed(algo_class.__mro__):
-        init = vars(cls).get("__init__")
-        if init is None or not inspect.isfunction(init):
-            continue
-        for parameter in inspect.signature(init).parameters.values():
-            if parameter.default is not inspect.Parameter.empty:
-                defaults[parameter.name] = parameter.default
-    return defaults
+    signatures = [inspect.signature(init).parameters.values() for init in reversed(_functions(algo_class))]
+    return {p.name: p.default for parameters in signatures for p in parameters if p.default is not p.empty}
 
 
 def _accepted_arguments(target: Callable[..., Any]) -> set[str] | None:
-    """The keyword arguments ``target`` takes: a function's, or a class's ``__init__``'s and, while an ``__init__``
-    passes ``**kwargs`` on, those of the classes after it in the MRO; ``None`` when the chain ends in ``**kwargs``
-    (any name)."""
+    """The keyword arguments of a function, or of a class's ``__init__`` and those it passes ``**kwargs`` on to along
+    the MRO; ``None`` when any name is taken."""
     names: set[str] = set()
-    functions = [vars(base).get("__init__") for base in target.__mro__] if isinstance(target, type) else [target]
-    for function in functions:
-        if function is None or not inspect.isfunction(function):
-            continue
+    for function in _functions(target):
         parameters = inspect.signature(function).parameters.values()
         names.update(parameter.name for parameter in parameters if parameter.kind in _NAMED)
         if all(parameter.kind is not inspect.Parameter.VAR_KEYWORD for parameter in parameters):
