@@ -1,6 +1,5 @@
-"""Evaluations that do not depend on how a run got to its step: the evaluation env is reseeded before each
-evaluation from the run's seed and the agent step, so a run resumed from a checkpoint plays the same evaluation
-episodes, and records the same curve, as the uninterrupted run."""
+"""Evaluations reseeded from the run's seed and the agent step, so a resumed run records the same curve as the
+uninterrupted one."""
 
 from __future__ import annotations
 
@@ -21,13 +20,8 @@ def evaluation_seed(seed: int, step: int) -> int:
 
 
 class StepSeededEvalCallback(EvalCallback):
-    """SB3's ``EvalCallback`` that reseeds the evaluation env with :func:`evaluation_seed` of the run's seed and the
-    agent step before each evaluation.
-
-    :param eval_env: the evaluation env (a ``VecEnv``: env ``i`` gets the step's seed plus ``i``).
-    :param seed: the run's seed.
-    :param kwargs: ``EvalCallback``'s other arguments.
-    """
+    """SB3's ``EvalCallback`` that reseeds ``eval_env`` (env ``i``: plus ``i``) with :func:`evaluation_seed` of the
+    run's ``seed`` and the agent step before each evaluation; ``kwargs``: ``EvalCallback``'s."""
 
     def __init__(self, eval_env: VecEnv, seed: int, **kwargs: Any):
         super().__init__(eval_env, **kwargs)

@@ -1,6 +1,5 @@
-"""Files written whole or not at all: a write goes to a temporary file beside the target, is flushed to disk and
-renamed over the target, and the rename is flushed to disk with the folder, so that a full disk, a kill, Ctrl-C or a
-power cut leaves the previous file (or none), never a cut one."""
+"""Files written whole or not at all: to a temporary file beside the target, flushed and renamed over it (the rename
+flushed with the folder), so a full disk, a kill, Ctrl-C or a power cut leaves the previous file, never a cut one."""
 
 from __future__ import annotations
 
@@ -40,9 +39,8 @@ def _fsync_folder(folder: Path) -> None:
 
 @contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary path to write ``path``'s content to (by any library); on success it is flushed to disk and
-    renamed to ``path``, and the rename flushed with ``path``'s folder; on any error, or an interrupt, it is removed
-    and ``path`` is left as it was."""
+    """Yield a temporary path to write ``path``'s content to (by any library), renamed to ``path`` on success and
+    removed on any error or interrupt."""
     path = Path(path)
     temporary = temporary_path(path)
     try:

@@ -1,12 +1,6 @@
-"""Ctrl-C: the work done so far is saved, one line says what was kept, exit status 130.
-
-A command that can save its state on Ctrl-C (``collect``'s episodes, ``pretrain``'s checkpoint, ``benchmark``'s
-finished runs) catches ``KeyboardInterrupt`` there and raises :class:`Interrupted` with a line that says what was
-kept; the ``sb3-ef`` console script prints ``sb3-ef <command>: interrupted[: what was kept]`` on stderr and exits
-with :data:`INTERRUPTED_STATUS` (128 + SIGINT, as shells report it), without a traceback. :func:`sigint_deferred`
-keeps Ctrl-C out of steps that must not be cut (a video encoder's packets, an optimiser step);
-:func:`progress_bar_callback` closes ``learn``'s progress bar however training ends, so that Ctrl-C in ``learn`` gives
-one ``KeyboardInterrupt`` with one traceback.
+"""Ctrl-C: a command saves its work and raises :class:`Interrupted` saying what was kept; ``sb3-ef`` prints it on one
+line and exits with :data:`INTERRUPTED_STATUS` (130). :func:`sigint_deferred` keeps Ctrl-C out of steps that must not
+be cut; :func:`progress_bar_callback` closes ``learn``'s progress bar however training ends.
 """
 
 from __future__ import annotations
@@ -36,9 +30,8 @@ def interrupted_line(command: str, interrupt: KeyboardInterrupt) -> str:
 
 @contextmanager
 def sigint_deferred() -> Iterator[None]:
-    """Run the block to its end even if Ctrl-C comes meanwhile: the SIGINT is held and delivered after the block
-    (as ``KeyboardInterrupt``, or to the handler that was installed). Outside the main thread, where SIGINT is never
-    delivered, the block just runs."""
+    """Run the block to its end even if Ctrl-C comes meanwhile: the SIGINT is delivered after it (outside the main
+    thread, where SIGINT never arrives, the block just runs)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -63,9 +56,8 @@ def _deliver(handler: Any) -> None:
 @contextmanager
 def progress_bar_callback(callback: MaybeCallback, progress_bar: bool) -> Iterator[MaybeCallback]:
     """``callback`` with SB3's progress bar added when ``progress_bar`` (pass it to SB3's ``learn`` with
-    ``progress_bar=False``); the bar is closed when the block ends by an error or Ctrl-C. SB3 closes its bar only when
-    training ends; one left open is closed at interpreter shutdown, where tqdm's rich bar can no longer import and
-    prints a second traceback after the ``KeyboardInterrupt``'s."""
+    ``progress_bar=False``); the bar is closed when the block ends by an error or Ctrl-C (one SB3 leaves open prints
+    a second traceback at interpreter shutdown)."""
     if not progress_bar:
         yield callback
         return

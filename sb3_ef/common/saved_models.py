@@ -1,6 +1,5 @@
-"""Saved model files: written whole or not at all (:func:`save_model_atomically`), and what a file says about itself,
-read once before SB3 loads it: which algorithm saved it, and whether this class can load it. Imports no torch, so
-that the command line can use it before the heavy imports."""
+"""Saved model files: written whole or not at all, and what a file says about itself before SB3 loads it (which
+algorithm saved it, whether this class can load it). Imports no torch, for the command line."""
 
 from __future__ import annotations
 
@@ -39,9 +38,8 @@ def save_model_atomically(
     exclude: Iterable[str] | None = None,
     include: Iterable[str] | None = None,
 ) -> None:
-    """SB3's ``save`` (``save``, e.g. ``super().save``, called with ``exclude`` and ``include``) onto a temporary file
-    beside the model's path (:func:`model_zip_path`), flushed to disk and renamed over it, so that a full disk, a
-    kill or Ctrl-C leaves the previous model (or none), never a cut one. A file object is written to directly."""
+    """SB3's ``save`` (e.g. ``super().save``) written atomically to :func:`model_zip_path` (a file object is written
+    to directly)."""
     if not isinstance(path, (str, os.PathLike)):
         save(path, exclude, include)
         return
@@ -89,9 +87,8 @@ def is_legacy(data: dict[str, Any]) -> bool:
 
 
 def check_saved_model(algo_class: type, where: Any, data: dict[str, Any] | None) -> None:
-    """Raise ``ValueError`` naming what to do when ``algo_class`` cannot load the model whose ``data`` was read
-    from ``where``: another algorithm saved it (by the class name the file records, or, for a file of SB3's own
-    algorithms, by its policy class), or sb3-ef 0.1.0 did (it is converted once with ``sb3-ef upgrade``)."""
+    """Raise ``ValueError`` saying what to do when ``algo_class`` cannot load the model whose ``data`` was read from
+    ``where``: another algorithm saved it (recorded, or told by its policy class), or sb3-ef 0.1.0 did."""
     if data is None:
         return
     name = algo_class.__name__
