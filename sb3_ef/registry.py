@@ -17,6 +17,8 @@ from sb3_ef.common.validation import did_you_mean
 
 #: The grid run function of the algorithms SB3's ``learn`` trains.
 SB3_GRID_RUN = "sb3_ef.grid.run:execute_sb3_run"
+#: The grid check of the algorithms SB3's ``learn`` trains.
+SB3_GRID_CHECK = "sb3_ef.grid.checks:check_sb3_row"
 
 
 def import_target(target: str) -> Any:
@@ -37,6 +39,9 @@ class AlgorithmEntry:
     :param sampler: its Optuna sampler for ``sb3-ef optimize`` (``"module:function"``), if it has one.
     :param grid_run: the function that trains one ``sb3-ef benchmark`` row (``"module:function"``, called as
         :func:`sb3_ef.grid.run.execute_run` is).
+    :param grid_check: the function that checks one row before anything trains (``"module:function"``, called as
+        :func:`sb3_ef.grid.checks.check_sb3_row` is: it builds what the row's start builds, short of networks and
+        buffers, and raises what that start would raise).
     :param zoo_run: ``"module:function"`` pair that ``sb3-ef train`` / ``enjoy`` call with their arguments instead of
         rl-zoo3's (for an algorithm rl-zoo3 cannot train); ``None``: rl-zoo3 trains and runs it.
     :param warm_start: an offline-pretrained encoder and EF can be copied into it (``sb3_ef.offline``), and
@@ -51,6 +56,7 @@ class AlgorithmEntry:
     own_exploration: bool = False
     sampler: str | None = None
     grid_run: str = SB3_GRID_RUN
+    grid_check: str = SB3_GRID_CHECK
     zoo_run: tuple[str, str] | None = None
     warm_start: bool = False
     legacy_policy_module: str | None = None
@@ -102,6 +108,7 @@ ALGORITHMS: dict[str, AlgorithmEntry] = _entries(
     AlgorithmEntry(
         "dreamerv3", "sb3_ef.dreamerv3:DreamerV3", paper=True, own_exploration=True,
         grid_run="sb3_ef.dreamerv3.grid_run:execute_dreamerv3_run",
+        grid_check="sb3_ef.dreamerv3.grid_run:check_dreamerv3_row",
         zoo_run=("sb3_ef.zoo.sheeprl_run:train_main", "sb3_ef.zoo.sheeprl_run:enjoy_main"),
     ),
 )  # fmt: skip

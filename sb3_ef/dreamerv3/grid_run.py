@@ -17,7 +17,10 @@ from __future__ import annotations
 
 import os
 import shutil
+import tempfile
 import time
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 from sb3_ef.common.evaluation import EVAL_SEED_OFFSET
 from sb3_ef.grid.grid import RunSpec, constructor_kwargs
@@ -29,6 +32,11 @@ from sb3_ef.grid.run import (
     read_result,
     truncate_records,
 )
+
+if TYPE_CHECKING:
+    import gymnasium as gym
+
+    from sb3_ef.dreamerv3 import DreamerV3
 
 #: The zoo keys the runner sets itself.
 RUNNER_SET = ("work_dir", "seed", "device")
@@ -54,6 +62,24 @@ def execute_dreamerv3_run(
     return finish_run(spec, paths, steps, start, resumed_from, node, keep_checkpoints)
 
 
+def new_dreamerv3(spec: RunSpec, env: gym.Env, device: str, work_dir: Path) -> DreamerV3:
+    """The model of a ``dreamerv3`` run that starts anew, on ``env``, writing into ``work_dir`` (created when it
+    trains); its arguments, sheeprl overrides included, and the env's frames are checked here."""
+    from sb3_ef.dreamerv3 import DreamerV3
+
+    given = sorted(set(RUNNER_SET) & set(spec.hyperparams))
+    if given:
+        raise ValueError(f"{spec.run_id}: {given} are set by the runner, not by the hyperparameters")
+    kwargs = constructor_kwargs(dict(spec.hyperparams))
+    return DreamerV3(env=env, seed=spec.seed, device=device, work_dir=work_dir, **kwargs)
+
+
+def check_dreamerv3_row(spec: RunSpec, env: gym.Env, device: str) -> None:
+    """The grid check of a ``dreamerv3`` row (``sb3_ef.grid.checks``): its model built on ``env`` (nothing is
+    trained or written)."""
+    new_dreamerv3(spec, env, device, Path(tempfile.gettempdir(), "sb3_ef_dreamerv3_check"))
+
+
 def train_dreamerv3(
     spec: RunSpec, paths: RunPaths, threads: int, device: str, keep_checkpoints: int | None
 ) -> tuple[int, int | None]:
@@ -63,9 +89,6 @@ def train_dreamerv3(
 
     from sb3_ef.dreamerv3 import DreamerV3, Evaluation
 
-    given = sorted(set(RUNNER_SET) & set(spec.hyperparams))
-    if given:
-        raise ValueError(f"{spec.run_id}: {given} are set by the runner, not by the hyperparameters")
     th.set_num_threads(threads)
     env = build_env(spec, seed=spec.seed)
     eval_env = build_env(spec, seed=spec.seed + EVAL_SEED_OFFSET)
@@ -73,8 +96,7 @@ def train_dreamerv3(
     if model is None:
         paths.records.unlink(missing_ok=True)
         shutil.rmtree(paths.checkpoints, ignore_errors=True)  # a run killed before its first checkpoint
-        kwargs = constructor_kwargs(dict(spec.hyperparams))
-        model = DreamerV3(env=env, seed=spec.seed, device=device, work_dir=paths.checkpoints, **kwargs)
+        model = new_dreamerv3(spec, env, device, paths.checkpoints)
         resumed_from: int | None = None
     else:
         resumed_from = model.num_timesteps

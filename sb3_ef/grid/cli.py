@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import sys
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
@@ -63,21 +64,37 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="N|all",
         help="newest checkpoints kept per run while it trains, deleted when it ends; all: every one, kept for good",
     )
-    parser.add_argument("--dry-run", action="store_true", help="list the runs, their status and expected hours")
+    parser.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="list the runs, their status and expected hours, and check each row's start (env, data, arguments)",
+    )
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``sb3-ef benchmark``; returns 1 when a run failed, else 0. Ctrl-C raises
-    :class:`~sb3_ef.common.interrupt.Interrupted` saying what was kept."""
+    """Entry point of ``sb3-ef benchmark``; returns 1 when a run failed, 2 when the grid has problems (each printed
+    on a line of its own; nothing is trained), else 0. Ctrl-C raises :class:`~sb3_ef.common.interrupt.Interrupted`
+    saying what was kept."""
     args = build_parser().parse_args(argv)
-    from sb3_ef.grid.grid import load_grid, read_grid_file
+    from sb3_ef.grid.grid import GridError, load_grid, read_grid_file
 
     if os.path.exists(args.out) and not os.path.isdir(args.out):
         raise ValueError(f"--out {args.out!r} is a file: expected the results folder (created when missing)")
     read_grid_file(args.grid)  # a broken file is reported before the heavy imports
     try:
         return _run(args, load_grid(args.grid))
+    except GridError as error:
+        if os.environ.get("SB3_EF_TRACEBACK") == "1":
+            raise
+        count = len(error.problems)
+        print(
+            f"sb3-ef benchmark: error: {count} problem{'s' * (count > 1)} in the grid, nothing trained:",
+            file=sys.stderr,
+        )
+        for problem in error.problems:
+            print(f"  {problem}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         raise Interrupted(
             f"finished runs are kept in {args.out}; rerun the same command to skip them and resume the others from "
@@ -86,15 +103,23 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _run(args: argparse.Namespace, runs: list[RunSpec]) -> int:
-    """Select, plan or train the runs of the grid as ``args`` say."""
-    from sb3_ef.grid.grid import select_runs
-    from sb3_ef.grid.runner import plan_table, run_benchmark
+    """Select, plan or train the runs of the grid as ``args`` say. The rows are checked here first (on this machine:
+    for a dry run, and before a local run; a Ray cluster's nodes may hold data this machine lacks)."""
+    from sb3_ef.grid.checks import check_rows
+    from sb3_ef.grid.grid import GridError, select_runs
+    from sb3_ef.grid.runner import plan_table
 
     if args.runs:
         runs = select_runs(runs, args.runs)
     if args.dry_run:
-        print(plan_table(runs, args.out))
+        print(plan_table(runs, args.out), flush=True)
+    problems = check_rows(runs, args.out, args.device) if args.dry_run or args.backend == "local" else []
+    if problems:
+        raise GridError(problems)
+    if args.dry_run:
         return 0
+    from sb3_ef.grid.runner import run_benchmark
+
     results = run_benchmark(
         runs,
         args.out,

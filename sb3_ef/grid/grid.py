@@ -58,6 +58,14 @@ MAKE_ENV_SUITES = ("dmc/", "metaworld/", "dmc-distracting/")
 BACKENDS = ("local", "ray")
 
 
+class GridError(ValueError):
+    """Every problem found in a grid, one line each, each naming its block or row (``problems``)."""
+
+    def __init__(self, problems: Sequence[str]):
+        super().__init__("\n".join(problems))
+        self.problems = list(problems)
+
+
 @dataclass(frozen=True)
 class Algorithm:
     """One algorithm column of a grid.
@@ -252,14 +260,19 @@ def grid_runs(
     if not tasks:
         raise ValueError("'tasks' must name at least one task")
     runs_of_seed: list[dict[str, Any]] = []  # the runs of one seed, as RunSpec arguments without the seed
+    problems: dict[str, None] = {}  # each once (a bad override is one problem, not one per task)
     for algorithm in _algorithms(algorithms):
         for task in tasks:
-            entry = _entry(algorithm, task, {**(hyperparams or {}), **algorithm.hyperparams})
-            steps = _positive("n_timesteps", n_timesteps if n_timesteps is not None else entry["n_timesteps"])
-            if eval_freq > steps:
-                raise ValueError(
-                    f"eval_freq ({eval_freq}) exceeds n_timesteps ({steps}) of {algorithm.label} on {task}"
-                )
+            try:
+                entry = _entry(algorithm, task, {**(hyperparams or {}), **algorithm.hyperparams})
+                steps = _positive("n_timesteps", n_timesteps if n_timesteps is not None else entry["n_timesteps"])
+                if eval_freq > steps:
+                    raise ValueError(
+                        f"eval_freq ({eval_freq}) exceeds n_timesteps ({steps}) of {algorithm.label} on {task}"
+                    )
+            except ValueError as error:
+                problems[str(error)] = None
+                continue
             runs_of_seed.append(
                 {
                     "label": algorithm.label,
@@ -274,6 +287,8 @@ def grid_runs(
                     "steps_per_second": algorithm.steps_per_second,
                 }
             )
+    if problems:
+        raise GridError(list(problems))
     # Seed-major order: a grid stopped part-way has whole seeds of every algorithm and task, comparable already.
     runs = [RunSpec(seed=seed, **arguments) for seed in _seeds(seeds) for arguments in runs_of_seed]
     return runs
@@ -343,12 +358,17 @@ def read_grid_file(path: str | os.PathLike) -> list[dict[str, Any]]:
 
 
 def load_grid(path: str | os.PathLike) -> list[RunSpec]:
-    """Read a grid file (see the module docstring) and expand every block; run ids must be unique."""
-    runs = []
+    """Read a grid file (see the module docstring) and expand every block; run ids must be unique. A
+    :class:`GridError` names every problem of every block."""
+    runs, problems = [], []
     for index, block in enumerate(read_grid_file(path)):
         try:
             runs += grid_runs(**block)
+        except GridError as error:
+            problems += [f"{path}, grids[{index}]: {problem}" for problem in error.problems]
         except ValueError as error:
-            raise ValueError(f"{path}, grids[{index}]: {error}") from error
+            problems.append(f"{path}, grids[{index}]: {error}")
+    if problems:
+        raise GridError(problems)
     check_unique(runs)
     return runs

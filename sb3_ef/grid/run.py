@@ -38,6 +38,7 @@ from sb3_ef.grid.grid import MAKE_ENV_SUITES, RunSpec, constructor_kwargs
 from sb3_ef.registry import import_target
 
 if TYPE_CHECKING:
+    from stable_baselines3.common.noise import ActionNoise
     from stable_baselines3.common.vec_env import DummyVecEnv
 
 
@@ -125,6 +126,34 @@ def build_eval_env(spec: RunSpec, seed: int) -> DummyVecEnv:
     return eval_env
 
 
+def action_noise(noise_type: Any, noise_std: Any, action_space: gym.Space) -> ActionNoise:
+    """SB3's action noise of rl-zoo3's ``noise_type`` (``normal`` or ``ornstein-uhlenbeck``) and ``noise_std`` keys,
+    as rl-zoo3 builds it for its runs, sized to ``action_space``."""
+    import numpy as np
+    from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
+
+    kinds = {"normal": NormalActionNoise, "ornstein-uhlenbeck": OrnsteinUhlenbeckActionNoise}
+    if noise_type not in kinds:
+        raise ValueError(f"noise_type must be one of {', '.join(map(repr, kinds))}, got {noise_type!r}")
+    if isinstance(noise_std, bool) or not isinstance(noise_std, (int, float)) or not noise_std >= 0:
+        raise ValueError(f"noise_std must be a number >= 0 (with noise_type {noise_type!r}), got {noise_std!r}")
+    if not isinstance(action_space, gym.spaces.Box):
+        raise ValueError(f"noise_type {noise_type!r} needs a continuous (Box) action space, got {action_space}")
+    size = int(np.prod(action_space.shape))
+    return kinds[noise_type](mean=np.zeros(size), sigma=noise_std * np.ones(size))
+
+
+def new_model(spec: RunSpec, env: gym.Env, device: str, **options: Any) -> Any:
+    """The algorithm of a run that starts anew, on ``env``: its class with the run's hyperparameters
+    (rl-zoo3's ``noise_type`` / ``noise_std`` made into ``action_noise``, as rl-zoo3 does) and ``options``."""
+    kwargs = constructor_kwargs(dict(spec.hyperparams))
+    if "noise_type" in kwargs or "noise_std" in kwargs:
+        noise = kwargs.pop("noise_type", None), kwargs.pop("noise_std", None)
+        kwargs["action_noise"] = action_noise(*noise, env.action_space)
+    algo_class = registry.entry(spec.algo).algorithm_class
+    return algo_class(env=env, seed=spec.seed, device=device, **kwargs, **options)
+
+
 class RunOptions(TypedDict):
     """:func:`execute_run`'s options that a backend passes to every run."""
 
@@ -181,7 +210,7 @@ def execute_sb3_run(
     checkpoint = latest_checkpoint(paths.checkpoints)
     if checkpoint is None:
         paths.records.unlink(missing_ok=True)
-        model = algo_class(env=env, seed=spec.seed, device=device, **constructor_kwargs(dict(spec.hyperparams)))
+        model = new_model(spec, env, device)
         resumed_from: int | None = None
     else:
         model = load_checkpoint(algo_class, checkpoint, env, device=device)

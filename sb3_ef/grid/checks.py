@@ -1,0 +1,74 @@
+"""The checks of a grid's rows before anything trains: what each row's start would check, so that a grid that passes
+them starts (``sb3-ef benchmark --dry-run``, and before a local run).
+
+A row (one algorithm on one task; its seeds share everything else) is checked by building what its start builds,
+short of networks, replay buffers and rendered frames:
+
+- its env, made as the run makes it (:func:`sb3_ef.grid.run.build_env`): the env id and every ``env_kwargs``
+  option, Distracting Control's options and its background videos (each frame decoded, as the env does when made);
+- its algorithm, by the check its registry entry names (``grid_check``): for the algorithms SB3's ``learn``
+  trains, the class built on that env without its model (``_init_setup_model=False``): every argument's name and
+  value, the policy against the env's observations; and the crop of an algorithm that crops (CURL's 84 of larger
+  frames) against the frame size.
+
+Every row is checked, each problem named with its row.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from typing import Any
+
+from sb3_ef import registry
+from sb3_ef.grid.grid import RunSpec
+from sb3_ef.grid.run import RunPaths, build_env, new_model, read_result
+from sb3_ef.registry import import_target
+
+#: Errors of a row's check reported by their message alone (others are prefixed by their type: a likely bug).
+EXPECTED_ERRORS = (ValueError, TypeError, OSError, ImportError)
+
+
+def check_sb3_row(spec: RunSpec, env: Any, device: str) -> None:
+    """Check a row of an algorithm SB3's ``learn`` trains: its class built on ``env`` with the row's arguments,
+    without its networks and buffer, and its ``crop_size`` (if it crops) against the frames."""
+    from sb3_ef.curl.crop import check_crop_size
+
+    model = new_model(spec, env, device, _init_setup_model=False)
+    crop_size = getattr(model, "crop_size", None)
+    if crop_size is not None:
+        _, height, width = model.observation_space.shape
+        check_crop_size(crop_size, height, width, type(model).__name__)
+
+
+def _describe(error: Exception) -> str:
+    """An error of a row's check as one line: its message (with its type when unexpected) and its notes."""
+    message = " ".join(str(error).split()) or type(error).__name__
+    if not isinstance(error, EXPECTED_ERRORS):
+        message = f"{type(error).__name__}: {message}"
+    return " ".join([message, *getattr(error, "__notes__", ())])
+
+
+def check_row(spec: RunSpec, device: str = "auto") -> None:
+    """Raise what the start of ``spec``'s run would raise (module docstring); nothing is trained or written."""
+    env = build_env(spec, seed=spec.seed)
+    try:
+        import_target(registry.entry(spec.algo, "RunSpec.algo").grid_check)(spec, env, device)
+    finally:
+        env.close()
+
+
+def check_rows(runs: Sequence[RunSpec], out: str | os.PathLike, device: str = "auto") -> list[str]:
+    """The problems of the rows of ``runs`` that have not finished in ``out``, one line each naming its row
+    (``<label> on <task>``); ``[]`` when every row can start."""
+    rows: dict[tuple[str, str], RunSpec] = {}
+    for spec in runs:
+        if read_result(RunPaths.of(out, spec)) is None:
+            rows.setdefault((spec.label, spec.task), spec)
+    problems = []
+    for (label, task), spec in rows.items():
+        try:
+            check_row(spec, device)
+        except Exception as error:  # each row's problem is reported; the others are still checked
+            problems.append(f"{label} on {task}: {_describe(error)}")
+    return problems
