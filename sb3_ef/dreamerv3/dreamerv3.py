@@ -386,10 +386,12 @@ class DreamerV3:
 
 def _sb3_callback(callback: MaybeCallback, progress_bar: bool) -> BaseCallback | None:
     """SB3's callbacks as one (a list as a ``CallbackList``, with SB3's progress bar when ``progress_bar``)."""
-    callbacks = list(callback) if isinstance(callback, list) else ([] if callback is None else [callback])
-    for given in callbacks:
-        if not isinstance(given, BaseCallback):
-            raise ValueError(f"callback must be an SB3 BaseCallback or a list of them, got {type(given).__name__}")
+    given = list(callback) if isinstance(callback, list) else ([] if callback is None else [callback])
+    callbacks: list[BaseCallback] = []
+    for one in given:
+        if not isinstance(one, BaseCallback):
+            raise ValueError(f"callback must be an SB3 BaseCallback or a list of them, got {type(one).__name__}")
+        callbacks.append(one)
     if progress_bar:
         callbacks.append(ProgressBarCallback())
     if not callbacks:
