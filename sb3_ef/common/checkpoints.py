@@ -216,15 +216,16 @@ class ResumableCheckpointCallback(BaseCallback):
         model_path, buffer_path, rng_path = _paths(self.save_path, self.name_prefix, self.num_timesteps)
         before = self.num_timesteps - self.training_env.num_envs
         states = random_states(self.model, self._env_generators.get(before))
-        saves_buffer = self.save_replay_buffer and isinstance(self.model, OffPolicyAlgorithm)
-        if saves_buffer:
+        saved_buffer = None
+        if self.save_replay_buffer and isinstance(self.model, OffPolicyAlgorithm):
+            saved_buffer = buffer_path
             write_atomically(buffer_path, self.model.save_replay_buffer)
         write_atomically(rng_path, lambda file: pickle.dump(states, file, protocol=pickle.HIGHEST_PROTOCOL))
         write_atomically(model_path, self.model.save)
         if self.verbose >= 1:
             print(f"Saving checkpoint to {model_path}")
         self._prune()
-        return Checkpoint(self.num_timesteps, model_path, buffer_path if saves_buffer else None, rng_path)
+        return Checkpoint(self.num_timesteps, model_path, saved_buffer, rng_path)
 
     def _prune(self) -> None:
         if self.keep is None:

@@ -1,20 +1,7 @@
-"""LeRobot datasets (Parquet tables + MP4 videos) read with pyarrow and PyAV, without the ``lerobot`` package (which
-pulls in torchvision, datasets, huggingface-hub and its own video stack); written by
-:mod:`sb3_ef.offline.lerobot_writer`.
-
-Layout of a v3.0 dataset folder (several episodes per file)::
-
-    meta/info.json                                  codebase_version, fps, features, data_path / video_path templates
-    meta/episodes/chunk-000/file-000.parquet        one row per episode: episode_index, length, data/chunk_index,
-                                                    data/file_index, videos/<camera>/{chunk_index, file_index,
-                                                    from_timestamp, to_timestamp}, ...
-    data/chunk-000/file-000.parquet                 one row per frame: action, timestamp, frame_index, episode_index
-    videos/<camera>/chunk-000/file-000.mp4          the camera's frames of consecutive episodes, one after another
-
-Frame ``i`` of an episode is the video frame at ``from_timestamp + timestamp[i]``. v2.x folders (one Parquet file and
-one MP4 per episode, ``meta/episodes.jsonl``, paths from ``{episode_chunk}`` / ``{episode_index}``) are read too.
-Row ``i`` pairs frame ``i`` with action ``i``: the last action has no frame after it and is dropped
-(:func:`~sb3_ef.offline.episodes.make_episode`).
+"""LeRobot datasets read with pyarrow and PyAV, without the ``lerobot`` package (and its torchvision, datasets,
+huggingface-hub). A v3.0 folder holds ``meta/info.json``, an episode table (``meta/episodes/...parquet``: each
+episode's data and video file and time span), Parquet data files (a row per frame) and MP4s of consecutive episodes;
+frame ``i`` is the video frame at ``from_timestamp + timestamp[i]``. v2.x folders (one file each) are read too.
 """
 
 from __future__ import annotations
@@ -43,21 +30,14 @@ __all__ = ["MASK_KEY", "LeRobotDataset", "LeRobotWriter", "is_lerobot_dataset", 
 
 
 class LeRobotDataset(EpisodeDataset):
-    """Episodes of a local LeRobot dataset folder (v3.0, or v2.x): one camera's frames and the actions.
-
-    Episodes are indexed on open from the metadata (no frame is decoded); ``dataset[i]`` reads episode ``i``'s rows
-    from its Parquet file and decodes its frames from the camera's MP4 (seeking to the episode's first frame).
-    Cameras stored as ``video`` (MP4: any codec of the installed FFmpeg, AV1 and H.264 included) or ``image``
-    (PNG / JPEG bytes in the Parquet table) are read.
+    """Episodes of a local LeRobot dataset folder (v3.0, or v2.x): one camera's frames (``video``: MP4 of any codec
+    FFmpeg decodes; or ``image``: PNG / JPEG bytes) and the actions, indexed on open and decoded on ``dataset[i]``.
 
     :param root: the dataset folder (holding ``meta/info.json``).
-    :param camera: the camera feature, e.g. ``"observation.images.top"`` (default: the first video or image
-        feature of ``meta/info.json``).
+    :param camera: the camera feature, e.g. ``"observation.images.top"`` (default: the first video or image one).
     :param action_key: the action feature (a float vector per frame).
-    :param image_size: resize frames to ``image_size`` x ``image_size`` (None: keep the camera's size); the
-        aspect ratio is not kept.
-    :param mask_key: a per-frame boolean (height, width) feature with agent masks (default: ``MASK_KEY`` when the
-        dataset has it).
+    :param image_size: resize frames to ``image_size`` squared (None: keep the camera's size).
+    :param mask_key: a per-frame boolean (height, width) feature of agent masks (default: ``MASK_KEY`` if present).
     """
 
     def __init__(
@@ -88,8 +68,7 @@ class LeRobotDataset(EpisodeDataset):
         missing = [key for key in required if key not in self.info]
         if missing:
             raise EpisodeError(f"{info_path}: missing {missing} (a LeRobot {self.version} info.json has them)")
-        features = self.info.get("features", {})
-        cameras = [key for key, feature in features.items() if feature.get("dtype") in ("video", "image")]
+        features, cameras = self.info["features"], self.cameras
         if not cameras:
             raise EpisodeError(f"{info_path}: no video or image feature (features: {sorted(features)})")
         self.camera = camera or cameras[0]
@@ -252,7 +231,7 @@ class LeRobotDataset(EpisodeDataset):
     def _decode_images(self, values: list[Any], source: str) -> np.ndarray:
         images = []
         for step, value in enumerate(values):
-            data = value.get("bytes") if isinstance(value, dict) else value
+            data: Any = value.get("bytes") if isinstance(value, dict) else value
             error = f"{source}: frame {step} of {self.camera!r} is not a PNG / JPEG image"
             images.append(decode_image(data, self.image_size, error))
         return np.stack(images)
