@@ -1,8 +1,5 @@
-"""Pixel environments (DMC, Meta-World, Distracting Control) with frame stacking, action repeat and agent masks.
-
-Importing this package is cheap: MuJoCo, dm-control and metaworld are imported by ``make_env`` after the
-OpenGL backend is chosen.
-"""
+"""Pixel environments (DMC, Meta-World, Distracting Control) with frame stacking, action repeat and agent masks;
+MuJoCo, dm-control and metaworld are imported by ``make_env``, after the OpenGL backend is chosen."""
 
 from sb3_ef.envs.factory import MAX_SIZE, MIN_SIZE, make_env
 from sb3_ef.envs.tasks import (

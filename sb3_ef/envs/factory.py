@@ -54,13 +54,10 @@ def make_env(
     :param seed: seed of the initial states (and of the Meta-World task variant).
     :param agent_masks: every frame's agent mask in the infos (:attr:`~sb3_ef.envs.pixel_env.PixelEnv.agent_masks`),
         as ``SequenceReplayBuffer(..., store_masks=True)`` stores them; one more render per step.
-    :param kwargs: suite options: ``episode_length`` (simulator steps; 1000 DMC, 500 Meta-World),
-        ``render_mode`` (``"rgb_array"``), ``resample_task`` (Meta-World), ``repeat_discount`` (Meta-World: the
-        reward of an agent step is ``r1 + repeat_discount * r2``; 0.99 with ``gamma=authors_gamma()`` is the EF
-        authors' protocol, see :mod:`sb3_ef.envs.meta_world`); Distracting Control: ``distraction``
-        (``"background"``, ``"camera"``, ``"color"`` or a list; default all three), ``difficulty`` (``"easy"``,
-        ``"medium"``, ``"hard"``), ``dynamic``, ``background_dir`` (DAVIS 2017's ``JPEGImages/480p`` folder),
-        ``background_videos`` (``"train"``, ``"val"`` or a list; see :mod:`sb3_ef.envs.distracting.env`).
+    :param kwargs: suite options (:data:`SUITE_OPTIONS`): ``episode_length`` (simulator steps; 1000 DMC, 500
+        Meta-World), ``render_mode`` (``"rgb_array"``), Meta-World's ``resample_task`` and ``repeat_discount``
+        (:class:`~sb3_ef.envs.meta_world.MetaWorldPixelEnv`), Distracting Control's ``distraction``, ``difficulty``,
+        ``dynamic``, ``background_dir``, ``background_videos`` (:mod:`sb3_ef.envs.distracting.env`).
     :return: a :class:`~sb3_ef.envs.pixel_env.PixelEnv`; ``env.agent_mask()`` gives the agent's pixels.
     """
     task = parse_env_name(name)

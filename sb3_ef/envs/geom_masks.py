@@ -61,12 +61,8 @@ def part_mask(geom_ids: np.ndarray, selection: np.ndarray) -> np.ndarray:
 
 
 class PartMasks:
-    """Masks of the agent and of named parts of a :class:`~sb3_ef.envs.pixel_env.PixelEnv`'s scene.
-
-    :param env: the pixel env (wrappers are looked through with ``env.unwrapped``).
-    :param parts: part name -> ``{"bodies": [...], "geoms": [...]}`` (either may be left out). The name
-        ``"agent"`` is reserved for the agent's own mask (:func:`~sb3_ef.envs.agent_geoms.agent_geoms`).
-    """
+    """Masks of the agent (``"agent"``) and of named ``parts`` (name -> ``{"bodies": [...], "geoms": [...]}``, either
+    may be left out) of a (wrapped) :class:`~sb3_ef.envs.pixel_env.PixelEnv`'s scene."""
 
     def __init__(self, env: Any, parts: Mapping[str, Mapping[str, Sequence[str]]]):
         if AGENT in parts:

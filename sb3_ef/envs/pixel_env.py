@@ -114,9 +114,7 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
         info = self._reset_sim(seed, options)
         self._sim_steps = 0
         self._episode_over = False
-        frame = self._render_frame()
-        for _ in range(self.frame_stack):
-            self._frames.append(frame)
+        self._frames.extend([self._render_frame()] * self.frame_stack)
         self._masks = None
         if self.agent_masks:
             self._masks = deque([self.agent_mask()] * self.frame_stack, maxlen=self.frame_stack + 1)

@@ -1,9 +1,5 @@
-"""Gymnasium registration of the pixel environments (cheap: entry-point strings, no MuJoCo import).
-
-Every name of :data:`sb3_ef.envs.tasks.ENV_NAMES` is registered as ``<name>-v0``, so
-``gym.make("dmc/cartpole-swingup-v0", size=64)`` works after ``import sb3_ef``; the MuJoCo-free test world
-:class:`sb3_ef.envs.toy.ToyAgentEnv` is ``toy/agent-v0``.
-"""
+"""Gymnasium registration (no MuJoCo import) of every :data:`~sb3_ef.envs.tasks.ENV_NAMES` name as ``<name>-v0``
+(``gym.make("dmc/cartpole-swingup-v0", size=64)``) and of the toy world as ``toy/agent-v0``."""
 
 import gymnasium as gym
 

@@ -40,9 +40,6 @@ def _close_renderers_at_exit() -> None:
 class FrameRenderer:
     """Renders ``(size, size, 3)`` uint8 frames and agent masks of a model's state from one camera.
 
-    :param model: the MuJoCo model (its offscreen buffer is enlarged to ``size`` if needed).
-    :param size: frame height and width in pixels.
-    :param camera: camera index or name.
     :param fast: turn shadows, reflections and multisampling off (5-15x faster on a CPU renderer).
     :param flip: flip frames vertically (for cameras that render upside down).
     :param agent_geoms: boolean array over the model's geoms marking the agent's body, for :meth:`agent_mask`.

@@ -1,8 +1,5 @@
-"""Task names of the pixel environments and their parsing (no MuJoCo import: used by gymnasium registration).
-
-A name is ``<suite>/<task>`` with an optional ``-v0`` suffix: ``dmc/cartpole-swingup``, ``metaworld/door-open-v0``,
-``dmc-distracting/walker-walk``. DMC names are dm-control's ``<domain>-<task>`` with underscores written as hyphens.
-"""
+"""Task names of the pixel environments, ``<suite>/<task>[-v0]`` (``dmc/cartpole-swingup``, ``metaworld/door-open``;
+DMC's underscores written as hyphens), and their parsing; no MuJoCo import."""
 
 from __future__ import annotations
 
@@ -32,8 +29,7 @@ DMC_TASKS: dict[str, tuple[str, str]] = {
     f"{domain}-{task}".replace("_", "-"): (domain, task) for domain, task in _DMC_SUITE_TASKS
 }
 
-#: The domains of the Distracting Control Suite (Stone et al. 2021): its per-domain settings (ground plane
-#: transparency, camera ranges) exist for these six only.
+#: The domains of the Distracting Control Suite (Stone et al. 2021), the six its per-domain settings cover.
 DISTRACTING_DOMAINS: tuple[str, ...] = ("ball_in_cup", "cartpole", "cheetah", "finger", "reacher", "walker")
 
 #: Every task name accepted after ``dmc-distracting/``: the DMC tasks of :data:`DISTRACTING_DOMAINS`.

@@ -16,12 +16,9 @@ class BackgroundDistraction:
     floor's ``grid`` material ``ground_alpha``. Each reset draws a video, then one frame (static) or a start frame and
     direction (dynamic: one frame a simulator step, turning at either end).
 
-    :param model: the task's MuJoCo model (its skybox texture and ``grid`` material are changed).
     :param videos: folders of JPEG frames (:func:`~sb3_ef.envs.distracting.davis.video_folders`).
-    :param dynamic: play the video (True) or show one still frame per episode (False).
-    :param ground_alpha: alpha of the floor.
-    :param texture_side: side of the sky's face in texels, at most the model's own (800 in DMC); ``None``: the
-        model's. A smaller face costs less to upload at every frame of a playing video.
+    :param texture_side: side of the sky's face in texels, at most (and by default) the model's (800 in DMC); a
+        smaller face costs less to upload at every frame of a playing video.
     """
 
     def __init__(

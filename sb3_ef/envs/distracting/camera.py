@@ -68,10 +68,7 @@ def _look_at_point(data: mujoco.MjData, camera: int) -> np.ndarray:
 
 
 class CameraDistraction:
-    """Moves one camera of a model within the ranges of ``settings`` (module doc).
-
-    :raises ValueError: when the camera is neither fixed nor tracking the centre of mass (the suite's two kinds).
-    """
+    """Moves one fixed or centre-of-mass tracking camera of a model within the ranges of ``settings``."""
 
     def __init__(self, model: mujoco.MjModel, camera: int, settings: CameraSettings) -> None:
         mode = mujoco.mjtCamLight(int(model.cam_mode[camera]))

@@ -9,12 +9,8 @@ from sb3_ef.envs.distracting.settings import ColorSettings
 
 
 class ColorDistraction:
-    """Each material's RGB uniform within ``max_delta`` of its own (clipped to [0, 1]) at every reset; when
-    dynamic, a Gaussian step of ``step_std`` per channel at every simulator step, clipped to that range.
-
-    Materials colour the agent, the floor, the targets and the decorations alike; the skybox (a texture) is left to
-    the background distraction. Segmentation ignores colours, so agent masks are unchanged.
-    """
+    """Each material's RGB (agent, floor, targets alike; not the skybox) uniform within ``max_delta`` of its own at
+    every reset and, when dynamic, a Gaussian step of ``step_std`` per simulator step, clipped to [0, 1]."""
 
     def __init__(self, model: mujoco.MjModel, settings: ColorSettings) -> None:
         original = model.mat_rgba[:, :3].copy()

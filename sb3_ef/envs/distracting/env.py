@@ -45,12 +45,9 @@ class DistractingDMCPixelEnv(DMCPixelEnv):
     :param distraction: ``"background"``, ``"camera"``, ``"color"`` or a list of them (default: all three).
     :param difficulty: ``"easy"``, ``"medium"`` or ``"hard"``: colour and camera ranges scaled by 0.1, 0.2, 0.3;
         backgrounds from the first 4, 8 or all of the videos.
-    :param dynamic: distractions move within the episode (the video plays, colours and camera drift) instead of
-        staying as drawn at reset.
-    :param background_dir: DAVIS 2017's ``DAVIS/JPEGImages/480p`` folder (default ``$SB3_EF_DAVIS_DIR``); needed by
-        the background distraction only.
-    :param background_videos: ``"train"`` (the suite's 60 training videos), ``"val"`` (its 30 validation videos) or
-        a list of video folder names.
+    :param dynamic: distractions move within the episode (the video plays, colours and camera drift).
+    :param background_dir: DAVIS 2017's ``DAVIS/JPEGImages/480p`` folder (default ``$SB3_EF_DAVIS_DIR``).
+    :param background_videos: ``"train"`` (the suite's 60 videos), ``"val"`` (its 30) or a list of video folders.
     """
 
     def __init__(
