@@ -1,8 +1,5 @@
-"""Ego-Foresight without RL: robot-video datasets, offline pretraining, open-loop prediction and warm starts.
-
-The public names are imported on first use, so that the command line checks its arguments before torch loads.
-``collect``, ``pretrain`` and ``evaluate`` here are the functions, not their modules. See docs/offline.md.
-"""
+"""Ego-Foresight without RL: robot-video datasets, offline pretraining, open-loop prediction and warm starts. Public
+names are imported on first use (the CLI checks its arguments before torch loads); see docs/offline.md."""
 
 from __future__ import annotations
 

@@ -1,9 +1,6 @@
-"""Record episodes of an sb3-ef env (motor babbling, or a saved DrQv2EF / TDMPC2EF policy) in the folder format or
-as a LeRobot dataset, with the simulator's agent masks.
-
-Episode ``i`` depends on no other (reset with seed ``seed + i``, babbling seeded ``(seed, i)``), so a rerun into the
-same folder keeps the intact episodes and records the rest; the settings kept in ``OUT/sb3_ef_collect.json`` must match.
-"""
+"""Record episodes of an sb3-ef env (motor babbling, or a saved DrQv2EF / TDMPC2EF policy) with the agent masks, in
+the folder format or as a LeRobot dataset. Episode ``i`` is seeded ``seed + i`` alone, so a rerun with the settings
+kept in ``OUT/sb3_ef_collect.json`` keeps the intact episodes and records the rest."""
 
 from __future__ import annotations
 
@@ -113,18 +110,16 @@ def collect(
     **env_kwargs: Any,
 ) -> list[str]:
     """Write ``episodes`` files ``episode_00000.<npz|h5>`` to ``out_dir`` and return their paths, or with
-    ``file_format="lerobot"`` a LeRobot v3.0 dataset (:class:`~sb3_ef.offline.lerobot_writer.LeRobotWriter`) and
-    return ``[out_dir]``. A rerun keeps the intact episodes there (a damaged one is recorded again, with a warning)
-    and records the rest; Ctrl-C keeps the finished ones and raises :class:`~sb3_ef.common.interrupt.Interrupted`.
+    ``file_format="lerobot"`` a LeRobot v3.0 dataset and return ``[out_dir]``. A rerun records what is missing or
+    damaged; Ctrl-C keeps the finished episodes and raises :class:`~sb3_ef.common.interrupt.Interrupted`.
 
     :param env_name: ``dmc/<domain>-<task>``, ``metaworld/<task>`` or another registered sb3-ef env (``toy/agent-v0``).
     :param mode: babbling mode when no ``policy`` is given (``"sign"`` as in the paper, or ``"clamped_uniform"``).
-    :param policy: path of a saved DrQv2EF / TDMPC2EF to act instead of babbling (its frame size and stack are used).
-    :param algo: ``drqv2_ef`` or ``tdmpc2_ef`` for ``policy`` (default: tried in turn).
+    :param policy: path of a saved DrQv2EF / TDMPC2EF to act instead of babbling (its frame size and stack are used),
+        of ``algo`` ``drqv2_ef`` or ``tdmpc2_ef`` (default: tried in turn).
     :param fast_render: render without shadows and reflections (faster on CPU; train on the same setting).
     :param env_kwargs: more ``make_env`` options, e.g. ``episode_length`` (simulator steps).
-    :param masks: agent masks (needed only to score held-out episodes) for every episode, none, or the episodes of
-        these indices (in a LeRobot dataset: any index records all).
+    :param masks: agent masks for every episode, none, or the episodes of these indices (LeRobot: any index, all).
     """
     if file_format not in FORMATS:
         raise ValueError(f"file_format must be one of {FORMATS}, got {file_format!r}")

@@ -1,8 +1,4 @@
-"""``EpisodeDataset``: the interface every episode reader implements, and the checks and decoding they share.
-
-A reader reads episode ``i`` (``_read``); ``dataset[i]`` checks the index and that the episode has the frame shape
-and action size of the first one read (a model trains on one of each).
-"""
+"""``EpisodeDataset``: the interface every episode reader implements, and the checks and decoding they share."""
 
 from __future__ import annotations
 

@@ -1,8 +1,5 @@
-"""One episode of robot video with actions, its checks, and the folder format (one ``.npz`` / ``.h5`` file each).
-
-An episode: ``frames`` uint8 (T + 1, 3, H, W), frame ``t`` seen before action ``t``; ``actions`` float32 (T, A);
-``masks`` optional bool (T + 1, H, W), the agent's pixels. T frames for T actions (BAIR's files) drop the last action.
-"""
+"""One episode of robot video with actions (``frames`` uint8 (T + 1, 3, H, W), frame ``t`` seen before action ``t``;
+``actions`` float32 (T, A); optional agent ``masks`` bool (T + 1, H, W)), its checks, and the folder format."""
 
 from __future__ import annotations
 

@@ -1,9 +1,6 @@
-"""Held-out scores of an offline EF model, each next to the baseline that copies the last context frame t.
-
-For k = 1..H: the squared error of the predicted frame t + k over the frame and over the agent's pixels (where it is
-at t or t + k: what a copy gets wrong); and the precision of its thresholded h_a saliency against the agent mask at
-t + k, next to "chance", the mask's share of the frame.
-"""
+"""Held-out scores of an offline EF model next to the baseline that copies the last context frame t: for k = 1..H the
+squared error of frame t + k over the frame and the agent's pixels (at t or t + k), and the precision of the h_a
+saliency against the agent mask at t + k, next to chance (the mask's share of the frame)."""
 
 from __future__ import annotations
 

@@ -1,8 +1,6 @@
-"""Feature statistics of a LeRobot dataset (``meta/stats.json``, the episode table's ``stats/...``) in LeRobot's form:
-``min``, ``max``, ``mean``, ``std``, ``count`` and quantiles ``q01`` .. ``q99``, per colour channel of a camera (in
-[0, 1], shaped (3, 1, 1)) or component of a vector. Episodes' are exact; the dataset's aggregate them as LeRobot does
-(weighted means, pooled std, and for quantiles the envelope of the episodes', a bound rather than an estimate).
-"""
+"""Feature statistics of a LeRobot dataset in LeRobot's form (``min``, ``max``, ``mean``, ``std``, ``count``,
+``q01`` .. ``q99`` per camera channel in [0, 1] or vector component): exact per episode, aggregated as LeRobot does
+(quantiles: the envelope of the episodes')."""
 
 from __future__ import annotations
 

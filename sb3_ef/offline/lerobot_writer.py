@@ -1,12 +1,7 @@
 """Episodes written as a LeRobot v3.0 dataset folder (one camera as MP4, the actions and optionally agent masks in
-Parquet, ``meta/``) with pyarrow and PyAV, in the layout of :mod:`sb3_ef.offline.lerobot_format`.
-
-Every file is written under a temporary name and renamed once complete (:mod:`sb3_ef.common.files`): the data
-and video files of a run of episodes when the run ends (``episodes_per_file``, or :meth:`LeRobotWriter.close`),
-then ``meta/``: the episode table, ``tasks.parquet``, ``stats.json`` and, last, ``info.json``. An error or Ctrl-C
-while writing still finishes the episodes already added (their files and ``meta/``), so the folder is a valid
-dataset of those episodes, which ``append=True`` continues in new files; a kill or a full disk leaves the last
-finished state and at most a hidden temporary file.
+Parquet, ``meta/``) with pyarrow and PyAV. Every file is renamed into place once complete, ``meta/info.json`` last;
+an error or Ctrl-C still finishes the episodes added, so the folder is always a dataset that ``append=True``
+continues, and a kill or full disk leaves the last finished state.
 """
 
 from __future__ import annotations
@@ -103,18 +98,14 @@ class _Segment:
 
 
 class LeRobotWriter:
-    """Writes episodes as a LeRobot v3.0 dataset folder: one camera (MP4), the actions and optionally agent masks,
-    with the statistics (``meta/stats.json`` and per episode) and ``meta/tasks.parquet`` LeRobot reads.
-
-    Row ``t`` of an episode holds frame ``t`` and action ``t``; the last frame has no action and gets zeros (the
-    reader drops it again). Timestamps are ``frame_index / fps``.
+    """Writes episodes as a LeRobot v3.0 dataset folder with the statistics and ``meta/tasks.parquet`` LeRobot
+    reads. Row ``t`` holds frame ``t`` and action ``t`` (the last frame's action is zeros); timestamps ``t / fps``.
 
     :param root: a new or empty folder; with ``append=True`` also a dataset this writer wrote, continued.
     :param codec: an FFmpeg video encoder: ``"libsvtav1"`` (AV1, LeRobot's default; lossy), ``"libx264"`` (H.264,
         lossy) or ``"libx264rgb"`` (H.264 in RGB with ``qp=0``: lossless, frames read back exactly).
     :param episodes_per_file: start a new data and video file every this many episodes (None: one file each).
-    :param append: continue a dataset in ``root`` written by this writer (new episodes go to new files); it must
-        have the same frame shape, action size, fps, camera and masks.
+    :param append: continue a dataset of this writer in ``root`` (same frame shape, action size, fps and masks).
     """
 
     def __init__(

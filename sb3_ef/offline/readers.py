@@ -68,9 +68,9 @@ class FolderDataset(EpisodeDataset):
 
 
 class MinariDataset(EpisodeDataset):
-    """Episodes of a local Minari dataset of image observations: channels-last, channels-first or frame-stacked (the
-    newest frame kept), under ``observation_key`` (default ``"pixels"`` or ``"image"``) of dict observations; agent
-    masks from the step infos under ``mask_key`` when present."""
+    """Episodes of a local Minari dataset of image observations (channels-last, channels-first or frame-stacked),
+    under ``observation_key`` (default ``"pixels"`` or ``"image"``) of dict ones; agent masks from infos' ``mask_key``.
+    """
 
     def __init__(
         self, dataset_id: str, observation_key: str | None = None, mask_key: str = "agent_mask", min_frames: int = 2
@@ -124,11 +124,9 @@ def _channels_first(images: np.ndarray, source: str) -> np.ndarray:
 
 
 class BAIRDataset(ExampleShards):
-    """BAIR robot pushing (``softmotion30_44k``) TFRecords, read without TensorFlow: one ``tf.train.Example`` per
-    episode with, per step ``t``, ``{t}/{camera}/encoded`` (raw RGB bytes of ``image_size`` squared, or a JPEG / PNG)
-    and ``{t}/action``; the last of the 30 actions has no frame after it and is dropped.
-    ``paths``: TFRecord files or a folder of them; ``camera``: ``"image_aux1"`` (the 64x64 view) or ``"image_main"``.
-    """
+    """BAIR robot pushing (``softmotion30_44k``) TFRecord files or a folder of them: an Example per episode with, per
+    step ``t``, ``{t}/{camera}/encoded`` (raw RGB of ``image_size`` squared, or a JPEG / PNG) and ``{t}/action``;
+    ``camera``: ``"image_aux1"`` (the 64x64 view) or ``"image_main"``."""
 
     def __init__(
         self,

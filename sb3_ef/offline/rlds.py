@@ -1,9 +1,6 @@
-"""RLDS / TFDS episode shards (Open X-Embodiment and other RLDS datasets) read without TensorFlow.
-
-A TFDS folder (``<name>/<version>/``) holds ``features.json`` and shards ``<name>-<split>.tfrecord-00000-of-00016``
-of one ``tf.train.Example`` per episode, its steps stacked under ``/``-joined names: ``steps/observation/image`` one
-JPEG / PNG per step, ``steps/action`` (or its dict's parts) floats of steps x size. The last action is dropped.
-"""
+"""RLDS / TFDS episode shards (Open X-Embodiment) read without TensorFlow: a TFDS folder (``<name>/<version>/``) of
+``features.json`` and shards ``<name>-<split>.tfrecord-00000-of-00016`` of one Example per episode, its steps stacked
+under ``/``-joined names (``steps/observation/image``: a JPEG / PNG per step; ``steps/action``: floats)."""
 
 from __future__ import annotations
 

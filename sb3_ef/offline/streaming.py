@@ -1,9 +1,6 @@
-"""Training windows from datasets larger than memory: episodes indexed on open, decoded on demand into a bounded pool.
-
-:class:`StreamingWindowSampler` draws each batch uniformly over the windows of a pool of decoded episodes (as many
-as fit in ``cache_mb``) and first swaps ``swap`` of them for episodes drawn in proportion to their window counts, so
-every window keeps the same long-run rate; when the dataset fits, the draws are exactly ``WindowSampler``'s.
-"""
+"""Training windows from datasets larger than memory: each batch is drawn uniformly over the windows of a pool of
+decoded episodes (``cache_mb``), after ``swap`` of them are replaced by episodes drawn in proportion to their window
+counts, so every window keeps the same long-run rate (``WindowSampler``'s draws when the dataset fits)."""
 
 from __future__ import annotations
 
@@ -106,9 +103,8 @@ class StreamingWindowSampler:
 
 
 class WindowStream(th.utils.data.IterableDataset):
-    """Endless batches for ``DataLoader(stream, batch_size=None, num_workers=workers)``: each worker samples with its
-    own :class:`StreamingWindowSampler` (``sampler`` its arguments), seeded ``seed + worker id``, with ``cache_mb /
-    workers`` of memory."""
+    """Endless batches for ``DataLoader(stream, batch_size=None, num_workers=workers)``: each worker has its own
+    :class:`StreamingWindowSampler`, seeded ``seed + worker id``, with ``cache_mb / workers`` of memory."""
 
     def __init__(self, batch_size: int, workers: int, **sampler: Any):
         super().__init__()

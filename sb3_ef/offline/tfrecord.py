@@ -1,9 +1,6 @@
-"""TFRecord files of ``tf.train.Example`` records, read without TensorFlow.
-
-A record is ``length`` (uint64, little endian), the masked CRC-32C of those 8 bytes (uint32), ``length`` bytes of
-data (here an Example: feature name -> list of bytes, floats or int64s) and the masked CRC-32C of the data. CRC-32C
-runs in C through ``google-crc32c`` or ``crc32c`` when installed, else in pure Python (about 3 MB/s).
-:class:`ExampleShards` reads episodes of one Example per record, with errors naming the file and the episode.
+"""TFRecord files (read and written) and ``tf.train.Example`` records (read) without TensorFlow. A record is its
+length (uint64), that length's masked CRC-32C, the data and the data's masked CRC-32C (in C with ``google-crc32c`` or
+``crc32c``, else pure Python). :class:`ExampleShards`: episodes of one Example per record.
 """
 
 from __future__ import annotations
