@@ -1,18 +1,8 @@
-"""``sb3-ef upgrade OLD.zip NEW.zip``: a model file saved by sb3-ef 0.1.0, converted once into this version's
-format (nothing a user saved is lost; ``load`` itself reads only this version's files and names this command when
-given an old one).
-
-sb3-ef 0.1.0 kept Ego-Foresight inside the host. Its EF module was the policy's ``ef`` (state-dict keys ``ef.*``)
-and was trained by the optimiser of the weights it shapes: in the critic optimiser's one parameter group (DrQv2-EF),
-in a group named ``ef`` of the world-model optimiser (TDMPC2-EF), or by an ``ef_optimizer`` (SAC-EF, TD3-EF,
-TQC-EF). An EF variant saved the plain host's policy class, DrQ-v2 and TD-MPC2 put EF's horizon (and TD-MPC2 its
-planning horizon and discount) into the saved ``policy_kwargs``, and three attributes had other names.
-
-:func:`upgrade` finds the algorithm that saved such a file, rewrites the file's pickled attributes in memory
-(:func:`upgraded_file`), loads it while moving its weights and optimiser states to where the model keeps them
-(:func:`upgraded_parameters`: the auxiliary module, ``policy.auxiliary`` or ``auxiliary_module`` for the SB3 hosts,
-whose Ego-Foresight module is its ``ef``, in a parameter group of its own), and saves the model. A file saved by
-0.1.0 is told by its data, which lacks the ``algorithm`` entry that later versions save.
+"""``sb3-ef upgrade OLD.zip NEW.zip``: a model file of sb3-ef 0.1.0 (told by its data's missing ``algorithm``
+entry) converted once into this version's format, nothing lost. 0.1.0 kept EF inside the host: the policy's ``ef.*``
+weights, trained in the host's optimiser groups or an ``ef_optimizer``, the plain host's policy class, algorithm
+arguments in ``policy_kwargs``, three attributes named otherwise. :func:`upgraded_file` rewrites the data in memory,
+:func:`upgraded_parameters` moves weights and optimiser states to the auxiliary module, then the model is saved.
 """
 
 from __future__ import annotations
@@ -54,10 +44,8 @@ def upgraded_file(
     with_ef: bool,
     custom_objects: dict[str, Any] | None = None,
 ) -> str | pathlib.Path | io.BufferedIOBase:
-    """``path`` itself, or, for a file saved by sb3-ef 0.1.0, an in-memory copy whose data is that of a file saved
-    by ``algorithm`` (``with_ef``: an Ego-Foresight variant): attributes renamed, the policy class the algorithm's,
-    the algorithm-set ``policy_kwargs`` dropped, the ``algorithm`` entry added. Raises a ``ValueError`` when the file
-    was saved with Ego-Foresight and ``algorithm`` has none, or the other way round."""
+    """``path`` itself, or for a file of sb3-ef 0.1.0 an in-memory copy with the data ``algorithm`` saves (an EF
+    variant when ``with_ef``; ``ValueError`` when the file says otherwise)."""
     file = open_path(path, "r", verbose=0, suffix="zip")
     position = file.tell()
     try:
@@ -99,14 +87,9 @@ def _upgraded_data(
     values = _deserialised(data, ("policy_class", "policy_kwargs"), custom_objects)
     policy_class = values.get("policy_class")
     if isinstance(policy_class, type):  # the EF variant's policy, a subclass of the plain one 0.1.0 saved
-        values["policy_class"] = next(
-            (
-                alias
-                for alias in getattr(algorithm, "policy_aliases", {}).values()
-                if alias is not policy_class and issubclass(alias, policy_class)
-            ),
-            policy_class,
-        )
+        aliases = getattr(algorithm, "policy_aliases", {}).values()
+        subclasses = [alias for alias in aliases if alias is not policy_class and issubclass(alias, policy_class)]
+        values["policy_class"] = subclasses[0] if subclasses else policy_class
     if isinstance(values.get("policy_kwargs"), dict):
         dropped = ALGORITHM_POLICY_KWARGS if with_ef else ALGORITHM_POLICY_KWARGS + EF_POLICY_KWARGS
         values["policy_kwargs"] = {key: value for key, value in values["policy_kwargs"].items() if key not in dropped}
@@ -123,10 +106,8 @@ def _deserialised(data: dict[str, Any], keys: tuple[str, ...], custom_objects: d
 def upgraded_parameters(
     load_path_or_dict: str | pathlib.Path | io.BufferedIOBase | dict[str, Any], model: Any, device: th.device | str
 ) -> dict[str, Any]:
-    """The state dicts to give SB3's ``set_parameters`` (read from the zip when given a file). Those of a model
-    saved by sb3-ef 0.1.0 with Ego-Foresight move to where ``model`` keeps them: EF's weights (``ef.*`` of the
-    policy) to its auxiliary module, ``ef_optimizer`` to ``auxiliary_optimizer``, and each optimiser's parameter
-    groups to the model's layout (EF's parameters in a group of their own)."""
+    """The state dicts for SB3's ``set_parameters``, those of a 0.1.0 EF model moved to where ``model`` keeps them:
+    ``ef.*`` to the auxiliary module, ``ef_optimizer`` to ``auxiliary_optimizer``, optimiser groups regrouped."""
     if isinstance(load_path_or_dict, dict):
         params = load_path_or_dict
     else:
@@ -159,9 +140,8 @@ def _attribute(model: Any, dotted_name: str) -> Any:
 
 
 def _regrouped(state: dict[str, Any], optimizer: th.optim.Optimizer, name: str) -> dict[str, Any]:
-    """A 0.1.0 optimiser state with the parameter groups of ``optimizer`` (the same parameters in the same order):
-    one group that the model splits (EF's parameters after the host's) is cut at the same places, each part keeping
-    the group's settings; groups of the same sizes take the model's group names (``ef`` was renamed)."""
+    """A 0.1.0 optimiser state with ``optimizer``'s parameter groups: one group the model splits is cut at the same
+    places; groups of the same sizes take the model's group names (``ef`` was renamed)."""
     saved_groups, groups = state["param_groups"], optimizer.param_groups
     saved_sizes = [len(group["params"]) for group in saved_groups]
     sizes = [len(group["params"]) for group in groups]
@@ -184,9 +164,8 @@ def _regrouped(state: dict[str, Any], optimizer: th.optim.Optimizer, name: str) 
 
 
 def legacy_algorithm(data: dict[str, Any]) -> type:
-    """The class of this version that loads the model whose 0.1.0 ``data`` is given: the registry's algorithm whose
-    0.1.0 files hold that policy class (``legacy_policy_module``), and for the hosts with a plain and an EF variant
-    (DrQ-v2, TD-MPC2) the one that matches whether it trained Ego-Foresight."""
+    """The registry's algorithm whose 0.1.0 files hold ``data``'s policy class (``legacy_policy_module``), the EF
+    variant or not as ``data`` trained Ego-Foresight."""
     with_ef = data.get("ef_horizon") is not None
     module = (data.get("policy_class") or {}).get("__module__")
     candidates = [item for item in registry.ALGORITHMS.values() if item.legacy_policy_module == module]
@@ -198,9 +177,8 @@ def legacy_algorithm(data: dict[str, Any]) -> type:
 
 
 def upgrade(source: str | os.PathLike, destination: str | os.PathLike, device: str = "cpu") -> type:
-    """Convert the model file ``source`` saved by sb3-ef 0.1.0 into ``destination`` (written whole or not at all;
-    ``source`` is never changed, and may be ``destination`` only by name of another file). Returns the class that
-    loads the new file. Raises ``ValueError`` when ``source`` is not a file of sb3-ef 0.1.0."""
+    """Convert ``source``, saved by sb3-ef 0.1.0 (else ``ValueError``), into the new file ``destination``, written
+    atomically; returns the class that loads it."""
     data = saved_data(source)
     if data is None:
         raise ValueError(f"{source} is not a saved model: expected a zip archive written by save()")
