@@ -2,14 +2,9 @@
 ``benchmark`` (sb3_ef.grid), ``collect``, ``pretrain``, ``predict`` (sb3_ef.offline) and ``upgrade``
 (sb3_ef.upgrade).
 
-Each subcommand forwards the rest of the command line untouched, so ``sb3-ef train --help`` shows rl-zoo3's
-training options with sb3-ef's and ``sb3-ef analyze --help`` the analysis ones. The arguments are checked before
-the command's heavy imports (torch, rl-zoo3), so a mistyped option is reported at once. A user error (bad argument,
-missing file, missing package or rendering backend) is printed as one line, ``sb3-ef <command>: error: ...`` (with
-the error's notes, such as the checkpoint a failed run continues from), with exit status 2; set
-``SB3_EF_TRACEBACK=1`` to see the traceback instead. Ctrl-C that reaches this level (a command stops and saves its
-work itself where it can) is one line too, ``sb3-ef <command>: interrupted[: what was kept]``, exit status 130
-(``sb3_ef.common.interrupt``).
+Each subcommand gets the rest of the command line, checked before its heavy imports. A user error is one line,
+``sb3-ef <command>: error: ...`` (with the error's notes), exit status 2 (``SB3_EF_TRACEBACK=1`` shows the
+traceback); Ctrl-C is one line too, ``sb3-ef <command>: interrupted[: what was kept]``, exit status 130.
 """
 
 from __future__ import annotations
@@ -110,7 +105,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt as interrupt:
         if os.environ.get("SB3_EF_TRACEBACK") == "1":
             raise
-        # on a line of its own, after a progress bar's
         print(f"\n{interrupted_line(f'sb3-ef {argv[0]}', interrupt)}", file=sys.stderr, flush=True)
         return INTERRUPTED_STATUS
 

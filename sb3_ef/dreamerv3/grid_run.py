@@ -1,16 +1,6 @@
-"""A ``dreamerv3`` row of ``sb3-ef benchmark``: the run's files and resume rule are those of every other row
-(:mod:`sb3_ef.grid.run`), the training is sheeprl's. ``sb3-ef train --algo dreamerv3`` trains with
-:func:`train_dreamerv3` too, into an rl-zoo3 run folder.
-
-Files below the results folder ``out`` (``<run_id>`` is ``<label>/<task>_s<seed>``)::
-
-    out/<run_id>.csv                        evaluation records, as every row writes them
-    out/<run_id>/checkpoints/               sheeprl's runs (checkpoints, replay buffer) and latest.json
-    out/<run_id>/model.zip                  the final model (DreamerV3.save: no replay buffer)
-    out/<run_id>/result.json                written last: the run is finished
-
-A run that finds ``checkpoints/latest.json`` resumes from the checkpoint it names, after dropping the evaluation
-rows past that checkpoint's step; one that finds none starts again.
+"""A ``dreamerv3`` row of ``sb3-ef benchmark``: its files and resume rule are every row's (:mod:`sb3_ef.grid.run`),
+its training sheeprl's; ``checkpoints/`` holds sheeprl's runs and ``latest.json``, the checkpoint it resumes from.
+``sb3-ef train --algo dreamerv3`` trains with :func:`train_dreamerv3` too.
 """
 
 from __future__ import annotations
@@ -50,9 +40,7 @@ def execute_dreamerv3_run(
     keep_checkpoints: int | None = 2,
     node: str | None = None,
 ) -> RunResult:
-    """Train one ``dreamerv3`` run to ``spec.n_timesteps`` agent steps, evaluating every ``spec.eval_freq`` steps
-    and checkpointing every ``spec.checkpoint_freq``, resuming from its latest checkpoint; the arguments are
-    :func:`sb3_ef.grid.run.execute_run`'s."""
+    """:func:`sb3_ef.grid.run.execute_run` for ``dreamerv3``."""
     paths = RunPaths.of(out, spec)
     finished = read_result(paths)
     if finished is not None:
@@ -63,8 +51,8 @@ def execute_dreamerv3_run(
 
 
 def new_dreamerv3(spec: RunSpec, env: gym.Env, device: str, work_dir: Path) -> DreamerV3:
-    """The model of a ``dreamerv3`` run that starts anew, on ``env``, writing into ``work_dir`` (created when it
-    trains); its arguments, sheeprl overrides included, and the env's frames are checked here."""
+    """The model of a ``dreamerv3`` run that starts anew, on ``env``, writing into ``work_dir`` (checks its
+    arguments)."""
     from sb3_ef.dreamerv3 import DreamerV3
 
     given = sorted(set(RUNNER_SET) & set(spec.hyperparams))
@@ -75,16 +63,15 @@ def new_dreamerv3(spec: RunSpec, env: gym.Env, device: str, work_dir: Path) -> D
 
 
 def check_dreamerv3_row(spec: RunSpec, env: gym.Env, device: str) -> None:
-    """The grid check of a ``dreamerv3`` row (``sb3_ef.grid.checks``): its model built on ``env`` (nothing is
-    trained or written)."""
+    """The grid check of a ``dreamerv3`` row: its model built on ``env``, nothing trained or written."""
     new_dreamerv3(spec, env, device, Path(tempfile.gettempdir(), "sb3_ef_dreamerv3_check"))
 
 
 def train_dreamerv3(
     spec: RunSpec, paths: RunPaths, threads: int, device: str, keep_checkpoints: int | None
 ) -> tuple[int, int | None]:
-    """Train the run of ``spec`` into ``paths`` (resumed from its latest checkpoint, if any) and save its final
-    model; return the steps trained and the step it resumed from (``None``: it started anew)."""
+    """Train (or resume) the run of ``spec`` into ``paths`` and save its final model; return the steps trained and
+    the step it resumed from (``None``: started anew)."""
     import torch as th
 
     from sb3_ef.dreamerv3 import DreamerV3, Evaluation

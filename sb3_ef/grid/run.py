@@ -7,8 +7,7 @@ Files of a run below the results folder ``out`` (``<run_id>`` is ``<label>/<task
     out/<run_id>/model.zip          the final model (no replay buffer)
     out/<run_id>/result.json        written last: the run is finished (a rerun skips it)
 
-A run that finds checkpoints resumes from the newest one; evaluation rows after that checkpoint's step are
-dropped first, so the records never hold an evaluation twice.
+A run resumes from its newest checkpoint, dropping the evaluation rows after that checkpoint's step first.
 """
 
 from __future__ import annotations
@@ -44,9 +43,8 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class RunResult:
-    """How a run ended. ``status`` is ``done`` (trained now), ``skipped`` (finished before) or ``failed``;
-    ``records`` are its evaluation rows (so a driver on another machine can write them); ``node`` is the id of the
-    Ray node that ran it (``None`` on the local pool)."""
+    """How a run ended: ``status`` ``done`` (trained now), ``skipped`` (finished before) or ``failed``; its
+    evaluation ``records`` (for a driver on another machine) and the Ray ``node`` that ran it."""
 
     run_id: str
     status: str
@@ -61,8 +59,7 @@ class RunResult:
 
 @dataclass(frozen=True)
 class RunPaths:
-    """Where a run's files live: its evaluation CSV, its folder (``checkpoints/`` and ``result.json`` inside) and its
-    final model (``<folder>/model.zip`` in a grid, :meth:`of`)."""
+    """Where a run's files live (module docstring); :meth:`of` gives a grid run's."""
 
     records: Path
     folder: Path
@@ -95,8 +92,7 @@ def read_result(paths: RunPaths) -> RunResult | None:
 
 
 def store_result(paths: RunPaths, result: RunResult) -> None:
-    """Write a finished run's records (unless present) and then its ``result.json``; a run that already has its
-    ``result.json`` is left as it is."""
+    """Write a finished run's records (unless present), then its ``result.json`` (unless present)."""
     if paths.result.is_file():
         return
     if not paths.records.is_file():
@@ -115,9 +111,7 @@ def build_env(spec: RunSpec, seed: int) -> gym.Env:
 
 
 def build_eval_env(spec: RunSpec, seed: int) -> DummyVecEnv:
-    """The evaluation env of a run trained with ``seed``: one monitored env, seeded with ``seed + EVAL_SEED_OFFSET``
-    so that its episodes differ from the training ones (deterministic actions are the caller's choice;
-    :class:`StepSeededEvalCallback` reseeds it before every evaluation)."""
+    """One monitored env seeded with ``seed + EVAL_SEED_OFFSET``, so its episodes differ from the training ones."""
     from stable_baselines3.common.monitor import Monitor
     from stable_baselines3.common.vec_env import DummyVecEnv
 
@@ -127,8 +121,7 @@ def build_eval_env(spec: RunSpec, seed: int) -> DummyVecEnv:
 
 
 def action_noise(noise_type: Any, noise_std: Any, action_space: gym.Space) -> ActionNoise:
-    """SB3's action noise of rl-zoo3's ``noise_type`` (``normal`` or ``ornstein-uhlenbeck``) and ``noise_std`` keys,
-    as rl-zoo3 builds it for its runs, sized to ``action_space``."""
+    """SB3's action noise of rl-zoo3's ``noise_type`` and ``noise_std`` keys, built as rl-zoo3 builds it."""
     import numpy as np
     from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
 
@@ -144,8 +137,7 @@ def action_noise(noise_type: Any, noise_std: Any, action_space: gym.Space) -> Ac
 
 
 def new_model(spec: RunSpec, env: gym.Env, device: str, **options: Any) -> Any:
-    """The algorithm of a run that starts anew, on ``env``: its class with the run's hyperparameters
-    (rl-zoo3's ``noise_type`` / ``noise_std`` made into ``action_noise``, as rl-zoo3 does) and ``options``."""
+    """The algorithm of a run that starts anew, on ``env``, with the run's hyperparameters and ``options``."""
     kwargs = constructor_kwargs(dict(spec.hyperparams))
     if "noise_type" in kwargs or "noise_std" in kwargs:
         noise = kwargs.pop("noise_type", None), kwargs.pop("noise_std", None)
@@ -171,13 +163,9 @@ def execute_run(
     node: str | None = None,
 ) -> RunResult:
     """Train one run to ``spec.n_timesteps`` agent steps (resuming from its newest checkpoint) and record it, with the
-    run function the algorithm registry names for ``spec.algo`` (:func:`execute_sb3_run` unless another trains it);
-    ``node`` names the cluster node that runs it, stored in its result.
-
-    ``keep_checkpoints``: the newest checkpoints kept while it trains, all deleted when it finishes; ``None`` keeps
-    every checkpoint, also after the run (to study its course).
-
-    A finished run (``result.json`` present) is not trained again: its stored result comes back as ``skipped``.
+    registry's run function of ``spec.algo``; a finished run comes back ``skipped``. ``keep_checkpoints``: the
+    newest checkpoints kept while it trains, all deleted at its end (``None``: all kept for good); ``node``: the
+    cluster node, stored in the result.
     """
     run = import_target(registry.entry(spec.algo, "RunSpec.algo").grid_run)
     return run(spec, out, threads, device, keep_checkpoints, node)
@@ -191,8 +179,7 @@ def execute_sb3_run(
     keep_checkpoints: int | None = 2,
     node: str | None = None,
 ) -> RunResult:
-    """:func:`execute_run` for an algorithm SB3's ``learn`` trains, with SB3's callbacks for the evaluations and the
-    checkpoints."""
+    """:func:`execute_run` for an algorithm SB3's ``learn`` trains."""
     import torch as th
 
     from sb3_ef.common.checkpoints import ResumableCheckpointCallback, latest_checkpoint, load_checkpoint
@@ -216,8 +203,7 @@ def execute_sb3_run(
         model = load_checkpoint(algo_class, checkpoint, env, device=device)
         resumed_from = model.num_timesteps
         truncate_records(paths.records, resumed_from)
-    # The records name an algorithm by its class, as every other record writer does (EvalRecorderCallback, the zoo
-    # export); a variant keeps its own label (e.g. drqv2_ef_beta1e-3), so it stays apart from the default.
+    # Records name an algorithm by its class; a variant keeps its own label, apart from the default.
     record_name = algo_class.__name__ if spec.label == spec.algo else spec.label
     recorder = EvalRecorderCallback(
         paths.records, algo=record_name, task=spec.task, seed=spec.seed, action_repeat=spec.action_repeat
@@ -253,8 +239,7 @@ def finish_run(
     node: str | None,
     keep_checkpoints: int | None,
 ) -> RunResult:
-    """Record a run that reached its steps: its result (with its evaluation rows) written last, then its
-    checkpoints removed unless all are kept (``keep_checkpoints=None``)."""
+    """Store the result of a run that reached its steps, then remove its checkpoints unless all are kept."""
     records = read_records(paths.records)
     result = RunResult(
         run_id=spec.run_id,

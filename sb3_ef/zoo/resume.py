@@ -1,32 +1,18 @@
 """rl-zoo3 runs that continue: resumable checkpoints, ``-i`` that carries on, and no empty run folders.
 
-rl-zoo3's ``-i model.zip`` loads the model and trains ``-n`` more steps from step 0 in a new run folder: babbling,
-the ``learning_starts`` warm-up and the schedules start again, evaluations restart at step 0, and its checkpoints
-hold neither the replay buffer nor the random states. :class:`ResumingExperimentManager` changes, for every
-algorithm:
+rl-zoo3's ``-i model.zip`` trains ``-n`` more steps from step 0 in a new run folder, and its checkpoints hold
+neither the replay buffer nor the random states. :class:`ResumingExperimentManager`, for every algorithm:
 
-- ``--save-freq`` writes :class:`~sb3_ef.common.checkpoints.ResumableCheckpointCallback` checkpoints (random
-  states always, the replay buffer with ``--checkpoint-buffer``, the newest ``--keep-checkpoints`` kept);
-- ``-i`` loads the model with the buffer and random states saved beside it and trains until the run has ``-n`` (or
-  the config's ``n_timesteps``) steps in all, continuing its step count; when the model lies in an rl-zoo3 run
-  folder the run continues there: ``evaluations.npz`` and the monitor files are appended to, the evaluation steps
-  carry on, the final model replaces the old one;
-- the evaluation env is reseeded before each evaluation from the run's seed and the step
-  (:class:`~sb3_ef.common.evaluation.StepSeededEvalCallback`), so a continued run evaluates on the episodes of the
-  uninterrupted one; a run started without ``--seed`` saves the seed rl-zoo3 drew with its arguments, for
-  ``--resume``;
-- each evaluation is also recorded in ``<run>/<env>.csv`` (the format of :mod:`sb3_ef.analysis.records`; a
-  continued run first drops the rows after its checkpoint, so each step appears once), and ``<env>/result.json``
-  marks the run finished once it reaches its total (:mod:`sb3_ef.zoo.records`);
-- a run that fails before training starts removes the folders it created (run folder, and log folders that did
-  not exist before);
-- progress is printed every 10 s of wall time (:class:`~sb3_ef.zoo.progress.ProgressLogCallback`); ``-P``'s bar
-  only when the output is a terminal, where it draws;
-- an error during training gets a note naming the run's last checkpoint and the ``sb3-ef train --resume`` command
-  that continues from it (``sb3-ef train`` prints it with the error);
-- Ctrl-C stops training (rl-zoo3 then saves the final model) and, with ``--save-freq``, writes a resumable
-  checkpoint of the step reached (with the replay buffer under ``--checkpoint-buffer``); ``sb3-ef train`` then
-  prints one line saying what was kept and exits with status 130.
+- ``--save-freq`` writes resumable checkpoints (the replay buffer with ``--checkpoint-buffer``, the newest
+  ``--keep-checkpoints`` kept); Ctrl-C writes one of the step reached;
+- ``-i`` loads the buffer and random states beside the model and trains up to ``-n`` steps in all; a model in an
+  rl-zoo3 run folder continues that folder (evaluations, monitor files and records appended to);
+- evaluations are step-seeded (a continued run sees the uninterrupted one's episodes) and recorded in
+  ``<run>/<env>.csv``; ``<env>/result.json`` marks a finished run (:mod:`sb3_ef.zoo.records`);
+- a run started without ``--seed`` saves the seed rl-zoo3 drew, for ``--resume``;
+- a run that fails before training removes the folders it created; an error during training gets a note naming
+  the ``sb3-ef train --resume`` command that continues it;
+- progress is printed every 10 s; ``-P``'s bar only on a terminal.
 """
 
 from __future__ import annotations
@@ -97,8 +83,7 @@ def outermost_missing(path: Path) -> Path | None:
 
 
 def continue_evaluations(callback: EvalCallback) -> None:
-    """Start ``callback`` from the evaluations its ``evaluations.npz`` already holds, so new ones are appended
-    and ``best_model.zip`` is only replaced by a better mean return."""
+    """Start ``callback`` from the evaluations its ``evaluations.npz`` holds (new ones appended, the best kept)."""
     path = f"{callback.log_path}.npz" if callback.log_path is not None else None
     if path is None or not os.path.isfile(path):
         return
@@ -113,8 +98,7 @@ def continue_evaluations(callback: EvalCallback) -> None:
 
 
 def resume_note(run_dir: str | os.PathLike, resume_command: str) -> str:
-    """Where a run that stopped part-way in ``run_dir`` continues from: its newest intact checkpoint and
-    ``resume_command``, or that it saved none."""
+    """Where a run that stopped part-way in ``run_dir`` continues from, with ``resume_command``."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # a damaged newest checkpoint is passed over: the note names the one used
         checkpoint = latest_checkpoint(run_dir, intact=True)
@@ -128,8 +112,7 @@ def resume_note(run_dir: str | os.PathLike, resume_command: str) -> str:
 
 @contextmanager
 def noting_last_checkpoint(run_dir: str | os.PathLike, resume_command: str) -> Iterator[None]:
-    """Add :func:`resume_note` to an error that escapes the block (``error.__notes__``: shown under its traceback,
-    and by ``sb3-ef`` on the error's line). Ctrl-C passes unchanged."""
+    """Add :func:`resume_note` to an error that escapes the block (Ctrl-C passes unchanged)."""
     try:
         yield
     except Exception as error:
@@ -138,8 +121,8 @@ def noting_last_checkpoint(run_dir: str | os.PathLike, resume_command: str) -> I
 
 
 class _Watched:
-    """A model whose ``learn`` (rl-zoo3 calls ``model.learn(n_timesteps, ...)``) records a Ctrl-C, which rl-zoo3
-    then catches before it saves the model, and keeps its counters when ``continuing``."""
+    """A model whose ``learn`` records a Ctrl-C (which rl-zoo3 swallows) and keeps its counters when
+    ``continuing``."""
 
     def __init__(self, model: BaseAlgorithm, continuing: bool):
         self._model, self._continuing = model, continuing
@@ -212,8 +195,8 @@ class ResumingExperimentManager(ExperimentManager):
                 self.callbacks[index] = step_seeded
 
     def _recorder(self, eval_env: VecEnv) -> EvalRecorderCallback:
-        """The recorder of the run's evaluation CSV; a continued run's rows after its checkpoint are dropped (they
-        are evaluated again) and the run is no longer marked finished."""
+        """The recorder of the run's evaluation CSV; a continued run drops its rows after the checkpoint and its
+        finished mark."""
         path = run_records_path(self.save_path, self.env_name)
         if self.continues_folder:
             assert self.checkpoint is not None
@@ -248,9 +231,8 @@ class ResumingExperimentManager(ExperimentManager):
         Path(self.params_path, ARGV_FILE).write_text(json.dumps(with_seed(self.argv, self.seed)))
 
     def learn(self, model: BaseAlgorithm) -> None:
-        """rl-zoo3's ``learn`` (which stops at Ctrl-C); a continued model trains up to ``n_timesteps`` steps in all,
-        its counters kept. A run that reaches its total is marked finished; one stopped early writes a resumable
-        checkpoint when ``--save-freq`` is set."""
+        """rl-zoo3's ``learn`` up to ``n_timesteps`` steps in all; marks the run finished, or checkpoints a stopped
+        one."""
         total = self.n_timesteps
         with noting_last_checkpoint(self.save_path, self.resume_command):  # a failure names where to continue from
             self._learn(model)
@@ -263,8 +245,7 @@ class ResumingExperimentManager(ExperimentManager):
                 print(f"Stopped at step {model.num_timesteps} of {total}: checkpoint {saved.model_path}", flush=True)
 
     def save_trained_model(self, model: BaseAlgorithm) -> None:
-        """rl-zoo3's save; after a Ctrl-C, then :class:`~sb3_ef.common.interrupt.Interrupted` saying what was kept
-        (``sb3-ef train`` prints it as one line and exits with status 130)."""
+        """rl-zoo3's save; after a Ctrl-C, :class:`~sb3_ef.common.interrupt.Interrupted` saying what was kept."""
         super().save_trained_model(model)
         if self.interrupted:
             raise Interrupted(
@@ -274,7 +255,6 @@ class ResumingExperimentManager(ExperimentManager):
 
     @property
     def resume_command(self) -> str:
-        """The command that continues this run from its newest checkpoint or final model."""
         return f"sb3-ef train --resume {self.save_path}"
 
     def _learn(self, model: BaseAlgorithm) -> None:

@@ -1,19 +1,10 @@
 """``python -m sb3_ef.zoo.train``: rl-zoo3's ``train`` with sb3-ef's algorithms, configs and environments.
 
-Takes exactly rl-zoo3's arguments. Differences, all on top of rl-zoo3's own behaviour:
-
-- ``--algo drqv2_ef | drqv2 | tdmpc2_ef | tdmpc2 | sear | curl | sac_ef | td3_ef | tqc_ef | dreamerv3`` (the keys of
-  ``sb3_ef.registry``) read ``zoo_configs/<algo>.yml`` unless ``--conf-file`` is given; an algorithm that trains in
-  its own loop (``dreamerv3``) is trained by the function its registry entry names (:mod:`sb3_ef.zoo.sheeprl_run`);
-- ``sb3_ef`` is imported (its gymnasium ids registered) and added to ``--gym-packages`` (recorded in ``args.yml``,
-  so subprocess envs and ``enjoy`` find the ids too);
-- the whole YAML file and the ``--hyperparams`` overrides are checked before anything is built, so a bad key
-  or env id fails at once with the entry and key named;
-- ``-optimize`` uses the Optuna samplers of :mod:`sb3_ef.zoo.hyperparams_opt`;
-- ``--save-freq`` checkpoints can be resumed, ``-i`` continues a run, and ``--resume RUN_DIR`` continues a run from
-  its newest checkpoint with the run's own arguments (:mod:`sb3_ef.zoo.resume`). Options of sb3-ef only:
-  ``--resume RUN_DIR``, ``--checkpoint-buffer`` (checkpoints include the replay buffer) and
-  ``--keep-checkpoints N`` (default 2).
+rl-zoo3's arguments, plus sb3-ef's (:data:`~sb3_ef.zoo.options.SB3_EF_TRAIN_OPTIONS`). The registry's keys read
+``zoo_configs/<algo>.yml`` unless ``--conf-file`` is given (``dreamerv3`` trains in sheeprl's loop); ``sb3_ef`` is
+added to ``--gym-packages`` (recorded in ``args.yml``, for subprocess envs and ``enjoy``); the config and
+``--hyperparams`` are checked before anything is built; ``-optimize`` uses :mod:`sb3_ef.zoo.hyperparams_opt`'s
+samplers; runs resume (:mod:`sb3_ef.zoo.resume`).
 """
 
 from __future__ import annotations
@@ -70,8 +61,7 @@ def _pre_parser() -> argparse.ArgumentParser:
 
 
 def override_values(overrides: list[str], option: str = "--hyperparams") -> dict[str, Any]:
-    """``key:value`` pairs of ``option`` (``--hyperparams``, ``--env-kwargs``, ``--eval-env-kwargs``), values
-    evaluated as rl-zoo3 does (in its namespace)."""
+    """``key:value`` pairs of ``option``, values evaluated as rl-zoo3 does."""
     values = {}
     for override in overrides:
         key, _, value = override.partition(":")
@@ -131,7 +121,6 @@ def prepare(argv: Sequence[str]) -> list[str]:
 
 
 def _sb3_ef_parser() -> argparse.ArgumentParser:
-    """The train options sb3-ef adds to rl-zoo3's (removed before rl-zoo3 parses the rest)."""
     parser = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
     parser.add_argument("--resume", default=None, metavar="RUN_DIR")
     parser.add_argument("--checkpoint-buffer", action="store_true")
@@ -170,9 +159,8 @@ def _without_options(argv: list[str], options: dict[str, bool]) -> list[str]:
 
 
 def resume_point(run_dir: Path, env_folder: str) -> Checkpoint:
-    """Where a run folder continues from: its newest intact checkpoint or its final model ``<env>.zip``, whichever
-    is further (a finished run trained further with a larger ``-n`` starts from its final model); on a tie the
-    checkpoint, which holds the random states (and the buffer)."""
+    """Where a run folder continues from: its newest intact checkpoint or its final model, whichever is further
+    (on a tie the checkpoint, which holds the random states)."""
     candidates = []
     checkpoint = latest_checkpoint(run_dir, intact=True)
     if checkpoint is not None:
@@ -190,9 +178,7 @@ def resume_point(run_dir: Path, env_folder: str) -> Checkpoint:
 
 
 def resume_argv(run_dir: str, extra: list[str]) -> list[str]:
-    """The train arguments that continue ``run_dir``: the run's own (from ``<env>/train_argv.json``) with ``-i``
-    pointing at :func:`resume_point` and ``extra`` over them (:func:`~sb3_ef.zoo.options.merge_train_argv`: every
-    recorded option that ``extra`` does not set is kept; ``key:value`` lists are merged key by key)."""
+    """The run's recorded train arguments with ``-i`` at :func:`resume_point` and ``extra`` merged over them."""
     folder = Path(run_dir)
     saved = sorted(folder.glob(f"*/{ARGV_FILE}"))
     if not folder.is_dir() or len(saved) != 1:
@@ -205,8 +191,7 @@ def resume_argv(run_dir: str, extra: list[str]) -> list[str]:
 
 
 def trained_agent(argv: list[str]) -> str | None:
-    """The ``-i`` model zip of ``argv`` (the last one given), or ``None``; a value that is not a readable model zip
-    is named (rl-zoo3 only asserts it)."""
+    """The last ``-i`` model zip of ``argv``, or ``None``; one that is not a readable model zip is refused."""
     trained = None
     for arg, value in itertools.pairwise(argv):
         if arg in ("-i", "--trained-agent"):
@@ -219,8 +204,8 @@ def trained_agent(argv: list[str]) -> str | None:
 
 
 def own_loop_main(argv: list[str], command: str) -> Callable[[list[str]], None] | None:
-    """The registry's ``command`` (``train`` or ``enjoy``) function for the algorithm of ``argv`` (``--algo``, or with
-    ``--resume`` the run's recorded one) when it trains in its own loop, not rl-zoo3's; else ``None``."""
+    """The registry's ``command`` (``train`` or ``enjoy``) function of ``argv``'s algorithm when it trains in its
+    own loop; ``None`` when rl-zoo3 trains it."""
     options, _ = _sb3_ef_parser().parse_known_args(argv)
     if options.resume is not None:
         saved = sorted(Path(options.resume).glob(f"*/{ARGV_FILE}"))
