@@ -39,12 +39,9 @@ _ACTION_EPS = 1e-6
 class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     """DrQ-v2 (Yarats et al., "Mastering Visual Continuous Control", 2021) with the Stable-Baselines3 interface.
 
-    Random-shift augmentation, a shared conv encoder trained by the critic only (the reference's unprojected output:
-    32 * 35 * 35 = 39200 features at 84x84), a deterministic actor on detached features with a scheduled
-    exploration std, clipped double Q with n-step returns and a critic target (no target encoder).
-
-    An auxiliary representation loss (a subclass's ``_build_auxiliary``, e.g. :class:`DrQv2EF`'s Ego-Foresight) is
-    added to the critic's loss on the same encoder output and trained by the critic's optimiser.
+    Random shifts, a conv encoder trained by the critic only, a deterministic actor on detached features with a
+    scheduled exploration std, clipped double Q with n-step returns. A subclass's auxiliary loss
+    (``_build_auxiliary``, e.g. :class:`DrQv2EF`'s) is added to the critic's loss and optimiser.
 
     :param policy: the policy (``"CnnPolicy"``) or its class.
     :param env: the environment (uint8 stacked RGB frames, channels-first, or channels-last which SB3 transposes;
@@ -61,17 +58,14 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     :param exploration_std: std of the rollout and target-policy noise, as a function of agent steps: a number, a
         ``"linear(initial, final, duration)"`` string or a callable.
     :param target_noise_clip: clip of the noise added to the actions of the target and the actor loss.
-    :param check_finite_losses: raise a ``ValueError`` naming the loss when one is NaN or infinite, before the
-        optimiser step (one device sync per loss: for debugging).
-    :param compile: ``torch.compile`` the update's loss computations (forward and backward; the optimiser steps
-        stay eager): ``False`` (eager), ``True`` (default mode), a mode name (``"reduce-overhead"``: CUDA graphs) or
-        a dict of ``torch.compile`` arguments. Compiling takes minutes at the first update.
+    :param check_finite_losses: raise a ``ValueError`` naming a NaN or infinite loss before the step (debugging).
+    :param compile: ``torch.compile`` the loss computations: ``False``, ``True``, a mode name
+        (``"reduce-overhead"``: CUDA graphs) or a dict of ``torch.compile`` arguments.
     :param replay_buffer_class: a :class:`SequenceReplayBuffer` (sub)class; ``None`` picks it.
     :param replay_buffer_kwargs: extra buffer arguments (``n_steps``, ``gamma`` and the horizon are filled in).
     :param stats_window_size: episodes averaged for the rollout logs.
     :param tensorboard_log: tensorboard log folder (``None``: no tensorboard).
-    :param policy_kwargs: policy arguments, see :class:`DrQv2Policy` (``net_arch``, ``trunk_dim``, ``features_dim``,
-        ...).
+    :param policy_kwargs: see :class:`DrQv2Policy`.
     :param verbose: 0 silent, 1 info, 2 debug.
     :param seed: random seed.
     :param device: torch device; ``"auto"`` uses CUDA when available.
@@ -138,9 +132,7 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
             self._setup_model()
 
     def _setup_model(self) -> None:
-        """SB3's setup with a sequence replay buffer (it computes the n-step returns itself; without an auxiliary
-        loss reading future steps, the shortest window keeps sampling cheap), then the exploration schedule; the
-        losses are compiled in place with ``compile`` (same names, the optimiser steps stay eager)."""
+        """SB3's setup with a sequence replay buffer (n-step returns), the exploration schedule, compiled losses."""
         self._use_sequence_buffer(
             "DrQ-v2 samples n-step discounts (and DrQv2-EF its windows)",
             horizon=max(1, self._auxiliary_horizon()),
@@ -154,7 +146,6 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         self._actor_loss = maybe_compile(self._actor_loss, self.compile)  # type: ignore[method-assign]
 
     def _optimise_auxiliary(self, auxiliary: AuxiliaryLoss) -> None:
-        """The auxiliary module learns with the encoder and critic, from their joint loss."""
         self.policy.critic.optimizer.add_param_group({"params": list(auxiliary.parameters())})
 
     def _create_aliases(self) -> None:
@@ -163,7 +154,6 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         self.critic_target = self.policy.critic_target
 
     def train(self, gradient_steps: int, batch_size: int = 256) -> None:
-        """``gradient_steps`` updates (:meth:`_update`), then their mean losses are logged."""
         self.policy.set_training_mode(True)
         self._update_learning_rate([self.actor.optimizer, self.critic.optimizer])
         updates = []
@@ -174,11 +164,8 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         self.logger.record("train/exploration_std", self.exploration_schedule(self.num_timesteps))
 
     def _update(self, batch: SequenceReplayBufferSamples) -> dict[str, th.Tensor]:
-        """One gradient update, as DrQ-v2's: augment -> encode -> critic (+ auxiliary) step on the encoder, critic
-        and auxiliary module -> actor step on detached features through the frozen critic -> critic target. Returns
-        the (detached) scalars to log, without a device sync. With ``compile`` the exploration std is passed as a
-        tensor, so that its schedule does not recompile the losses, and ``aux_grad_ratio`` is not computed (it
-        differentiates the compiled graph twice)."""
+        """Critic (+ auxiliary) step, actor step on detached features, critic target; returns the scalars to log.
+        The std is a tensor so that its schedule does not recompile; ``aux_grad_ratio`` is skipped when compiled."""
         compiled = self.compile is not False
         if compiled:
             th.compiler.cudagraph_mark_step_begin()
@@ -223,9 +210,7 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         batch: SequenceReplayBufferSamples,
         std: th.Tensor,
     ) -> tuple[th.Tensor, th.Tensor | None, th.Tensor, dict[str, th.Tensor]]:
-        """The losses of the encoder, critic and auxiliary step: ``critic_loss`` and the auxiliary module's weighted
-        loss on the same features (``None`` without one), whose sum the step minimises; the encoder features of the
-        augmented observations; and the (detached) scalars to log."""
+        """Critic loss, weighted auxiliary loss (or ``None``), the encoder features and the scalars to log."""
         features = self.policy.encoder(observations)
         with th.no_grad():
             next_features = self.policy.encoder(next_observations)
@@ -238,8 +223,7 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         return critic_loss, auxiliary_loss, features, logs
 
     def _noisy_actions(self, features: th.Tensor, std: float | th.Tensor) -> th.Tensor:
-        """Actor mean plus clipped Gaussian noise, clamped to the action bounds with a straight-through gradient
-        (DrQ-v2's truncated normal sample)."""
+        """Actor mean plus clipped noise, clamped straight-through (DrQ-v2's truncated normal sample)."""
         mean = self.actor(features)
         noise = (th.randn_like(mean) * std).clamp(-self.target_noise_clip, self.target_noise_clip)
         actions = mean + noise
@@ -249,7 +233,7 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     def _critic_loss(
         self, features: th.Tensor, batch: SequenceReplayBufferSamples, next_features: th.Tensor, std: float | th.Tensor
     ) -> tuple[th.Tensor, th.Tensor]:
-        """Clipped double-Q n-step TD loss against the critic target; returns the loss and the (detached) mean Q."""
+        """Clipped double-Q n-step TD loss and the detached mean Q."""
         with th.no_grad():
             next_actions = self._noisy_actions(next_features, std)
             next_q = th.cat(self.critic_target(next_features, next_actions), dim=1).min(dim=1, keepdim=True).values
@@ -260,13 +244,11 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         return loss, th.cat(current_q, dim=1).mean().detach()
 
     def _actor_loss(self, features: th.Tensor, std: float | th.Tensor) -> th.Tensor:
-        """Deterministic policy gradient: minus the smaller Q of the noisy actor actions, averaged, on detached
-        features (the update freezes the critic meanwhile, so that only the actor learns from it)."""
+        """Minus the smaller Q of the noisy actor actions (the critic is frozen by the caller)."""
         q_values = th.cat(self.critic(features, self._noisy_actions(features, std)), dim=1)
         return -q_values.min(dim=1).values.mean()
 
     def _exploration_action(self, n_envs: int) -> np.ndarray:
-        """The actor mean plus Gaussian noise with the scheduled std, kept inside the action bounds."""
         assert self._last_obs is not None, "self._last_obs was not set"
         mean, _ = self.predict(self._last_obs, deterministic=True)
         std = self.exploration_schedule(self.num_timesteps)
@@ -289,23 +271,16 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
 
 
 class DrQv2EF(EFMixin, DrQv2):
-    """DrQv2-EF (Ego-Foresight on DrQ-v2): the encoder is trained by ``critic_loss + beta * ef_loss``.
-
-    :class:`DrQv2` plus Ego-Foresight: a pooled projection of the encoder output (``features_dim`` 2048), a rollout
-    of the agent part of the features (the first ``agent_dim``) under the next actions and a decoder that predicts
-    the frame ``k`` steps ahead; motor babbling (random +-1 actions) fills the first ``babbling_steps`` agent steps.
-
-    Paper: Nunes et al., "Ego-Foresight: Self-supervised Learning of Agent-Aware Representations for Improved RL"
-    (ICLR 2026).
+    """DrQv2-EF: :class:`DrQv2` whose encoder is also trained by ``beta * ef_loss`` (Ego-Foresight, Nunes et al.,
+    ICLR 2026): the agent part of the projected features is rolled forward under the next actions and decoded to
+    the frame ``k`` steps ahead; motor babbling fills the first ``babbling_steps`` agent steps.
 
     :param beta: weight of the Ego-Foresight loss (to train without EF, use :class:`DrQv2`).
     :param ef_horizon: Ego-Foresight prediction horizon H (the rollout length k is drawn in [1, H]).
     :param babbling_steps: agent steps of motor babbling at the start (0: none).
     :param babbling_mode: ``"sign"`` (random +-1) or ``"clamped_uniform"`` (the authors' code).
-    :param babbling_in_eval: ``predict`` also babbles while ``num_timesteps < babbling_steps`` (the EF authors'
-        Meta-World evaluation protocol).
-    :param policy_kwargs: see :class:`DrQv2EFPolicy` (``agent_dim``, ``ef_kwargs``, ``features_dim``, and
-        :class:`DrQv2Policy`'s).
+    :param babbling_in_eval: ``predict`` also babbles during the babbling steps (the EF authors' Meta-World protocol).
+    :param policy_kwargs: see :class:`DrQv2EFPolicy`.
 
     The other arguments are :class:`DrQv2`'s.
     """
@@ -351,7 +326,6 @@ class DrQv2EF(EFMixin, DrQv2):
             self._setup_model()
 
     def _build_auxiliary(self) -> ForesightLoss:
-        """Ego-Foresight on the encoder's features, sized by the policy (``agent_dim``, ``ef_kwargs``)."""
         policy = self.policy
         if not isinstance(policy, DrQv2EFPolicy):
             raise TypeError(f"DrQv2EF needs a DrQv2EFPolicy (EF's sizes), got {type(policy).__name__}")

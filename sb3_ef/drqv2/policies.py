@@ -1,5 +1,4 @@
-"""DrQ-v2 networks: the pixel encoder (with DrQv2-EF's projection), the actor, the twin critic, and the policies of
-DrQ-v2 and DrQv2-EF."""
+"""DrQ-v2's encoder (with DrQv2-EF's projection), actor, twin critic and the policies of DrQ-v2 and DrQv2-EF."""
 
 from __future__ import annotations
 
@@ -29,16 +28,12 @@ def _conv_output_size(size: int) -> int:
 
 
 class DrQv2Encoder(BaseFeaturesExtractor):
-    """DrQ-v2's conv stack on ``obs / 255 - 0.5``, followed, when ``features_dim`` is given, by DrQv2-EF's
-    ``AvgPool2d(4, 4)`` and a linear projection (no activation, orthogonal init) to ``features_dim``.
-
-    With Ego-Foresight the features are split by :meth:`sb3_ef.ef.EgoForesight.split`: the first ``agent_dim``
-    dimensions are the agent features, the rest the scene features. The encoder itself treats all alike.
+    """DrQ-v2's conv stack on ``obs / 255 - 0.5``, then, with ``features_dim``, DrQv2-EF's ``AvgPool2d(4, 4)`` and a
+    linear projection to ``features_dim``.
 
     :param observation_space: uint8 Box of shape (3 * frame_stack, height, width).
-    :param features_dim: size of the projected features; ``None`` keeps DrQ-v2's flattened conv output
-        (32 * 35 * 35 = 39200 at 84x84). Any image size works as long as the pooled map is at least 1x1
-        (21x21 and larger with the projection, 15x15 without).
+    :param features_dim: size of the projected features; ``None`` keeps DrQ-v2's flattened conv output (39200 at
+        84x84). Frames from 21x21 (15x15 without the projection) work.
     :param n_filters: channels of every conv layer.
     """
 
@@ -93,8 +88,7 @@ class DrQv2Actor(nn.Module):
 
 
 class DrQv2Critic(nn.Module):
-    """Twin Q-function: a trunk on the features (Linear -> LayerNorm -> Tanh), then one MLP per Q head on
-    ``[trunk(h), action]``."""
+    """Twin Q-function: a trunk as the actor's, then one MLP per Q head on ``[trunk(h), action]``."""
 
     optimizer: th.optim.Optimizer  # set by the policy (the critic target has none)
 
@@ -129,12 +123,9 @@ def actor_critic_arch(net_arch: list[int] | dict[str, list[int]]) -> tuple[list[
 
 
 class DrQv2Policy(CarriesAuxiliary, BasePolicy):
-    """Encoder, actor, critic and critic target of DrQ-v2, and the algorithm's auxiliary loss module, if any
-    (``auxiliary``, set by the algorithm: DrQv2-EF's Ego-Foresight).
+    """Encoder, actor, critic, critic target and the algorithm's ``auxiliary`` module, if any.
 
-    Two optimisers: ``critic.optimizer`` trains the encoder and the critic (and the auxiliary module, which the
-    algorithm adds to it: they share the loss ``critic + auxiliary``); ``actor.optimizer`` trains the actor alone (it
-    sees detached features).
+    ``critic.optimizer`` trains the encoder, the critic and the auxiliary module; ``actor.optimizer`` the actor.
 
     :param observation_space: uint8 Box of shape (3 * frame_stack, height, width).
     :param action_space: Box action space.
@@ -144,10 +135,8 @@ class DrQv2Policy(CarriesAuxiliary, BasePolicy):
     :param n_critics: number of Q heads (their minimum is used).
     :param features_dim: encoder projection size, ``None`` for DrQ-v2's unprojected conv features.
     :param optimizer_class: optimiser class.
-    :param optimizer_kwargs: optimiser arguments other than the learning rate; ``None`` gives Adam's fused kernel
-        (``fused=True``: the same update, several times faster on CPU for these multi-million-parameter nets).
-    :param channels_last: keep the conv weights of the encoder (and of an auxiliary module's decoder) in
-        channels-last memory format (the same maths, faster convolutions with oneDNN on CPU and tensor cores on GPU).
+    :param optimizer_kwargs: optimiser arguments other than the learning rate; ``None`` gives Adam's fused kernel.
+    :param channels_last: keep the conv weights (encoder, auxiliary decoder) channels-last (faster convolutions).
     """
 
     observation_space: spaces.Box
@@ -208,12 +197,12 @@ class DrQv2Policy(CarriesAuxiliary, BasePolicy):
 
     @property
     def frame_shape(self) -> tuple[int, int, int]:
-        """Shape ``(3, height, width)`` of one RGB frame of the stacked observation."""
+        """``(3, height, width)`` of one frame."""
         _, height, width = self.observation_space.shape
         return (FRAME_CHANNELS, height, width)
 
     def encode(self, observations: th.Tensor) -> th.Tensor:
-        """Features h of uint8 stacked observations (the encoder's output, before the actor and critic trunks)."""
+        """Encoder features h of uint8 stacked observations."""
         return self.encoder(observations)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
@@ -235,8 +224,7 @@ class DrQv2Policy(CarriesAuxiliary, BasePolicy):
         return self._predict(observation, deterministic=deterministic)
 
     def _predict(self, observation: PyTorchObs, deterministic: bool = True) -> th.Tensor:
-        """The mean action (tanh-squashed). Exploration noise is added by the algorithm during rollouts, so
-        ``deterministic`` is ignored, as in TD3."""
+        """The mean action; the algorithm adds exploration noise, so ``deterministic`` is ignored (as in TD3)."""
         assert isinstance(observation, th.Tensor)  # a Box observation space
         return self.actor(self.encode(observation))
 
@@ -250,11 +238,10 @@ class DrQv2Policy(CarriesAuxiliary, BasePolicy):
 
 
 class DrQv2EFPolicy(DrQv2Policy):
-    """:class:`DrQv2Policy` of DrQv2-EF: the encoder projects to ``features_dim`` (2048) features, of which the first
-    ``agent_dim`` are the agent's; DrQv2EF builds its Ego-Foresight module from these sizes.
+    """:class:`DrQv2Policy` of DrQv2-EF, with the sizes its Ego-Foresight module is built from.
 
     :param agent_dim: number of leading feature dimensions that are agent features.
-    :param ef_kwargs: extra arguments for :class:`sb3_ef.ef.EgoForesight` (decoder / rollout options).
+    :param ef_kwargs: extra arguments of :class:`sb3_ef.ef.EgoForesight`.
     :param features_dim: encoder projection size (``None``: DrQ-v2's unprojected conv features).
     :param kwargs: the other arguments of :class:`DrQv2Policy`.
     """

@@ -13,7 +13,7 @@ ALGORITHM_POLICY_KWARGS = ("horizon", "gamma")
 
 
 def check_arguments(horizon: int, policy_kwargs: dict[str, Any] | None) -> None:
-    """Refuse a horizon that is not a positive integer and ``policy_kwargs`` holding the algorithm's own arguments."""
+    """Refuse a bad ``horizon`` and ``policy_kwargs`` holding the algorithm's own arguments."""
     if not isinstance(horizon, int) or horizon < 1:
         raise ValueError(f"horizon must be a positive integer, got {horizon!r}")
     reserved = sorted(set(policy_kwargs or {}) & set(ALGORITHM_POLICY_KWARGS))
@@ -22,8 +22,7 @@ def check_arguments(horizon: int, policy_kwargs: dict[str, Any] | None) -> None:
 
 
 def known_episode_steps(env: VecEnv | None, argument: str) -> int:
-    """The episode length of ``env`` from which ``argument=None`` is derived; raise naming ``argument`` when it is
-    unknown."""
+    """The episode length ``argument=None`` is derived from; raise naming ``argument`` when it is unknown."""
     steps = None if env is None else episode_steps(env)
     if steps is None:
         raise ValueError(

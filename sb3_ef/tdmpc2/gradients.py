@@ -9,13 +9,10 @@ import torch as th
 def clipped_world_model_gradients(
     optimizer: th.optim.Optimizer, host_loss: th.Tensor, auxiliary_loss: th.Tensor | None, max_norm: float
 ) -> dict[str, th.Tensor]:
-    """Backpropagate the world-model losses into ``optimizer``'s parameters and clip; returns the gradient norms
-    before clipping (``grad_norm``, and ``auxiliary_grad_norm`` with an auxiliary loss).
+    """Backpropagate and clip; returns the norms before clipping (``grad_norm``, ``auxiliary_grad_norm``).
 
-    The host's gradient gets TD-MPC2's one global clip over the world model (encoder, dynamics, reward, Q). The
-    auxiliary loss's gradient (weighted; EF's is summed over pixels: norms in the thousands) is computed apart,
-    clipped to the same norm over the encoder and the auxiliary module, and added: one shared clip would shrink the
-    host's update by the auxiliary norm."""
+    The auxiliary gradient (EF's norms are in the thousands) is clipped apart and added: one shared clip would
+    shrink the host's update by the auxiliary norm."""
     host_params, auxiliary_params = _parameter_groups(optimizer)
     auxiliary_grads = None
     if auxiliary_loss is not None:
@@ -40,8 +37,7 @@ def clipped_world_model_gradients(
 
 
 def _parameter_groups(optimizer: th.optim.Optimizer) -> tuple[list[th.nn.Parameter], list[th.nn.Parameter]]:
-    """The parameters of the host's clip (every group but ``auxiliary``: the world model) and of the auxiliary
-    loss's (the groups ``encoder`` and ``auxiliary``)."""
+    """The parameters of the host's clip (all but ``auxiliary``) and of the auxiliary's (``encoder``, ``auxiliary``)."""
     groups = {group["name"]: group["params"] for group in optimizer.param_groups}
     host_params = [param for name, params in groups.items() if name != "auxiliary" for param in params]
     return host_params, [*groups["encoder"], *groups.get("auxiliary", [])]

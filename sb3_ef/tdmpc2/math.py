@@ -8,7 +8,7 @@ from torch.nn import functional as F
 
 
 def symlog(x: th.Tensor) -> th.Tensor:
-    """Symmetric log, ``sign(x) * log(1 + |x|)``: compresses large rewards and values."""
+    """``sign(x) * log(1 + |x|)``."""
     return th.sign(x) * th.log1p(x.abs())
 
 
@@ -18,11 +18,7 @@ def symexp(x: th.Tensor) -> th.Tensor:
 
 
 class TwoHot:
-    """Discrete regression of scalars on ``num_bins`` evenly spaced bins in symlog space.
-
-    Rewards and Q-values are predicted as logits over the bins and trained with a cross-entropy against a
-    two-hot target, which keeps the loss scale independent of the reward scale (TD-MPC2, DreamerV3).
-    """
+    """Discrete regression of scalars on ``num_bins`` evenly spaced symlog bins (TD-MPC2, DreamerV3)."""
 
     def __init__(self, num_bins: int = 101, vmin: float = -10.0, vmax: float = 10.0):
         if num_bins < 2:
@@ -74,15 +70,14 @@ def seed_steps_from_episode_length(episode_length: int, minimum: int = 1000, epi
 
 
 def planning_iterations(action_dim: int, iterations: int = 6, large_action_dim: int = 20, extra: int = 2) -> int:
-    """TD-MPC2's MPPI iterations: ``iterations`` (6 by default), and 2 more for large action spaces (``action_dim
-    >= 20``: humanoid, dog), also added to a given value, as the reference adds them to its configured one."""
+    """TD-MPC2's MPPI iterations: ``iterations``, 2 more when ``action_dim >= 20`` (humanoid, dog)."""
     if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
         raise ValueError(f"iterations must be a positive integer, got {iterations!r}")
     return iterations + extra * int(action_dim >= large_action_dim)
 
 
 def update_q_scale(q_scale: th.Tensor, q_values: th.Tensor, tau: float) -> None:
-    """Move the running Q scale ``q_scale`` (in place) by ``tau`` towards the 5-95 percentile range of ``q_values``
-    (at least 1), as TD-MPC2's ``RunningScale``."""
+    """Move ``q_scale`` in place by ``tau`` towards the 5-95 percentile range of ``q_values``, at least 1
+    (TD-MPC2's ``RunningScale``)."""
     low, high = th.quantile(q_values, th.tensor([0.05, 0.95], device=q_values.device))
     q_scale.lerp_(th.clamp(high - low, min=1.0), tau)

@@ -27,17 +27,11 @@ class LatentModel(Protocol):
 
 @dataclass
 class MPPIPlanner:
-    """Model-predictive path integral control with policy-prior samples (TD-MPC2 defaults).
+    """Model-predictive path integral control with policy-prior samples (TD-MPC2's defaults), batched over envs.
 
-    Each iteration samples ``num_samples`` action sequences (the first ``num_pi_trajs`` from the policy prior,
-    the rest from a Gaussian), scores them with the model (rewards over the horizon plus the discounted Q of
-    the last latent), and refits the Gaussian to the ``num_elites`` best, weighted by ``exp(temperature * value)``.
-    The action is the first step of one elite drawn with probability proportional to its weight, plus the final
-    std as noise when exploring. Plans are batched over environments.
-
-    ``eval_action`` chooses the action without noise (``deterministic=True``): ``"elite"`` (TD-MPC2's evaluation:
-    the drawn elite's first action) or ``"mean"`` (the first action of the final mean, deterministic given the
-    samples).
+    Each iteration scores ``num_samples`` action sequences (``num_pi_trajs`` from the policy prior) by model rewards
+    plus the final Q and refits the Gaussian to the ``num_elites`` best, weighted by ``exp(temperature * value)``.
+    The action is a drawn elite's first (plus noise when exploring); ``eval_action="mean"`` acts with the final mean.
     """
 
     horizon: int = 3
@@ -77,14 +71,8 @@ class MPPIPlanner:
     def plan(
         self, model: LatentModel, z: th.Tensor, previous_mean: th.Tensor | None = None, deterministic: bool = False
     ) -> tuple[th.Tensor, th.Tensor]:
-        """Plan from latents ``z`` ``(B, L)``.
-
-        :param previous_mean: ``(B, H, A)`` mean of the last plan per env (warm start, shifted by one step);
-            ``None`` or zero rows start from a zero mean (episode start).
-        :param deterministic: act without exploration noise: the drawn elite's first action, or the final mean's
-            with ``eval_action="mean"``.
-        :return: actions ``(B, A)`` in [-1, 1] and the final mean ``(B, H, A)`` to warm-start the next call.
-        """
+        """Actions ``(B, A)`` and the final mean ``(B, H, A)`` from latents ``z`` ``(B, L)``, warm-started from
+        ``previous_mean`` shifted by one step (``None``: zero); ``deterministic`` acts without noise."""
         batch, device = z.shape[0], z.device
         action_dim = model.action_dim
         mean = th.zeros(batch, self.horizon, action_dim, device=device)
@@ -116,7 +104,7 @@ class MPPIPlanner:
         return (first + std[:, 0] * th.randn_like(first)).clamp(-1, 1), mean
 
     def _policy_trajectories(self, model: LatentModel, z: th.Tensor) -> th.Tensor:
-        """Roll the policy prior through the model: ``(B, num_pi_trajs, H, A)``."""
+        """The policy prior rolled through the model: ``(B, num_pi_trajs, H, A)``."""
         z = z.unsqueeze(1).expand(z.shape[0], self.num_pi_trajs, z.shape[-1])
         steps = []
         for t in range(self.horizon):

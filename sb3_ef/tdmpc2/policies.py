@@ -1,4 +1,4 @@
-"""The TD-MPC2 policies: world model, MPPI planner, optimisers and Q scale (and TDMPC2-EF's Ego-Foresight sizes)."""
+"""The TD-MPC2 and TDMPC2-EF policies: world model, MPPI planner, optimisers and Q scale."""
 
 from __future__ import annotations
 
@@ -14,13 +14,14 @@ from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 
 from sb3_ef.auxiliary.loss import AuxiliaryLoss, CarriesAuxiliary
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_stacked_frames
+from sb3_ef.common.forwarding import base_arguments
 from sb3_ef.tdmpc2.math import TwoHot, planning_iterations
 from sb3_ef.tdmpc2.planner import MPPIPlanner
 from sb3_ef.tdmpc2.world_model import FRAME_SIZE, WorldModel
 
 
 def check_pixel_space(observation_space: spaces.Space) -> tuple[int, int, int]:
-    """Check for stacked 64x64 uint8 RGB frames, channels-first, and return ``(channels, height, width)``."""
+    """``(channels, height, width)`` of stacked 64x64 uint8 RGB frames, channels-first, or raise."""
     channels, height, width = check_stacked_frames(observation_space, "TD-MPC2")
     if (height, width) != (FRAME_SIZE, FRAME_SIZE):
         raise ValueError(
@@ -29,15 +30,13 @@ def check_pixel_space(observation_space: spaces.Space) -> tuple[int, int, int]:
     return channels, height, width
 
 
-#: Seed of the planner's random draws in ``predict(..., deterministic=True)``, fixed so that the action is a
-#: function of the observation, the warm-start plan and the weights (SB3's ``evaluate_policy`` relies on it).
+#: Seed of the planner's draws in ``predict(..., deterministic=True)``: the action is a function of its inputs.
 DETERMINISTIC_SEED = 0
 
 
 @contextmanager
 def _seeded_draws(device: th.device, seed: int) -> Iterator[None]:
-    """Within the block, torch's generators of the CPU and of ``device`` start from ``seed``; afterwards they are
-    restored to their state before it."""
+    """Torch's CPU and ``device`` generators seeded with ``seed`` within the block, restored after it."""
     on_cuda = device.type == "cuda"
     with th.random.fork_rng(devices=[device] if on_cuda else []):
         th.default_generator.manual_seed(seed)
@@ -57,14 +56,11 @@ _DRQV2_ARGUMENTS = {
 
 
 class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
-    """Holds everything TD-MPC2 learns and plans with, and the algorithm's auxiliary loss module, if any
-    (``auxiliary``, set by the algorithm: TDMPC2-EF's Ego-Foresight).
+    """Everything TD-MPC2 learns and plans with, and the algorithm's ``auxiliary`` module, if any.
 
-    ``optimizer`` trains the world model (parameter groups ``encoder``, at ``encoder_lr_scale`` times the learning
-    rate, and ``heads``; the algorithm adds an ``auxiliary`` group for its auxiliary module); ``pi_optimizer`` trains
-    the policy prior. ``q_scale`` is the running 5-95 percentile range of Q that normalises the policy loss. Actions
-    come from MPPI planning (``plan``); ``predict`` carries the warm-start plans as its state, which ``episode_start``
-    resets.
+    ``optimizer`` trains the world model (groups ``encoder``, ``heads`` and the algorithm's ``auxiliary``),
+    ``pi_optimizer`` the policy prior; ``q_scale`` is the running 5-95 percentile range of Q. ``predict`` carries
+    the MPPI warm-start plans as its state.
 
     :param observation_space: uint8 Box (3 * frame_stack, 64, 64).
     :param action_space: Box in [-1, 1].
@@ -80,13 +76,11 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
     :param encoder_lr_scale: encoder learning rate relative to the rest.
     :param horizon: planning / world-model horizon (set by the algorithm).
     :param gamma: discount of the planner's value estimate (set by the algorithm).
-    :param planner_kwargs: MPPI settings, see :class:`MPPIPlanner` (``num_samples``, ``eval_action``, ...);
-        ``iterations`` (6 by default) gets 2 more when ``action_dim >= 20``, a given value too (TD-MPC2's heuristic).
+    :param planner_kwargs: MPPI settings, see :class:`MPPIPlanner`; ``iterations`` gets 2 more when ``action_dim >=
+        20`` (TD-MPC2's heuristic).
     :param optimizer_class: optimiser of both parameter sets.
-    :param optimizer_kwargs: extra optimiser arguments; ``None`` with Adam gives its fused kernel (``fused=True``:
-        the same update, faster on CPU and GPU).
-    :param channels_last: keep the conv weights of the encoder (and of an auxiliary module's decoder) in
-        channels-last memory format (the same maths, faster convolutions with oneDNN on CPU and tensor cores on GPU).
+    :param optimizer_kwargs: extra optimiser arguments; ``None`` with Adam gives its fused kernel.
+    :param channels_last: keep the conv weights (encoder, auxiliary decoder) channels-last (faster convolutions).
     """
 
     q_scale: th.Tensor  # a registered buffer
@@ -127,34 +121,12 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
         )
         channels, height, width = check_pixel_space(observation_space)
         self.frame_shape = (FRAME_CHANNELS, height, width)
-        self._constructor_kwargs: dict[str, Any] = {
-            "num_channels": num_channels,
-            "mlp_dim": mlp_dim,
-            "num_q": num_q,
-            "dropout": dropout,
-            "simnorm_dim": simnorm_dim,
-            "num_bins": num_bins,
-            "vmin": vmin,
-            "vmax": vmax,
-            "encoder_lr_scale": encoder_lr_scale,
-            "horizon": horizon,
-            "gamma": gamma,
-            "planner_kwargs": planner_kwargs,
-            "channels_last": channels_last,
-        }
+        self._constructor_kwargs = base_arguments(TDMPC2Policy, locals())
         self.channels_last = channels_last
         self.auxiliary: AuxiliaryLoss | None = None
         action_dim = int(np.prod(action_space.shape))
-        self.world_model = WorldModel(
-            channels,
-            action_dim,
-            num_channels=num_channels,
-            mlp_dim=mlp_dim,
-            num_q=num_q,
-            dropout=dropout,
-            simnorm_dim=simnorm_dim,
-            two_hot=TwoHot(num_bins, vmin, vmax),
-        )
+        two_hot = TwoHot(num_bins, vmin, vmax)
+        self.world_model = WorldModel(channels, action_dim, num_channels, mlp_dim, num_q, dropout, simnorm_dim, two_hot)
         if channels_last:
             self.world_model.encoder.to(memory_format=th.channels_last)  # type: ignore[call-overload]
         planner_kwargs = dict(planner_kwargs or {})
@@ -164,8 +136,7 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
         self._build_optimizers(lr_schedule(1), encoder_lr_scale)
 
     def _build_optimizers(self, learning_rate: float, encoder_lr_scale: float) -> None:
-        """``optimizer`` of the world model (groups ``encoder``, at ``encoder_lr_scale`` times the rate, and
-        ``heads``: dynamics, reward, Q) and ``pi_optimizer`` of the policy prior (Adam's ``eps`` 1e-5, as TD-MPC2)."""
+        """The world model's ``optimizer`` and the policy prior's ``pi_optimizer`` (``eps`` 1e-5, as TD-MPC2)."""
         model = self.world_model
         groups: list[dict[str, Any]] = [
             {"name": "encoder", "params": model.encoder.parameters(), "lr_scale": encoder_lr_scale},
@@ -194,7 +165,7 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
         return data
 
     def encode(self, observations: th.Tensor) -> th.Tensor:
-        """Latent z (the features h that EF splits) of uint8 stacked observations, without augmentation."""
+        """Latent z of uint8 stacked observations."""
         return self.world_model.encode(observations)
 
     def plan(
@@ -211,14 +182,8 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
         episode_start: np.ndarray | None = None,
         deterministic: bool = False,
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
-        """SB3's ``predict``, the planner's warm start carried as the state (as a recurrent policy carries its own).
-
-        ``state`` is what the previous call returned, ``(plans,)``: the final MPPI means ``(n_envs, horizon,
-        action_dim)``, which warm-start this call's plans shifted by one step; the returned state holds this call's
-        plans for the next one. ``state=None`` and the envs where ``episode_start`` is true plan from a zero mean
-        (an episode's first step). So the action is a function of the observation, the state and the weights, with
-        the random draws of :meth:`_plan_actions`.
-        """
+        """SB3's ``predict`` with the planner's warm start as the state: ``(plans,)``, the final MPPI means
+        ``(n_envs, horizon, action_dim)`` of the previous call; ``None`` and ``episode_start`` plan from zero."""
         if isinstance(observation, tuple):
             raise ValueError(
                 "predict expects the observation as an array (a VecEnv's obs, or the obs of gymnasium's "
@@ -235,8 +200,7 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
     def _warm_start(
         self, state: tuple[np.ndarray, ...] | None, episode_start: np.ndarray | None, n_envs: int
     ) -> th.Tensor | None:
-        """The previous plans held in ``predict``'s ``state``, zero for the envs where ``episode_start`` is true
-        (``None``: every env starts from a zero mean); raise naming the expected shapes."""
+        """The plans of ``predict``'s ``state``, zeroed where ``episode_start``; raise naming the expected shapes."""
         if state is None:
             return None
         expected = (n_envs, self.planner.horizon, int(np.prod(self.action_space.shape)))  # type: ignore[arg-type]
@@ -257,26 +221,22 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
     def _plan_actions(
         self, observations: th.Tensor, previous_mean: th.Tensor | None, deterministic: bool
     ) -> tuple[th.Tensor, th.Tensor]:
-        """:meth:`plan`; with ``deterministic``, the planner's random draws (samples, policy-prior noise, Q heads,
-        elite draw) come from generators seeded with :data:`DETERMINISTIC_SEED` at each call, and the global
-        generators are left as they were (an evaluation does not shift training's random stream). Otherwise they
-        come from the global generators, as training's do."""
+        """:meth:`plan`; ``deterministic`` draws from generators seeded with :data:`DETERMINISTIC_SEED`, leaving the
+        global ones (training's stream) as they were."""
         with _seeded_draws(observations.device, DETERMINISTIC_SEED) if deterministic else nullcontext():
             return self.plan(observations, previous_mean, deterministic)
 
     def _predict(self, observation: PyTorchObs, deterministic: bool = False) -> th.Tensor:
-        """The planner's actions from a zero warm start (an episode's first step); :meth:`predict` carries the
-        warm start from call to call."""
+        """The planner's actions from a zero warm start."""
         assert isinstance(observation, th.Tensor)
         return self._plan_actions(observation, None, deterministic)[0]
 
 
 class TDMPC2EFPolicy(TDMPC2Policy):
-    """:class:`TDMPC2Policy` of TDMPC2-EF: the first ``agent_dim`` dimensions of the latent are the agent's;
-    TDMPC2EF builds its Ego-Foresight module from these sizes.
+    """:class:`TDMPC2Policy` of TDMPC2-EF, with the sizes its Ego-Foresight module is built from.
 
     :param agent_dim: size of the agent part of the latent (a multiple of ``simnorm_dim``, whole SimNorm groups).
-    :param ef_kwargs: extra arguments of :class:`sb3_ef.ef.EgoForesight` (decoder and rollout options).
+    :param ef_kwargs: extra arguments of :class:`sb3_ef.ef.EgoForesight`.
     :param kwargs: the arguments of :class:`TDMPC2Policy`.
     """
 

@@ -16,8 +16,6 @@ SHIFT_PAD = 3
 
 
 class Sequence(NamedTuple):
-    """One training batch laid out over time, as the world model consumes it."""
-
     first: th.Tensor  # (B, C, h, w) augmented observation at t
     following: th.Tensor  # (H, B, C, h, w) augmented observations at t+1 .. t+H
     actions: th.Tensor  # (H, B, A)
@@ -31,9 +29,8 @@ def training_sequence(
     horizon: int,
     augment_first: Callable[[SequenceReplayBufferSamples], tuple[th.Tensor, Any]],
 ) -> Sequence:
-    """The first ``horizon`` steps of ``batch``'s windows: the stacked observations t+1..t+H rebuilt from the
-    context and the future frames, each shifted on its own, then the observation at t augmented by
-    ``augment_first`` (which returns it with the auxiliary loss's targets, augmented alike)."""
+    """The first ``horizon`` steps of ``batch``'s windows: observations t+1..t+H rebuilt and shifted, the one at t
+    augmented by ``augment_first`` (with the auxiliary loss's targets)."""
     observations = batch.observations
     size, channels, height, width = observations.shape
     stack = channels // FRAME_CHANNELS

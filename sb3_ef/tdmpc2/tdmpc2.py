@@ -36,51 +36,39 @@ from sb3_ef.tdmpc2.world_model import WorldModel
 
 class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     """TD-MPC2 (Hansen et al., "TD-MPC2: Scalable, Robust World Models for Continuous Control", ICLR 2024) for
-    pixels, a standalone model-based algorithm with SB3's interface.
+    pixels, with SB3's interface.
 
-    TD-MPC2 learns an implicit world model (SimNorm latent, latent dynamics, two-hot reward and Q-ensemble heads)
-    with a latent consistency loss, reward and TD-value cross-entropies over a short horizon, a max-entropy policy
-    prior on detached latents, and acts by MPPI planning with that model. Uniform random actions at the seed steps
-    0..``learning_starts``, then as many updates as seed steps at once (TD-MPC2's pretraining on the seed data),
-    then one gradient update per environment step.
-
-    An auxiliary representation loss (a subclass's ``_build_auxiliary``, e.g. :class:`TDMPC2EF`'s Ego-Foresight)
-    reads the encoder latent of the first observation; it joins the world model's optimiser (group ``auxiliary``)
-    and its gradient is clipped on its own.
+    An implicit world model trained by latent consistency, two-hot reward and TD-value losses over a short horizon,
+    a max-entropy policy prior on detached latents, MPPI planning. A subclass's auxiliary loss
+    (``_build_auxiliary``, e.g. :class:`TDMPC2EF`'s) reads the first latent and is clipped on its own.
 
     :param policy: ``"CnnPolicy"`` or a :class:`TDMPC2Policy` (sub)class.
     :param env: the environment (uint8 stacked 64x64 RGB frames, channels-first, or channels-last which SB3
         transposes; Box actions) or its id.
     :param learning_rate: Adam learning rate (the encoder uses ``policy_kwargs["encoder_lr_scale"]`` times it).
     :param buffer_size: replay buffer capacity (frames).
-    :param learning_starts: TD-MPC2's seed steps S: uniform random actions at the steps 0..S (S + 1 actions, as the
-        reference), the seed burst after them; ``None`` derives S from the episode length (TD-MPC2's
-        ``max(1000, 5 x episode length)``, 2500 on DMC).
+    :param learning_starts: TD-MPC2's seed steps S (random actions at the steps 0..S); ``None``: ``max(1000, 5 x
+        episode length)``.
     :param batch_size: minibatch size.
     :param tau: Polyak coefficient of the target Q-ensemble and of the running Q scale.
-    :param gamma: discount; ``None`` derives it from the episode length (TD-MPC2's heuristic, 0.99 on DMC).
+    :param gamma: discount; ``None`` derives it from the episode length (TD-MPC2's heuristic).
     :param horizon: world-model and planning horizon.
     :param consistency_coef: weight of the latent consistency loss.
     :param reward_coef: weight of the reward cross-entropy.
     :param value_coef: weight of the value cross-entropy.
     :param entropy_coef: weight of the policy prior's (action-dim scaled) entropy bonus.
     :param rho: per-step decay of the loss weights over the horizon.
-    :param max_grad_norm: gradient clipping: one global norm over the world model for the host's loss (as TD-MPC2),
-        one over the encoder and the auxiliary module for an auxiliary loss, one for the policy prior.
+    :param max_grad_norm: gradient clipping norm (world model, auxiliary loss and policy prior each clipped apart).
     :param seed_burst: when the seed steps end, run as many updates as seed steps at once (TD-MPC2); ``False``: one
-        update per step from the start (cheaper on CPU, not the reference's schedule).
-    :param check_finite_losses: raise a ``ValueError`` naming the loss when one is NaN or infinite, before the
-        optimiser step (one device sync per loss: for debugging).
-    :param compile: ``torch.compile`` the update's loss computations (world model and policy prior, forward and
-        backward; gradient clipping and the optimiser steps stay eager): ``False`` (eager), ``True`` (default mode),
-        a mode name (``"reduce-overhead"``: CUDA graphs) or a dict of ``torch.compile`` arguments. Compiling takes
-        minutes at the first update.
+        update per step from the start (cheaper, not the reference's schedule).
+    :param check_finite_losses: raise a ``ValueError`` naming a NaN or infinite loss before the step (debugging).
+    :param compile: ``torch.compile`` the loss computations: ``False``, ``True``, a mode name
+        (``"reduce-overhead"``: CUDA graphs) or a dict of ``torch.compile`` arguments.
     :param replay_buffer_class: a :class:`SequenceReplayBuffer` (sub)class; ``None`` picks it.
     :param replay_buffer_kwargs: extra buffer arguments (``n_steps`` and the window horizon are filled in).
     :param stats_window_size: episodes averaged for the rollout logs.
     :param tensorboard_log: tensorboard log folder (``None``: no tensorboard).
-    :param policy_kwargs: see :class:`TDMPC2Policy` (``num_channels``, ``mlp_dim``, ``num_q``, ``planner_kwargs``,
-        ...).
+    :param policy_kwargs: see :class:`TDMPC2Policy`.
     :param verbose: 0 silent, 1 info, 2 debug.
     :param seed: random seed.
     :param device: torch device; ``"auto"`` uses CUDA when available.
@@ -157,9 +145,7 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
             self._setup_model()
 
     def _setup_model(self) -> None:
-        """SB3's setup with a sequence replay buffer (window :attr:`window`); the planner's horizon and discount are
-        passed to the policy from the algorithm's arguments. The losses are compiled in place with ``compile`` (same
-        names; gradient clipping and the optimiser steps stay eager)."""
+        """SB3's setup with a sequence replay buffer, the planner's horizon and discount, compiled losses."""
         self._derive_from_episode_length()
         self._use_sequence_buffer("TD-MPC2 trains on consecutive steps", horizon=self.window, n_steps=1)
         with policy_built_with(self, horizon=self.horizon, gamma=self.gamma):
@@ -168,30 +154,25 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         self._policy_loss = maybe_compile(self._policy_loss, self.compile)  # type: ignore[method-assign]
 
     def _derive_from_episode_length(self) -> None:
-        """``gamma=None`` and ``learning_starts=None``: TD-MPC2's discount and seed steps from the episode length
-        (done here, not in ``__init__``, so that ``load`` keeps the saved values)."""
+        """TD-MPC2's discount and seed steps for ``None`` (here, not in ``__init__``: ``load`` keeps saved values)."""
         if self.gamma is None:
             self.gamma = discount_from_episode_length(known_episode_steps(self.env, "gamma"))
         if self.learning_starts is None:
             self.learning_starts = seed_steps_from_episode_length(known_episode_steps(self.env, "learning_starts"))
 
     def _optimise_auxiliary(self, auxiliary: AuxiliaryLoss) -> None:
-        """The auxiliary module joins the world model's optimiser as the group ``auxiliary`` (its gradient is
-        clipped on its own, see :meth:`_world_model_step`)."""
         self.policy.optimizer.add_param_group({"name": "auxiliary", "params": list(auxiliary.parameters())})
 
     @property
     def window(self) -> int:
-        """Steps of the replay window: the world-model horizon, or the auxiliary loss's when it is longer."""
+        """Steps of the replay window: the longer of the model's and the auxiliary loss's horizons."""
         return max(self.horizon, self._auxiliary_horizon())
 
     @property
     def world_model(self) -> WorldModel:
-        """The TD-MPC2 world model (encoder, dynamics, reward, policy prior, Q-ensemble)."""
         return self.policy.world_model
 
     def train(self, gradient_steps: int, batch_size: int = 256) -> None:
-        """``gradient_steps`` updates (:meth:`_update`; the seed burst first), then their mean losses are logged."""
         self.policy.set_training_mode(True)
         self._update_learning_rates()
         updates = []
@@ -202,16 +183,13 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         self._record_updates(updates)
 
     def _with_seed_burst(self, gradient_steps: int) -> int:
-        """TD-MPC2 pretrains on its seed data: the first round runs ``learning_starts`` updates (when that is more
-        than ``gradient_steps``), so that after ``T`` env steps ``T - 1`` updates have run, as in the reference."""
+        """The first round runs ``learning_starts`` updates (TD-MPC2's pretraining on the seed data)."""
         if self.seed_burst and self._n_updates == 0:
             return max(gradient_steps, self.learning_starts)
         return gradient_steps
 
     def _update(self, batch: SequenceReplayBufferSamples) -> dict[str, th.Tensor]:
-        """One gradient update: the world model's step (encoder, dynamics, reward, Q, and the auxiliary module),
-        the policy prior's step on the detached latents, then the target Q-ensemble. Returns the (detached) scalars
-        to log, without a device sync."""
+        """World model step, policy prior step on detached latents, target Q; returns the scalars to log."""
         compiled = self.compile is not False
         if compiled:
             th.compiler.cudagraph_mark_step_begin()
@@ -226,10 +204,7 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         return {name: value.clone() for name, value in logs.items()} if compiled else logs
 
     def _world_model_step(self, losses: dict[str, th.Tensor]) -> dict[str, th.Tensor]:
-        """The optimiser step of the world model (and the auxiliary module) on :meth:`losses`, with TD-MPC2's
-        clipping (:func:`~sb3_ef.tdmpc2.gradients.clipped_world_model_gradients`: the host's gradient clipped as the
-        reference does, the auxiliary loss's on its own); returns the losses to log with their total, the gradient
-        norms before clipping and, on the updates that compute it (not with ``compile``), ``aux_grad_ratio``."""
+        """The world model's (and auxiliary module's) clipped step; returns the losses, total and gradient norms."""
         self._check_finite(**losses)
         auxiliary_loss = losses.pop("auxiliary_loss", None)
         host_loss = (
@@ -248,8 +223,7 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         return logs
 
     def _policy_step(self, latents: th.Tensor, valid: th.Tensor) -> th.Tensor:
-        """The policy prior's optimiser step on :meth:`_policy_loss` (the Q-ensemble frozen, so that only the prior
-        learns from it); returns the detached loss."""
+        """The policy prior's step on :meth:`_policy_loss`, the Q-ensemble frozen; returns the detached loss."""
         with frozen(self.world_model.q_heads):
             pi_loss = self._policy_loss(latents, valid)
         self._check_finite(pi_loss=pi_loss)
@@ -260,15 +234,12 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         return pi_loss.detach()
 
     def losses(self, batch: SequenceReplayBufferSamples) -> tuple[dict[str, th.Tensor], th.Tensor, th.Tensor]:
-        """World-model losses of one batch: ``consistency_loss``, ``reward_loss``, ``value_loss``, unweighted; with
-        an auxiliary loss also ``auxiliary_loss`` (weighted, as the update adds it) and its logged parts (EF's
-        ``ef_loss``, detached). Also the latents ``(H+1, B, L)`` of the model rollout and their validity. The
-        augmentation runs eagerly, the rest in :meth:`_world_model_losses` (compiled with ``compile``)."""
+        """Unweighted world-model losses (plus the weighted ``auxiliary_loss`` and its logs), the rollout latents
+        ``(H+1, B, L)`` and their validity. Augmentation runs eagerly, :meth:`_world_model_losses` maybe compiled."""
         augment_first = partial(self._augment_observations, pad=SHIFT_PAD)
         return self._world_model_losses(training_sequence(batch, self.horizon, augment_first))
 
     def _world_model_losses(self, sequence: Sequence) -> tuple[dict[str, th.Tensor], th.Tensor, th.Tensor]:
-        """The world-model losses, rollout latents and validity of :meth:`losses` from an augmented sequence."""
         next_latents, td_targets = self._td_targets(sequence)
         first_latent = self.world_model.encode(sequence.first)
         rollout, consistency_loss = self._rollout_and_consistency_loss(first_latent, sequence, next_latents)
@@ -284,8 +255,7 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         return losses, rollout, th.cat([first_valid, sequence.valid])
 
     def _td_targets(self, sequence: Sequence) -> tuple[th.Tensor, th.Tensor]:
-        """The encodings ``(H, B, L)`` of the observations t+1..t+H and the TD targets ``(H, B)``: reward plus the
-        discounted minimum of two random target Q heads at the prior's next action."""
+        """Encodings ``(H, B, L)`` of t+1..t+H and TD targets ``(H, B)`` from the min of two random target Q heads."""
         model = self.world_model
         with th.no_grad():
             next_latents = model.encode(sequence.following.flatten(0, 1)).unflatten(0, sequence.following.shape[:2])
@@ -296,9 +266,7 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     def _rollout_and_consistency_loss(
         self, first_latent: th.Tensor, sequence: Sequence, next_latents: th.Tensor
     ) -> tuple[th.Tensor, th.Tensor]:
-        """The latents ``(H+1, B, L)`` of the observation at t rolled forward by the dynamics with the actions, and
-        the consistency loss: the squared error of each step against the encoding of the real observation (taken
-        along the rollout, as the reference does)."""
+        """The latents ``(H+1, B, L)`` rolled forward from t, and their squared error against the real encodings."""
         z = first_latent
         latents, errors = [z], []
         for t in range(self.horizon):
@@ -313,7 +281,7 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         return self._over_horizon(self.world_model.two_hot.cross_entropy(logits, sequence.rewards), sequence.valid)
 
     def _value_loss(self, rollout: th.Tensor, sequence: Sequence, td_targets: th.Tensor) -> th.Tensor:
-        """Two-hot cross-entropy of every Q head against the TD targets, averaged over the heads."""
+        """Two-hot cross-entropy of every Q head against the TD targets, averaged."""
         logits = self.world_model.q(rollout[:-1], sequence.actions)
         cross_entropy = self.world_model.two_hot.cross_entropy(logits, td_targets.expand(logits.shape[:-1]))
         return self._over_horizon(cross_entropy.mean(0), sequence.valid)
@@ -324,8 +292,7 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         return (weights * masked_mean(values, valid)).sum() / self.horizon
 
     def _policy_loss(self, latents: th.Tensor, valid: th.Tensor) -> th.Tensor:
-        """Max-entropy policy prior: maximise Q (scaled by its running 5-95% range) plus the entropy bonus; also
-        updates the running Q scale."""
+        """Max-entropy policy prior on Q scaled by its running range (updated here)."""
         model = self.world_model
         sample = model.pi(latents)
         q_values = model.q_value(latents, sample.action, reduce="avg")
@@ -335,7 +302,7 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         return -(weights * objective).mean()
 
     def _update_learning_rates(self) -> None:
-        """Set the current learning rate on both optimisers, keeping each group's relative scale (encoder x0.3)."""
+        """The current learning rate on both optimisers, times each group's ``lr_scale``."""
         learning_rate = self.lr_schedule(self._current_progress_remaining)
         self.logger.record("train/learning_rate", learning_rate)
         for optimizer in (self.policy.optimizer, self.policy.pi_optimizer):
@@ -345,8 +312,7 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     def _sample_action(
         self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Uniform random actions up to step ``learning_starts`` included, as TD-MPC2's seed steps 0..S, so that
-        the first planned action comes after the seed burst; then :meth:`_exploration_action`."""
+        """Uniform random actions up to step ``learning_starts`` included (TD-MPC2's seed steps 0..S)."""
         return super()._sample_action(learning_starts + 1, action_noise, n_envs)
 
     def _exploration_action(self, n_envs: int) -> np.ndarray:
@@ -367,7 +333,7 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         dones: np.ndarray,
         infos: list[dict[str, Any]],
     ) -> None:
-        """Store as SB3 does; the warm-start plan of every env whose episode ended is reset."""
+        """SB3's, resetting the warm-start plan of every env whose episode ended."""
         super()._store_transition(replay_buffer, buffer_action, new_obs, reward, dones, infos)
         if self._rollout_plan is not None and dones.any():
             self._rollout_plan[th.as_tensor(dones, device=self._rollout_plan.device)] = 0.0

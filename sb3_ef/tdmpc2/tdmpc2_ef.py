@@ -18,23 +18,15 @@ from sb3_ef.tdmpc2.tdmpc2 import TDMPC2
 
 
 class TDMPC2EF(EFMixin, TDMPC2):
-    """TDMPC2-EF (Ego-Foresight on TD-MPC2): the world model is trained by ``L_TDMPC + beta * L_ef``.
-
-    :class:`TDMPC2` plus Ego-Foresight: it reads the encoder latent of the first observation (agent part: the first
-    ``agent_dim`` features), rolls the agent part forward with the next ``k`` actions and decodes frame ``t+k``;
-    motor babbling (random +-1 actions) fills the first ``babbling_steps`` steps. TD-MPC2's own ``horizon`` stays
-    the world model's and the planner's; EF's window is ``ef_horizon``.
-
-    Paper: Nunes et al., "Ego-Foresight: Self-supervised Learning of Agent-Aware Representations for Improved RL"
-    (ICLR 2026).
+    """TDMPC2-EF: :class:`TDMPC2` whose world model is also trained by ``beta * L_ef`` (Ego-Foresight, Nunes et al.,
+    ICLR 2026) on the first latent; ``horizon`` stays the model's and the planner's, EF's is ``ef_horizon``.
 
     :param beta: weight of the Ego-Foresight loss (to train without EF, use :class:`TDMPC2`).
     :param ef_horizon: Ego-Foresight prediction horizon H (the rollout length k is drawn in [1, H]).
     :param babbling_steps: steps of motor babbling at the start (0: none).
     :param babbling_mode: ``"sign"`` (random +-1) or ``"clamped_uniform"``.
-    :param babbling_in_eval: ``predict`` also babbles while ``num_timesteps < babbling_steps`` (the EF authors'
-        Meta-World evaluation protocol).
-    :param policy_kwargs: see :class:`TDMPC2EFPolicy` (``agent_dim``, ``ef_kwargs``, and :class:`TDMPC2Policy`'s).
+    :param babbling_in_eval: ``predict`` also babbles during the babbling steps (the EF authors' Meta-World protocol).
+    :param policy_kwargs: see :class:`TDMPC2EFPolicy`.
 
     The other arguments are :class:`TDMPC2`'s.
     """
@@ -83,7 +75,6 @@ class TDMPC2EF(EFMixin, TDMPC2):
             self._setup_model()
 
     def _build_auxiliary(self) -> ForesightLoss:
-        """Ego-Foresight on the world model's latent, sized by the policy (``agent_dim``, ``ef_kwargs``)."""
         policy = self.policy
         if not isinstance(policy, TDMPC2EFPolicy):
             raise TypeError(f"TDMPC2EF needs a TDMPC2EFPolicy (EF's sizes), got {type(policy).__name__}")

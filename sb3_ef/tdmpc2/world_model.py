@@ -27,11 +27,8 @@ class PolicyOutput(NamedTuple):
 
 
 class WorldModel(nn.Module):
-    """One module, one method per head: ``encode``, ``next``, ``reward``, ``pi``, ``q`` (+ decoded scalars).
-
-    The latent is the flattened conv output (``num_channels * 4 * 4``, 512 by default) passed through SimNorm.
-    Reward and Q heads output logits over the bins of ``two_hot``; the target Q-ensemble is a frozen copy
-    updated by Polyak averaging.
+    """One method per head: ``encode``, ``next``, ``reward``, ``pi``, ``q``; the latent is the SimNorm of the
+    flattened conv output, reward and Q are logits over ``two_hot``'s bins, the target Q-ensemble a Polyak copy.
 
     :param in_channels: channels of the stacked observation (3 * frame stack).
     :param action_dim: size of the continuous action.
@@ -95,7 +92,7 @@ class WorldModel(nn.Module):
         self.target_q_heads = copy.deepcopy(self.q_heads).requires_grad_(False).eval()
 
     def train(self, mode: bool = True) -> WorldModel:
-        """Switch train/eval mode; the target Q-ensemble always stays in eval mode (no dropout)."""
+        """Switch train/eval mode; the target Q-ensemble stays in eval mode (no dropout)."""
         super().train(mode)
         self.target_q_heads.eval()
         return self
@@ -105,22 +102,16 @@ class WorldModel(nn.Module):
         return self.encoder(observations.float() / 255.0 - 0.5)
 
     def next(self, z: th.Tensor, action: th.Tensor) -> th.Tensor:
-        """Latent dynamics: the next latent state."""
         return self.dynamics(th.cat([z, action], dim=-1))
 
     def reward(self, z: th.Tensor, action: th.Tensor) -> th.Tensor:
-        """Reward logits over the two-hot bins."""
         return self.reward_head(th.cat([z, action], dim=-1))
 
     def reward_value(self, z: th.Tensor, action: th.Tensor) -> th.Tensor:
-        """Expected reward as a scalar per sample."""
         return self.two_hot.decode(self.reward(z, action))
 
     def pi(self, z: th.Tensor) -> PolicyOutput:
-        """Sample the tanh-squashed Gaussian policy prior (reparameterised).
-
-        ``scaled_entropy`` is the reference's entropy term: the Gaussian log-prob times ``-action_dim``, without the
-        tanh correction (which enters only ``log_prob``)."""
+        """A reparameterised sample of the tanh-squashed Gaussian policy prior."""
         mean, log_std = self.pi_head(z).chunk(2, dim=-1)
         log_std = self.log_std_min + 0.5 * (self.log_std_max - self.log_std_min) * (th.tanh(log_std) + 1)
         noise = th.randn_like(mean)
@@ -148,7 +139,6 @@ class WorldModel(nn.Module):
 
     @th.no_grad()
     def soft_update_target_q(self, tau: float) -> None:
-        """Polyak-average the online Q-ensemble into the target copy."""
         for target, online in zip(self.target_q_heads.parameters(), self.q_heads.parameters(), strict=True):
             target.lerp_(online, tau)
 
