@@ -6,14 +6,8 @@ import torch as th
 
 
 def random_shift(*images: th.Tensor, pad: int = 4, generator: th.Generator | None = None) -> tuple[th.Tensor, ...]:
-    """Shift each sample of a batch by a random integer offset in ``[-pad, pad]`` pixels per axis.
-
-    Equivalent to replicate-padding by ``pad`` and taking a random crop of the original size, which is what
-    DrQ-v2 does with ``grid_sample`` at integer offsets. Implemented with clamped index gathering, so it works
-    on any dtype (uint8 included) without padding copies.
-
-    All tensors passed together get the *same* shift per sample: pass the context observation and the
-    Ego-Foresight target frame in one call so both move together.
+    """Shift each sample by a random integer offset in ``[-pad, pad]`` pixels per axis, as DrQ-v2's replicate-pad
+    and crop, by clamped index gathering (any dtype). Tensors passed together get the same shift per sample.
 
     :param images: tensors of shape (batch, channels, height, width), all with the same batch, height and width.
     :param pad: maximum shift in pixels.
@@ -29,17 +23,15 @@ def random_shift(*images: th.Tensor, pad: int = 4, generator: th.Generator | Non
 
 
 def _draw(low: int, high: int, shape: tuple[int, ...], device: th.device, generator: th.Generator | None) -> th.Tensor:
-    """Integers in ``[low, high)`` on ``device``, drawn on the generator's own device (the models keep theirs on the
-    CPU, so that a saved model loads anywhere) and moved: a CPU generator cannot draw on a GPU."""
+    """Integers in ``[low, high)`` on ``device``, drawn on the generator's device (a CPU generator cannot draw on a
+    GPU)."""
     draw_device = device if generator is None else generator.device
     return th.randint(low, high, shape, device=draw_device, generator=generator).to(device)
 
 
 def _gather(images: tuple[th.Tensor, ...], rows: th.Tensor, cols: th.Tensor) -> tuple[th.Tensor, ...]:
-    """Each image's pixels at the per-sample row and column indices ``(batch, out_height)`` and ``(batch,
-    out_width)``, by advanced indexing on the spatial axes (any dtype, no padding copies)."""
+    """Each image's pixels at the per-sample rows ``(batch, out_height)`` and columns ``(batch, out_width)``."""
     batch_index = th.arange(rows.shape[0], device=rows.device)[:, None, None]
-    # (batch, height, width, channels) after advanced indexing on the spatial axes, then back to channels-first.
     return tuple(
         image.permute(0, 2, 3, 1)[batch_index, rows[:, :, None], cols[:, None, :]].permute(0, 3, 1, 2).contiguous()
         for image in images
@@ -55,8 +47,7 @@ def _check_batch(images: tuple[th.Tensor, ...], name: str) -> tuple[int, int, in
         if image.dim() != 4 or image.shape[0] != batch or image.shape[-2:] != (height, width):
             raise ValueError(
                 f"{name} expects (batch, channels, {height}, {width}) tensors with one batch size and frame size "
-                f"(batch {batch}), "
-                f"got shapes {[tuple(image.shape) for image in images]}"
+                f"(batch {batch}), got shapes {[tuple(image.shape) for image in images]}"
             )
     return batch, height, width
 
@@ -71,12 +62,9 @@ def _check_crop(size: int, height: int, width: int, name: str) -> None:
 def random_crop(
     *images: th.Tensor, size: int, generator: th.Generator | None = None, last_offset: bool = True
 ) -> tuple[th.Tensor, ...]:
-    """Crop a random ``size`` x ``size`` window of each sample (CURL's augmentation: 84x84 windows of 100x100 frames).
-
-    The window's corner is uniform over every position that fits (``0 .. height - size`` rows, ``0 .. width - size``
-    columns), drawn per sample; ``last_offset=False`` leaves out the last of them (``0 .. height - size - 1``, as
-    CURL's authors draw it). Tensors passed together get the *same* window per sample; call twice for two
-    independent crops (CURL's query and key).
+    """Crop a random ``size`` x ``size`` window of each sample (CURL's augmentation), its corner uniform over every
+    position that fits; ``last_offset=False`` leaves out the last (as CURL's authors draw it). Tensors passed
+    together get the same window per sample.
 
     :param images: tensors of shape (batch, channels, height, width), all with the same batch, height and width.
     :param size: side of the crop, at most the frame's height and width.
@@ -95,8 +83,7 @@ def random_crop(
 
 
 def center_crop(images: th.Tensor, size: int) -> th.Tensor:
-    """The central ``size`` x ``size`` window of (batch, channels, height, width) ``images`` (CURL's crop when
-    acting); offsets ``(height - size) // 2`` and ``(width - size) // 2``."""
+    """The central ``size`` x ``size`` window of (batch, channels, height, width) ``images`` (CURL's when acting)."""
     _, height, width = _check_batch((images,), "center_crop")
     _check_crop(size, height, width, "center_crop")
     top, left = (height - size) // 2, (width - size) // 2

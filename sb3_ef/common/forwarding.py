@@ -8,12 +8,8 @@ from typing import Any
 
 
 def base_arguments(base: type, arguments: Mapping[str, Any], **overrides: Any) -> dict[str, Any]:
-    """The entries of ``arguments`` that ``base.__init__`` takes, with ``overrides`` on top.
-
-    A variant keeps SB3's written-out signature (``DrQv2EF`` repeats :class:`~sb3_ef.drqv2.DrQv2`'s arguments and
-    adds its own) and passes its base's on in one call: ``super().__init__(**base_arguments(DrQv2, locals(),
-    _init_setup_model=False))``, ``locals()`` holding its own arguments as they stand at that call.
-    """
+    """The entries of ``arguments`` that ``base.__init__`` takes, with ``overrides`` on top: a variant with SB3's
+    written-out signature passes its base's on with ``super().__init__(**base_arguments(Base, locals()))``."""
     parameters = inspect.signature(base).parameters.values()
     names = [p.name for p in parameters if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)]
     return {name: arguments[name] for name in names if name in arguments} | overrides

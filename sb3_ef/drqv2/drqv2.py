@@ -44,8 +44,7 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     (``_build_auxiliary``, e.g. :class:`DrQv2EF`'s) is added to the critic's loss and optimiser.
 
     :param policy: the policy (``"CnnPolicy"``) or its class.
-    :param env: the environment (uint8 stacked RGB frames, channels-first, or channels-last which SB3 transposes;
-        Box actions) or its registered id.
+    :param env: the environment (uint8 stacked RGB frames, Box actions) or its registered id.
     :param learning_rate: Adam learning rate of every network (encoder, critic, actor, auxiliary), or a schedule.
     :param buffer_size: replay buffer capacity in transitions.
     :param learning_starts: agent steps of uniform random actions before the first update.
@@ -55,12 +54,10 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     :param train_freq: update every ``train_freq`` agent steps (or ``(n, "step" | "episode")``).
     :param gradient_steps: gradient steps per update (-1: as many as steps collected).
     :param n_steps: n of the n-step return (given to the :class:`SequenceReplayBuffer`).
-    :param exploration_std: std of the rollout and target-policy noise, as a function of agent steps: a number, a
-        ``"linear(initial, final, duration)"`` string or a callable.
+    :param exploration_std: std of the action noise: a number, ``"linear(initial, final, steps)"`` or a callable.
     :param target_noise_clip: clip of the noise added to the actions of the target and the actor loss.
     :param check_finite_losses: raise a ``ValueError`` naming a NaN or infinite loss before the step (debugging).
-    :param compile: ``torch.compile`` the loss computations: ``False``, ``True``, a mode name
-        (``"reduce-overhead"``: CUDA graphs) or a dict of ``torch.compile`` arguments.
+    :param compile: ``torch.compile`` the losses: ``False``, ``True``, a mode name or a dict of its arguments.
     :param replay_buffer_class: a :class:`SequenceReplayBuffer` (sub)class; ``None`` picks it.
     :param replay_buffer_kwargs: extra buffer arguments (``n_steps``, ``gamma`` and the horizon are filled in).
     :param stats_window_size: episodes averaged for the rollout logs.

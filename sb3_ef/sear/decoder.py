@@ -1,10 +1,7 @@
-"""SEAR's decoder: a half of the latent back to a full-size image, mirroring the pooled DrQ-v2 encoder.
+"""SEAR's decoder: half of the latent back to a full-size image through the transpose of the pooled DrQ-v2 encoder.
 
-SEAR (Gmelin et al., ICML 2023) decodes with the transpose of its encoder: a linear layer and ReLU to a
-16-channel map of the encoder's pooled size, a stride-4 transposed convolution back to the conv stack's output
-size, three 3x3 transposed convolutions and a final stride-2 one to the frame size. At 84x84 this is the authors'
-``PoolDecoder`` layer for layer (8x8 -> 35 -> 37 -> 39 -> 41 -> 84); other frame sizes get the output paddings
-that invert the encoder's size arithmetic.
+At 84x84 it is the SEAR authors' ``PoolDecoder`` layer for layer (8x8 -> 35 -> 37 -> 39 -> 41 -> 84); other frame
+sizes get the output paddings that invert the encoder's size arithmetic.
 """
 
 from __future__ import annotations
@@ -33,14 +30,13 @@ def _encoder_sizes(size: int) -> tuple[int, int]:
 
 
 class SEARDecoder(nn.Module):
-    """Linear + ReLU to (16, p_h, p_w), then transposed convolutions with ReLU between them to
-    (out_channels, height, width). The output has no activation: SEAR clamps the frame and applies a sigmoid to
-    the mask inside its loss.
+    """Linear + ReLU to (16, p_h, p_w), then transposed convolutions to (out_channels, height, width), no output
+    activation (SEAR's loss clamps the frame and takes the mask's sigmoid).
 
     :param in_dim: size of the latent half the decoder reads.
     :param out_channels: channels of the decoded image (3 x frame stack for frames, frame stack for masks).
-    :param height: frame height (at least 21).
-    :param width: frame width (at least 21).
+    :param height: frame height (at least :data:`MIN_FRAME_SIZE`).
+    :param width: frame width (at least :data:`MIN_FRAME_SIZE`).
     """
 
     def __init__(self, in_dim: int, out_channels: int, height: int, width: int):

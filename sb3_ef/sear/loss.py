@@ -1,15 +1,6 @@
-"""SEAR's auxiliary losses (Gmelin et al., ICML 2023): frame reconstruction and supervised agent-mask prediction.
-
-The encoder's latent (4096 by default, SEAR's ``latent_dim``) is split in halves. The first half is decoded to the
-whole stacked observation, the second to the agent masks of its frames:
-
-- reconstruction: frames scaled to [-0.5, 0.5], decoded frames clamped to that range, squared error summed over
-  channels and pixels and averaged over the batch;
-- mask: a sigmoid on the decoded masks, binary cross-entropy against the 0/1 agent masks summed over frames and
-  pixels and averaged over the batch.
-
-The host adds ``reconstruction_coef * reconstruction + mask_coef * mask`` to the critic's loss on the same
-encoder output (one backward pass through the encoder, critic and both decoders).
+"""SEAR's auxiliary losses (Gmelin et al., ICML 2023): the first half of the encoder's latent is decoded to the
+stacked frames (squared error in [-0.5, 0.5]), the second to their agent masks (binary cross-entropy), each summed
+over pixels and averaged over the batch; the host adds their weighted sum to the critic's loss.
 """
 
 from __future__ import annotations
@@ -34,14 +25,14 @@ SEAR_LATENT_DIM = 4096
 
 
 class SEARTargets(NamedTuple):
-    """What SEAR's loss compares against: the shifted observations and the agent masks shifted with them."""
+    """The shifted observations and their agent masks, shifted with them."""
 
     frames: th.Tensor  # (batch, 3 * frame_stack, height, width), uint8
     masks: th.Tensor  # (batch, frame_stack, height, width), 0/1
 
 
 def resolve_coefficients(coefficients: str | Sequence[float]) -> tuple[float, float]:
-    """``(reconstruction_coef, mask_coef)`` of a preset name of :data:`SEAR_COEFFICIENTS` or of a pair of numbers."""
+    """``(reconstruction_coef, mask_coef)`` of a :data:`SEAR_COEFFICIENTS` preset name or of a pair of numbers."""
     if isinstance(coefficients, str):
         if coefficients not in SEAR_COEFFICIENTS:
             raise ValueError(
@@ -63,8 +54,7 @@ class SEARLoss(AuxiliaryLoss):
 
     :param features_dim: size of the encoder's features (even: split in halves); SEAR uses 4096.
     :param observation_shape: ``(3 * frame_stack, height, width)`` of the stacked observations.
-    :param coefficients: ``"sear"`` (1, 0.25), ``"efrl"`` (0.01, 0.0025) or a pair
-        ``(reconstruction_coef, mask_coef)``.
+    :param coefficients: a :data:`SEAR_COEFFICIENTS` name or a pair ``(reconstruction_coef, mask_coef)``.
     """
 
     def __init__(
@@ -94,12 +84,10 @@ class SEARLoss(AuxiliaryLoss):
 
     @property
     def mask_shape(self) -> tuple[int, int, int]:
-        """``(frame_stack, height, width)``: one agent mask per stacked frame."""
         return (self.frame_stack, *self.observation_shape[1:])
 
     def prepare(self, batch: Any, pad: int, generator: th.Generator | None = None) -> tuple[th.Tensor, SEARTargets]:
-        """Random-shift the observations and their agent masks (``batch.masks``) with the same shift per sample;
-        the shifted observations are both the encoder's input and the reconstruction target."""
+        """The observations and their agent masks shifted alike: the encoder's input and the targets."""
         observations = batch.observations
         masks = getattr(batch, "masks", None)
         if masks is None:
@@ -117,7 +105,7 @@ class SEARLoss(AuxiliaryLoss):
         return observations, SEARTargets(observations, masks)
 
     def split(self, features: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
-        """The two halves of the features: the first is decoded to frames, the second to agent masks."""
+        """The halves of the features: decoded to frames and to agent masks."""
         if features.dim() != 2 or features.shape[1] != self.features_dim:
             raise ValueError(
                 f"SEAR expects features of shape (batch, {self.features_dim}), got {tuple(features.shape)}"

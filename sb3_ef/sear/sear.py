@@ -16,8 +16,7 @@ from sb3_ef.sear.loss import SEAR_LATENT_DIM, SEARLoss, resolve_coefficients
 
 
 class SEARPolicy(DrQv2Policy):
-    """:class:`DrQv2Policy` whose encoder projects to SEAR's latent (``features_dim`` 4096, split in halves by
-    :class:`SEARLoss`). The other arguments are :class:`DrQv2Policy`'s."""
+    """:class:`DrQv2Policy` whose encoder projects to SEAR's 4096 features (split by :class:`SEARLoss`)."""
 
     def __init__(
         self,
@@ -45,20 +44,14 @@ def check_agent_masks(env: VecEnv) -> None:
 
 
 class SEAR(DrQv2):
-    """SEAR (Gmelin, Bahl, Mendonca and Pathak, "Efficient RL via Disentangled Environment and Agent
-    Representations", ICML 2023): :class:`DrQv2` whose encoder's latent is split in halves, the first decoded to the
-    observation's frames, the second to their agent masks (:class:`SEARLoss`); the encoder is trained by
-    ``critic_loss + reconstruction_coef * reconstruction + mask_coef * mask`` and both decoders learn in the
-    critic's Adam.
-
-    The env must render agent masks (``make_env(..., agent_masks=True)``); the replay buffer stores one per frame
-    (``SequenceReplayBuffer(store_masks=True)``, set here) and shifts each with its frames.
+    """SEAR (Gmelin et al., "Efficient RL via Disentangled Environment and Agent Representations", ICML 2023):
+    :class:`DrQv2` whose encoder is also trained by :class:`SEARLoss`'s frame and agent-mask reconstruction. The env
+    must render agent masks (``make_env(..., agent_masks=True)``); the replay buffer stores them.
 
     :param buffer_size: replay buffer capacity in transitions (250000, SEAR's).
     :param replay_buffer_kwargs: extra buffer arguments, as :class:`DrQv2`'s (``store_masks`` is set here).
-    :param coefficients: ``"sear"`` (reconstruction 1, mask 0.25: the SEAR authors'), ``"efrl"`` (0.01, 0.0025:
-        the Ego-Foresight authors' copy) or a pair ``(reconstruction_coef, mask_coef)``.
-    :param policy_kwargs: see :class:`SEARPolicy` (``features_dim`` 4096, and :class:`DrQv2Policy`'s).
+    :param coefficients: ``"sear"`` (the SEAR authors'), ``"efrl"`` (the EF authors') or a pair, see :class:`SEARLoss`.
+    :param policy_kwargs: see :class:`SEARPolicy`.
 
     The other arguments (keywords) are :class:`DrQv2`'s.
     """
@@ -104,5 +97,4 @@ class SEAR(DrQv2):
         check_agent_masks(self.env)
 
     def _build_auxiliary(self) -> SEARLoss:
-        """SEAR's two decoders on the halves of the encoder's latent, for this env's observations."""
         return SEARLoss(self.policy.encoder.features_dim, self.observation_space.shape, self.coefficients)  # type: ignore[arg-type]

@@ -76,8 +76,7 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
     :param encoder_lr_scale: encoder learning rate relative to the rest.
     :param horizon: planning / world-model horizon (set by the algorithm).
     :param gamma: discount of the planner's value estimate (set by the algorithm).
-    :param planner_kwargs: MPPI settings, see :class:`MPPIPlanner`; ``iterations`` gets 2 more when ``action_dim >=
-        20`` (TD-MPC2's heuristic).
+    :param planner_kwargs: see :class:`MPPIPlanner` (``iterations`` + 2 when ``action_dim >= 20``, as TD-MPC2).
     :param optimizer_class: optimiser of both parameter sets.
     :param optimizer_kwargs: extra optimiser arguments; ``None`` with Adam gives its fused kernel.
     :param channels_last: keep the conv weights (encoder, auxiliary decoder) channels-last (faster convolutions).

@@ -43,12 +43,10 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     (``_build_auxiliary``, e.g. :class:`TDMPC2EF`'s) reads the first latent and is clipped on its own.
 
     :param policy: ``"CnnPolicy"`` or a :class:`TDMPC2Policy` (sub)class.
-    :param env: the environment (uint8 stacked 64x64 RGB frames, channels-first, or channels-last which SB3
-        transposes; Box actions) or its id.
+    :param env: the environment (uint8 stacked 64x64 RGB frames, Box actions) or its id.
     :param learning_rate: Adam learning rate (the encoder uses ``policy_kwargs["encoder_lr_scale"]`` times it).
     :param buffer_size: replay buffer capacity (frames).
-    :param learning_starts: TD-MPC2's seed steps S (random actions at the steps 0..S); ``None``: ``max(1000, 5 x
-        episode length)``.
+    :param learning_starts: seed steps S (random actions at 0..S); ``None``: ``max(1000, 5 x episode length)``.
     :param batch_size: minibatch size.
     :param tau: Polyak coefficient of the target Q-ensemble and of the running Q scale.
     :param gamma: discount; ``None`` derives it from the episode length (TD-MPC2's heuristic).
@@ -59,11 +57,9 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     :param entropy_coef: weight of the policy prior's (action-dim scaled) entropy bonus.
     :param rho: per-step decay of the loss weights over the horizon.
     :param max_grad_norm: gradient clipping norm (world model, auxiliary loss and policy prior each clipped apart).
-    :param seed_burst: when the seed steps end, run as many updates as seed steps at once (TD-MPC2); ``False``: one
-        update per step from the start (cheaper, not the reference's schedule).
+    :param seed_burst: run as many updates as seed steps when they end (TD-MPC2); ``False``: one update per step.
     :param check_finite_losses: raise a ``ValueError`` naming a NaN or infinite loss before the step (debugging).
-    :param compile: ``torch.compile`` the loss computations: ``False``, ``True``, a mode name
-        (``"reduce-overhead"``: CUDA graphs) or a dict of ``torch.compile`` arguments.
+    :param compile: ``torch.compile`` the losses: ``False``, ``True``, a mode name or a dict of its arguments.
     :param replay_buffer_class: a :class:`SequenceReplayBuffer` (sub)class; ``None`` picks it.
     :param replay_buffer_kwargs: extra buffer arguments (``n_steps`` and the window horizon are filled in).
     :param stats_window_size: episodes averaged for the rollout logs.

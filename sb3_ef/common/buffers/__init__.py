@@ -1,8 +1,7 @@
 """The frame-deduplicating replay buffer that samples RL transitions together with Ego-Foresight windows.
 
-:class:`SequenceReplayBuffer` composes one part per job: ``episodes`` (checks and episode bookkeeping), ``storage``
-(tensors in host memory, a memory map or on a GPU), ``sampling`` (draws, gathers, prefetch), ``persistence``
-(pickling) and ``sb3_arrays`` (SB3's ``observations``, ``actions``, ... layout). docs/buffer.md describes it.
+:class:`SequenceReplayBuffer` composes ``episodes`` (checks, bookkeeping), ``storage`` (tensors), ``sampling``
+(draws, gathers, prefetch), ``persistence`` (pickling) and ``sb3_arrays`` (SB3's layout); see docs/buffer.md.
 """
 
 from sb3_ef.common.buffers.episodes import MASKS_INFO_KEY

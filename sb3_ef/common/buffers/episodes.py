@@ -1,10 +1,8 @@
-"""Writing into per-env frame rings: the checks made before storing, and the episode bookkeeping.
+"""Writing into per-env frame rings: the checks before storing and the episode bookkeeping.
 
-Each env owns a ring of ``capacity`` frame slots. An episode takes ``frame_stack`` slots for its first stacked
-observation, then one per step (the newest frame of the next observation, terminal observations included). A slot
-carries a step when a transition starts at the observation whose newest frame sits there and all of that
-observation's frames are still stored. An episode's steps form one run of step slots closed by its last frame, which
-never carries a step, so a run never crosses episodes.
+An episode takes ``frame_stack`` slots for its first observation, then one per step. A slot carries a step when a
+transition starts at the observation whose newest frame sits there and all its frames are still stored; an
+episode's last frame never carries one, so a run of step slots never crosses episodes.
 """
 
 from __future__ import annotations
@@ -20,8 +18,7 @@ MASKS_INFO_KEY = "agent_masks"
 
 @dataclass
 class Placement:
-    """Where one ``add()`` writes: new frames and the rows of the steps, the rows whose step flag changed, and which
-    envs started an episode (their first observation's frames are among the new frames)."""
+    """Where one ``add()`` writes: new frames, step rows, rows whose step flag changed, envs that started an episode."""
 
     frame_rows: list[int]
     frames: list[np.ndarray]
@@ -31,7 +28,7 @@ class Placement:
 
 
 class EpisodeRings:
-    """The host-side bookkeeping of the rings; it decides where each step's frames and data go.
+    """The host-side bookkeeping of the rings: where each step's frames and data go.
 
     :param n_envs: number of rings.
     :param capacity: frame slots per ring.
@@ -60,7 +57,7 @@ class EpisodeRings:
         return self.has_step_rows[:-1].reshape(self.n_envs, self.capacity)
 
     def filled(self) -> np.ndarray:
-        """Slots written so far per env (slots ``[0, filled)`` of each ring)."""
+        """Slots ``[0, filled)`` written so far per env."""
         return np.minimum(self.head + 1, self.capacity)
 
     def reset(self) -> None:
@@ -113,11 +110,8 @@ class EpisodeRings:
         return np.stack(masks)
 
     def place(self, obs: np.ndarray, next_obs: np.ndarray, done: np.ndarray) -> Placement:
-        """Book one checked step of every env and say where its frames and data go.
-
-        An ``obs`` that does not continue the env's stored episode starts a new episode (its k frames are written
-        first); the previous one stays cut, which bootstraps like a time limit.
-        """
+        """Book one checked step of every env. An ``obs`` that does not continue the env's episode starts a new one
+        (its k frames written first); the previous one stays cut, which bootstraps like a time limit."""
         frame_rows: list[int] = []
         frames: list[np.ndarray] = []
         cleared: list[np.ndarray] = []
@@ -143,8 +137,7 @@ class EpisodeRings:
         return Placement(frame_rows, frames, step_rows, touched, started)
 
     def _advance(self, env: int, cleared: list[np.ndarray]) -> int:
-        """Take the next slot of ``env``'s ring and return its row; overwriting a frame invalidates every step
-        that reads it as context (those rows are appended to ``cleared``)."""
+        """The row of ``env``'s next slot; the steps that read an overwritten frame are cleared (into ``cleared``)."""
         newest = self.head[env] + 1
         slot = newest % self.capacity
         if newest >= self.capacity:
@@ -158,8 +151,7 @@ class EpisodeRings:
         return env * self.capacity + slot
 
     def steps_in_order(self, env: int) -> np.ndarray:
-        """Rows of ``env``'s stored steps, oldest first. They are its latest steps: frames are overwritten oldest
-        first, so the steps that lose a frame are always the oldest ones."""
+        """Rows of ``env``'s stored steps (its latest ones), oldest first."""
         filled = int(self.filled()[env])
         oldest = self.head[env] + 1 if filled == self.capacity else 0
         slots = (oldest + np.arange(filled)) % self.capacity

@@ -1,11 +1,8 @@
 """Pickling a sequence buffer (SB3's ``save_replay_buffer`` / ``load_replay_buffer``) as one flat dict of named fields.
 
-The written frames, step arrays and masks go into the pickle as NumPy arrays (only the slots written so far, from
-any storage device), so a saved buffer is self-contained and loads on any machine; a prefetched batch is kept as its
-drawn indices. Fields are read by name, and fields a pickle lacks get their meaning from what it holds: a pickle
-whose steps hold ``_terminals`` (terminations, time limits excluded) rather than ``_dones`` and ``_timeouts`` loads
-with ``dones`` = terminations and no ``timeouts``, no masks, and SB3's ``pos`` and ``full`` counted from its
-``add()`` calls.
+The written slots go in as NumPy arrays, so a saved buffer loads on any machine. A pickle whose steps hold
+``_terminals`` rather than ``_dones`` and ``_timeouts`` loads with ``dones`` = terminations, no ``timeouts``, no
+masks, and SB3's ``pos`` and ``full`` counted from its ``add()`` calls.
 """
 
 from __future__ import annotations
@@ -20,8 +17,7 @@ from sb3_ef.common.buffers.storage import FrameStorage
 
 
 class PersistedBuffer(Protocol):
-    """What pickling reads and rebuilds of a sequence buffer (:class:`~sb3_ef.common.buffers.SequenceReplayBuffer`):
-    its parts, where they live, and how it builds them."""
+    """What pickling reads and rebuilds of a :class:`~sb3_ef.common.buffers.SequenceReplayBuffer`."""
 
     _rings: EpisodeRings
     _storage: FrameStorage
@@ -51,8 +47,7 @@ _STEP_FIELDS = {"_actions": "actions", "_rewards": "rewards", "_dones": "dones",
 
 
 def buffer_state(buffer: PersistedBuffer) -> dict[str, Any]:
-    """The pickled state: the buffer's own attributes, the bookkeeping, the sampler's generator and prefetched draw,
-    and the written part of the storage (``_stored``, None when nothing was written)."""
+    """The pickled state: attributes, bookkeeping, sampler state and the written storage (``_stored``, or None)."""
     state = {name: value for name, value in buffer.__dict__.items() if name not in _PARTS}
     rings, storage, sampler = buffer._rings, buffer._storage, buffer._sampler
     state["_pending_draw"] = sampler.pending_draw()
@@ -73,8 +68,7 @@ def buffer_state(buffer: PersistedBuffer) -> dict[str, Any]:
 
 
 def restore_buffer(buffer: PersistedBuffer, state: dict[str, Any]) -> None:
-    """Rebuild the buffer from :func:`buffer_state`'s dict: its parts where they belong on this machine (a fresh
-    memmap file when ``memmap_dir`` is set), then the written data copied in."""
+    """Rebuild the buffer's parts on this machine from :func:`buffer_state`'s dict, then copy the data in."""
     if "_stored" not in state:
         raise ValueError(
             "SequenceReplayBuffer expects a pickle whose frames are stored under '_stored', got one without: "

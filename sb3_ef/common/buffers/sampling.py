@@ -1,9 +1,6 @@
-"""Sampling a sequence buffer: uniform draws, gathering on the storage device, prefetch and the copy to the GPU.
-
-Indices are drawn on the host by the sampler's own generator, then everything is gathered on the storage device with
-``index_select`` into reused output tensors. With prefetch, the next batch is drawn when one is handed out and
-gathered in a background thread; gathered host batches reach a CUDA training device through pinned memory on a side
-stream, ordered with the caller's stream by CUDA events.
+"""Sampling a sequence buffer: indices drawn on the host, gathered on the storage device into reused outputs (with
+prefetch, in a background thread), host batches copied to a CUDA training device through pinned memory on a side
+stream ordered by CUDA events.
 """
 
 from __future__ import annotations
@@ -23,11 +20,8 @@ _SEED_SALT = 0x5EB3EF  # keeps the buffer's stream apart from torch's own stream
 
 
 class SequenceReplayBufferSamples(NamedTuple):
-    """One batch: an n-step RL transition plus the Ego-Foresight window that starts at the same step.
-
-    ``masks`` holds the agent masks (uint8 0/1, ``(batch, frame_stack, height, width)``) of the observation's
-    frames, oldest first, when the buffer stores masks, else None.
-    """
+    """One batch: an n-step RL transition plus the window that starts at the same step; ``masks``: the agent masks
+    ``(batch, frame_stack, height, width)`` of the observation's frames when the buffer stores them."""
 
     observations: th.Tensor
     actions: th.Tensor
@@ -94,13 +88,13 @@ class _Pending:
 
 
 class BatchSampler:
-    """Draws and gathers batches of n-step transitions with their Ego-Foresight windows.
+    """Draws and gathers batches of n-step transitions with their windows.
 
     :param storage: the tensors to gather from.
     :param rings: the bookkeeping that says which slots carry steps.
     :param n_steps: steps summed in the n-step return.
     :param gamma: discount of the n-step return.
-    :param horizon: length of the Ego-Foresight window.
+    :param horizon: length of the window.
     :param mask_size: ``(height, width)`` of the masks, or None when they are not stored.
     :param prefetch: gather the next batch in a background thread (None: when host storage feeds a CUDA device).
     :param seed: seed of the generator (the buffer passes ``torch.initial_seed()``).
@@ -134,7 +128,7 @@ class BatchSampler:
         self.rng = np.random.default_rng((seed, _SEED_SALT))
 
     def sample(self, batch_size: int, device: th.device, env: VecNormalize | None) -> SequenceReplayBufferSamples:
-        """A batch on ``device`` (see ``SequenceReplayBuffer.sample``)."""
+        """A batch on ``device`` (see :meth:`SequenceReplayBuffer.sample`)."""
         released = self._release_event(device)
         pending, self._pending = self._pending, None
         gathered = None
@@ -154,7 +148,7 @@ class BatchSampler:
         return self._finish(gathered, device, env)
 
     def _transfers_to_gpu(self, device: th.device) -> bool:
-        """Batches are gathered in host memory and copied to a CUDA training device."""
+        """Host batches are copied to a CUDA training device."""
         return self.storage.device.type == "cpu" and device.type == "cuda"
 
     def _prefetching(self, device: th.device) -> bool:
@@ -186,7 +180,7 @@ class BatchSampler:
 
     def _draw(self, batch_size: int) -> np.ndarray:
         """``(2, batch_size)``: env and absolute index of the newest observation frame of uniformly drawn steps."""
-        # Slots [0, filled) of each env's ring are written; draw uniformly among them and keep step slots.
+        # Draw uniformly among the written slots [0, filled) of each ring and keep those that carry steps.
         capacity, has_step_rows = self.rings.capacity, self.rings.has_step_rows
         filled = self.rings.filled()
         ends = np.cumsum(filled)
@@ -263,7 +257,7 @@ class BatchSampler:
         gathered.observations, gathered.next_observations, gathered.future_frames = targets
 
     def _finish(self, gathered: _Gathered, device: th.device, env: VecNormalize | None) -> SequenceReplayBufferSamples:
-        """Move the batch to the training device and sum the n-step rewards (normalised by ``env``'s statistics now)."""
+        """The batch on the training device with its n-step rewards (normalised by ``env``'s statistics now)."""
         if gathered.copied is not None:
             th.cuda.current_stream(normalize_device(device)).wait_event(gathered.copied)
         # Host to GPU copies may run behind the caller (they are stream-ordered); GPU to host ones must not.
@@ -302,7 +296,7 @@ class BatchSampler:
             pending.future.exception()
 
     def wait_for_prefetch(self) -> None:
-        """Writes wait for a background gather: it reads the storage as it was when its batch was drawn."""
+        """Writes wait for a background gather, which reads the storage as it was when drawn."""
         if self._pending is not None:
             self._wait(self._pending)
 
@@ -314,11 +308,11 @@ class BatchSampler:
             self._pending = None
 
     def pending_draw(self) -> tuple[int, np.ndarray] | None:
-        """What a pickle keeps of the prefetched batch: its size and drawn indices (after its gather finished)."""
+        """What a pickle keeps of the prefetched batch: its size and drawn indices."""
         self.wait_for_prefetch()
         return None if self._pending is None else (self._pending.batch_size, self._pending.indices)
 
     def restore_pending(self, draw: tuple[int, np.ndarray] | None, device: th.device) -> None:
-        """Take back a pickled prefetched batch: it is gathered at the next ``sample()`` of its size."""
+        """A pickled prefetched batch, gathered at the next ``sample()`` of its size."""
         if draw is not None:
             self._pending = _Pending(draw[0], draw[1], self._take_slot(device))

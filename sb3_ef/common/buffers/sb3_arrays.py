@@ -1,10 +1,6 @@
 """SB3's ``ReplayBuffer`` arrays of a sequence buffer: ``(buffer_size, n_envs, ...)``, row ``i`` holding the step of
-the ``i``-th ``add()`` call modulo ``buffer_size`` (``pos`` is the next row, as in SB3).
-
-The sequence buffer keeps fewer transitions than rows (``buffer_size`` counts frames; an episode's first observation
-takes ``frame_stack`` of them): rows whose step is no longer stored read as zeros. Stacked observations are gathered
-on demand by :class:`StackedFrameView` (materialising them would take ``frame_stack`` times the frames' memory);
-the per-step arrays are small and built as NumPy arrays.
+the ``i``-th ``add()`` call modulo ``buffer_size``; rows whose step is no longer stored read as zeros. Observations
+are gathered on demand by :class:`StackedFrameView`, the per-step arrays built as NumPy arrays.
 """
 
 from __future__ import annotations
@@ -19,11 +15,8 @@ from sb3_ef.common.buffers.storage import FrameStorage
 
 
 def sb3_rows(rings: EpisodeRings, pos: int) -> np.ndarray:
-    """``(capacity, n_envs)`` storage row of each SB3 row; the zero row where no step is stored.
-
-    Every ``add()`` stores one step per env, and the stored steps of an env are its latest ones, so the ``j``-th
-    newest stored step (``j = 0, 1, ...``) is the one of the ``add()`` call in SB3 row ``pos - 1 - j``.
-    """
+    """``(capacity, n_envs)`` storage row of each SB3 row (the zero row where no step is stored): an env's ``j``-th
+    newest stored step is the one of SB3 row ``pos - 1 - j``."""
     capacity, zero_row = rings.capacity, rings.n_envs * rings.capacity
     rows = np.full((capacity, rings.n_envs), zero_row, dtype=np.int64)
     for env in range(rings.n_envs):
@@ -33,9 +26,8 @@ def sb3_rows(rings: EpisodeRings, pos: int) -> np.ndarray:
 
 
 class StackedFrameView:
-    """Read-only ``(buffer_size, n_envs, 3k, h, w)`` uint8 array of the stacked observations (``offset=0``) or next
-    observations (``offset=1``) in SB3's layout. Indexing gathers only the rows asked for; ``np.asarray(view)``
-    gathers all of them (``frame_stack`` times the memory of the stored frames).
+    """Read-only ``(buffer_size, n_envs, 3k, h, w)`` uint8 array of the observations (``offset=0``) or next
+    observations (``offset=1``); indexing gathers only the rows asked for.
 
     :param storage: the allocated storage, or one not allocated yet (everything reads as zeros).
     :param rows: the storage row of each SB3 row (:func:`sb3_rows`).
@@ -94,8 +86,8 @@ class StackedFrameView:
 
 
 def step_array(storage: FrameStorage, name: str, rows: np.ndarray) -> np.ndarray:
-    """SB3's float32 array ``name`` (``actions``, ``rewards``, ``dones``, ``timeouts``) for the SB3 ``rows``; read-only
-    (it is a copy: writing to it would not change the buffer)."""
+    """SB3's float32 array ``name`` (``actions``, ``rewards``, ``dones``, ``timeouts``) for the SB3 ``rows``, read-only
+    (a copy)."""
     if storage.allocated:
         values = getattr(storage, name)[th.from_numpy(rows).to(storage.device)].cpu().numpy().astype(np.float32)
     else:

@@ -1,13 +1,5 @@
-"""``SequenceReplayBuffer``: SB3's replay buffer interface over frame rings, composed of one part per job.
-
-Stacked image observations share all but one frame with their neighbours, so each frame is stored once in a
-per-environment ring of frames, and stacked observations are rebuilt at sample time from consecutive frames (they
-equal what the env emitted, episode starts included, whatever padding the env used). The parts:
-:class:`~sb3_ef.common.buffers.episodes.EpisodeRings` (checks and episode bookkeeping),
-:class:`~sb3_ef.common.buffers.storage.FrameStorage` (tensors on the storage device),
-:class:`~sb3_ef.common.buffers.sampling.BatchSampler` (draws, gathers, prefetch),
-:mod:`~sb3_ef.common.buffers.persistence` (pickling) and :mod:`~sb3_ef.common.buffers.sb3_arrays` (SB3's arrays).
-See docs/buffer.md for the layout and the rules.
+"""``SequenceReplayBuffer``: SB3's replay buffer interface over per-env frame rings, each frame stored once and the
+stacked observations rebuilt at sample time (the parts are listed in :mod:`sb3_ef.common.buffers`; docs/buffer.md).
 """
 
 from __future__ import annotations
@@ -31,7 +23,7 @@ from sb3_ef.common.buffers.storage import FrameStorage, storage_request
 
 
 def _check_observation_space(observation_space: spaces.Space, frame_channels: int) -> int:
-    """Return the frame stack k of a uint8 ``Box(0, 255, (frame_channels * k, h, w))``, or raise."""
+    """The frame stack k of a uint8 ``Box(0, 255, (frame_channels * k, h, w))``, or raise."""
     expected = f"a uint8 Box of shape ({frame_channels} * frame_stack, height, width)"
     if not isinstance(observation_space, spaces.Box):
         raise ValueError(f"SequenceReplayBuffer expects {expected}, got {observation_space}")
@@ -52,37 +44,26 @@ def _check_observation_space(observation_space: spaces.Space, frame_channels: in
 class SequenceReplayBuffer(ReplayBuffer):
     """Replay buffer for stacked uint8 image observations that keeps each frame once.
 
-    Usable as SB3's ``replay_buffer_class`` (it subclasses ``ReplayBuffer`` so that SB3 accepts it when loading,
-    but allocates none of ``ReplayBuffer``'s observation arrays; ``observations``, ``actions``, ... are derived
-    on demand in SB3's layout) and directly by the standalone TD-MPC2.
+    Usable as SB3's ``replay_buffer_class``; it allocates none of ``ReplayBuffer``'s arrays (``observations``, ...
+    are derived on demand in SB3's layout).
 
-    :param buffer_size: capacity in frames, shared equally by the ``n_envs`` environments (as SB3 splits it). An
-        episode of T steps uses T + frame_stack frames.
+    :param buffer_size: capacity in frames, split between the envs (an episode of T steps uses T + frame_stack).
     :param observation_space: ``Box(0, 255, (frame_channels * k, h, w), uint8)``, frames stacked oldest first.
     :param action_space: a ``Box`` action space.
     :param device: torch device of the sampled tensors (the training device).
     :param n_envs: number of parallel environments.
-    :param optimize_memory_usage: must be False: frames are always stored once (SB3's flag would make SB3 write
-        into arrays this buffer does not have).
-    :param handle_timeout_termination: when True, ``infos[i]["TimeLimit.truncated"]`` marks a time limit,
-        which bootstraps instead of terminating.
+    :param optimize_memory_usage: must be False (frames are always stored once).
+    :param handle_timeout_termination: when True, ``infos[i]["TimeLimit.truncated"]`` bootstraps (a time limit).
     :param n_steps: number of steps summed in the n-step return.
     :param gamma: discount of the n-step return.
     :param horizon: length H of the Ego-Foresight window (future actions, frames, rewards).
     :param frame_channels: channels of one frame (3 for RGB).
-    :param memmap_dir: when set, the frames live in an unnamed temporary file in this folder (``np.memmap``, host
-        storage), so a large buffer need not fit in RAM. Pickling (``save_replay_buffer``) copies the frames into
-        the pickle.
-    :param storage_device: where frames and per-step arrays live and are gathered: ``"cpu"`` (host memory), a CUDA
-        device (``"cuda"``, a ``torch.device``), or ``"auto"``: the training device when the whole buffer plus a
-        margin (a quarter of the GPU's memory, at least 4 GiB) fits its free memory, else host memory. The storage
-        is allocated at the first ``add()``, which raises ``MemoryError`` before storing anything when it does not
-        fit; host memory is zeroed lazily by the OS (pages are committed as frames are written).
-    :param prefetch: gather the next batch in a background thread while the caller uses this one. ``None``: on
-        when the training device is CUDA and the storage is host memory.
-    :param store_masks: store the agent mask of every frame (bit-packed) from ``infos[i]["agent_masks"]``, which
-        envs made with ``make_env(..., agent_masks=True)`` provide, and return the observations' masks in
-        ``sample().masks``.
+    :param memmap_dir: keep the frames in an unnamed temporary file in this folder (``np.memmap``) rather than RAM.
+    :param storage_device: where the data live and are gathered: ``"cpu"``, a CUDA device, or ``"auto"``: the
+        training device when the buffer plus a margin fits its free memory, else host memory. Allocated at the first
+        ``add()``, which raises ``MemoryError`` before storing anything when it does not fit.
+    :param prefetch: gather the next batch in a background thread (``None``: when host storage feeds CUDA).
+    :param store_masks: store the agent masks of ``infos[i]["agent_masks"]``, returned in ``sample().masks``.
     """
 
     def __init__(
@@ -110,14 +91,11 @@ class SequenceReplayBuffer(ReplayBuffer):
             raise ValueError(
                 "SequenceReplayBuffer expects optimize_memory_usage=False (it always stores each frame once), got True"
             )
-        if n_steps < 1:
-            raise ValueError(f"SequenceReplayBuffer expects n_steps >= 1, got {n_steps}")
-        if horizon < 1:
-            raise ValueError(f"SequenceReplayBuffer expects horizon >= 1, got {horizon}")
+        for name, value in (("n_steps", n_steps), ("horizon", horizon), ("n_envs", n_envs)):
+            if value < 1:
+                raise ValueError(f"SequenceReplayBuffer expects {name} >= 1, got {value}")
         if not 0.0 <= gamma <= 1.0:
             raise ValueError(f"SequenceReplayBuffer expects 0 <= gamma <= 1, got {gamma}")
-        if n_envs < 1:
-            raise ValueError(f"SequenceReplayBuffer expects n_envs >= 1, got {n_envs}")
         capacity = buffer_size // n_envs
         if capacity <= horizon + frame_stack:
             raise ValueError(
@@ -130,7 +108,7 @@ class SequenceReplayBuffer(ReplayBuffer):
                 f"SequenceReplayBuffer keeps memory-mapped frames in host memory: memmap_dir expects "
                 f"storage_device 'cpu' or 'auto', got {storage_device!r}"
             )
-        # ReplayBuffer.__init__ would allocate full observation arrays: set up only the base buffer.
+        # ReplayBuffer.__init__ would allocate full observation arrays.
         BaseBuffer.__init__(self, buffer_size, observation_space, action_space, device, n_envs=n_envs)
         self.buffer_size = capacity
         self.optimize_memory_usage = False
@@ -152,7 +130,7 @@ class SequenceReplayBuffer(ReplayBuffer):
         self.storage_device = self._storage.choose_device(request, self.device)
 
     def _build_parts(self, prefetch: bool | None, seed: int = 0) -> None:
-        """The bookkeeping, the (unallocated) storage and the sampler, from the buffer's settings."""
+        """The bookkeeping, the (unallocated) storage and the sampler."""
         height, width = self.frame_shape[1:]
         self._rings = EpisodeRings(self.n_envs, self.buffer_size, self.frame_stack, self.frame_channels, self.obs_shape)
         self._storage = FrameStorage(
@@ -172,8 +150,7 @@ class SequenceReplayBuffer(ReplayBuffer):
     # ----------------------------------------------------------------- storage
     @property
     def device(self) -> th.device:
-        """The training device: sampled tensors land here. Setting it (SB3 does after ``load_replay_buffer``)
-        moves an ``"auto"`` storage to where it now belongs."""
+        """The training device; setting it (SB3's ``load_replay_buffer`` does) moves an ``"auto"`` storage."""
         return self._device
 
     @device.setter
@@ -191,7 +168,7 @@ class SequenceReplayBuffer(ReplayBuffer):
 
     @property
     def prefetch(self) -> bool | None:
-        """Gather the next batch in the background (None: when host storage feeds a CUDA training device)."""
+        """See ``prefetch`` in the class docstring."""
         return self._sampler.prefetch
 
     @prefetch.setter
@@ -200,14 +177,12 @@ class SequenceReplayBuffer(ReplayBuffer):
 
     @property
     def nbytes(self) -> int:
-        """Bytes the whole capacity takes once allocated at the first ``add()`` (frames on disk included when
-        memory-mapped)."""
+        """Bytes the whole capacity takes once allocated (memory-mapped frames included)."""
         rings = self._rings
         host = rings.has_step_rows.nbytes + rings.head.nbytes + rings.episode_open.nbytes + rings.last_obs.nbytes
         return sum(self._storage.bytes_needed()) + host
 
     def size(self) -> int:
-        """Number of transitions that can be sampled."""
         return self._rings.n_transitions
 
     def reset(self) -> None:
@@ -232,12 +207,8 @@ class SequenceReplayBuffer(ReplayBuffer):
         done: np.ndarray,
         infos: list[dict[str, Any]],
     ) -> None:
-        """Store one step of every env, as SB3's ``_store_transition`` calls it.
-
-        ``next_obs[i]`` is the terminal observation when env ``i`` finished. An ``obs`` that does not continue the
-        env's stored episode (e.g. the env was reset by a new ``learn()`` call) starts a new episode and leaves the
-        previous one cut, which bootstraps like a time limit. A refused call stores nothing.
-        """
+        """Store one step of every env, as SB3's ``_store_transition`` calls it (``next_obs``: the terminal
+        observation at an episode's end). A refused call stores nothing."""
         expected_shape = (self.n_envs, *self.obs_shape)
         obs, next_obs = np.asarray(obs), np.asarray(next_obs)
         for name, array in (("obs", obs), ("next_obs", next_obs)):
@@ -274,12 +245,8 @@ class SequenceReplayBuffer(ReplayBuffer):
     def sample(  # type: ignore[override]  # SB3's ReplayBufferSamples, a NamedTuple, cannot be extended
         self, batch_size: int, env: VecNormalize | None = None
     ) -> SequenceReplayBufferSamples:
-        """Draw ``batch_size`` transitions uniformly over all stored ones (with replacement).
-
-        The frame tensors of a batch are reused: a batch stays valid until the second call to ``sample()`` after
-        the one that returned it (clone what you keep longer). With prefetch, the batch was drawn when the previous
-        one was handed out (docs/buffer.md says how stale it may be).
-        """
+        """Draw ``batch_size`` transitions uniformly (with replacement). A batch's frame tensors are reused after
+        the second next ``sample()`` call: clone what you keep longer."""
         if self._rings.n_transitions == 0:
             raise ValueError("SequenceReplayBuffer.sample expects a buffer with at least one transition, got none")
         if batch_size < 1:
@@ -289,13 +256,9 @@ class SequenceReplayBuffer(ReplayBuffer):
         return self._sampler.sample(batch_size, self.device, env)
 
     def side_sampler(self, seed: int) -> BatchSampler:
-        """A sampler of this buffer's transitions with a generator of its own, seeded by ``seed``, and no prefetch:
-        batches read through it (``side_sampler(seed).sample(batch_size, buffer.device, None)``, e.g. to fit a
-        probe) leave the batches training draws from :meth:`sample` as they were."""
-        sampler = self._sampler
-        return BatchSampler(
-            self._storage, self._rings, self.n_steps, self.gamma, self.horizon, sampler.mask_size, False, seed
-        )
+        """A sampler with a generator of its own and no prefetch, which leaves :meth:`sample`'s draws as they were."""
+        mask_size = self._sampler.mask_size
+        return BatchSampler(self._storage, self._rings, self.n_steps, self.gamma, self.horizon, mask_size, False, seed)
 
     # ------------------------------------------------------- SB3's array layout
     def _sb3_rows(self) -> np.ndarray:
@@ -306,33 +269,32 @@ class SequenceReplayBuffer(ReplayBuffer):
 
     @property
     def observations(self) -> StackedFrameView:  # type: ignore[override]
-        """SB3's ``(buffer_size, n_envs, *obs_shape)`` observations: a read-only view gathered when indexed."""
+        """SB3's observations: a read-only view gathered when indexed."""
         return StackedFrameView(self._storage, self._sb3_rows(), self.buffer_size, self.frame_stack, offset=0)
 
     @property
     def next_observations(self) -> StackedFrameView:  # type: ignore[override]
-        """SB3's ``(buffer_size, n_envs, *obs_shape)`` next observations: a read-only view gathered when indexed."""
+        """SB3's next observations: a read-only view gathered when indexed."""
         return StackedFrameView(self._storage, self._sb3_rows(), self.buffer_size, self.frame_stack, offset=1)
 
     @property
     def actions(self) -> np.ndarray:  # type: ignore[override]
-        """SB3's ``(buffer_size, n_envs, action_dim)`` float32 actions (a read-only copy)."""
+        """SB3's actions (a read-only copy)."""
         return step_array(self._storage, "actions", self._sb3_rows())
 
     @property
     def rewards(self) -> np.ndarray:  # type: ignore[override]
-        """SB3's ``(buffer_size, n_envs)`` float32 rewards (a read-only copy)."""
+        """SB3's rewards (a read-only copy)."""
         return step_array(self._storage, "rewards", self._sb3_rows())
 
     @property
     def dones(self) -> np.ndarray:  # type: ignore[override]
-        """SB3's ``(buffer_size, n_envs)`` float32 episode ends, time limits included (a read-only copy)."""
+        """SB3's episode ends, time limits included (a read-only copy)."""
         return step_array(self._storage, "dones", self._sb3_rows())
 
     @property
     def timeouts(self) -> np.ndarray:  # type: ignore[override]
-        """SB3's ``(buffer_size, n_envs)`` float32 time-limit flags (all zero unless ``handle_timeout_termination``;
-        a read-only copy)."""
+        """SB3's time-limit flags (a read-only copy)."""
         return step_array(self._storage, "timeouts", self._sb3_rows())
 
     # ------------------------------------------------------------- save / load

@@ -17,9 +17,8 @@ from sb3_ef.common.buffers.sequence import SequenceReplayBuffer
 def augment_frames(
     batch: SequenceReplayBufferSamples, augment: Callable[..., tuple[th.Tensor, ...]]
 ) -> SequenceReplayBufferSamples:
-    """``batch`` with its images augmented by ``augment`` (``random_shift`` or ``random_crop`` with their sizes
-    bound): the observations at t and their future frames in one call (one draw per sample), the next observations
-    in a second."""
+    """``batch`` with its images augmented by ``augment``: the observations and future frames alike, the next
+    observations apart."""
     horizon = batch.future_frames.shape[1]
     observations, future_frames = augment(batch.observations, batch.future_frames.flatten(1, 2))
     (next_observations,) = augment(batch.next_observations)
@@ -31,10 +30,8 @@ def augment_frames(
 
 
 class ShiftedSequenceReplayBuffer(SequenceReplayBuffer):
-    """:class:`SequenceReplayBuffer` whose samples are augmented as in DrQ: each sample's observations at t and its
-    future frames share one random shift (so Ego-Foresight's targets move with their context), its next
-    observations get their own. Gives SB3's SAC / TD3 / TQC DrQ-style augmentation without changing their
-    ``train()``.
+    """:class:`SequenceReplayBuffer` whose samples are random-shifted as in DrQ (:func:`augment_frames`): SAC, TD3
+    and TQC get DrQ's augmentation without changing their ``train()``.
 
     :param shift_pad: the largest shift in pixels; the other arguments are :class:`SequenceReplayBuffer`'s.
     """

@@ -1,7 +1,5 @@
-"""Where a sequence buffer's data lives: frames, per-step arrays and masks as torch tensors on one storage device.
-
-The storage device is host memory (optionally with the frames in a memory-mapped file) or a GPU. Tensors have one
-row per frame slot of every env's ring, plus a last row that stays zero: masked reads point at it.
+"""Where a sequence buffer's data lives: torch tensors in host memory (frames optionally memory-mapped) or on a GPU,
+one row per frame slot of every ring plus a last row that stays zero (masked reads point at it).
 """
 
 from __future__ import annotations
@@ -38,7 +36,7 @@ def available_host_memory() -> int | None:
 
 
 def storage_request(storage_device: str | th.device) -> str | th.device:
-    """``"auto"`` or a torch device, refused when it names a CUDA device this machine does not have."""
+    """``"auto"`` or a torch device, refused when it needs CUDA this machine lacks."""
     if storage_device == "auto":
         return "auto"
     try:
@@ -80,18 +78,15 @@ def write_rows(target: th.Tensor, rows: list[int] | np.ndarray, values: np.ndarr
 
 
 class FrameStorage:
-    """The buffer's tensors, allocated on demand on one device.
-
-    Row ``e * capacity + s`` holds the frame in slot ``s`` of env ``e``'s ring, that frame's agent mask (bit-packed,
-    when masks are stored), and the step taken from the observation whose newest frame it is: action, reward,
-    ``dones`` and ``timeouts`` as SB3 stores them, and the step flag (a transition starts there).
+    """The buffer's tensors, allocated on demand on one device. Row ``e * capacity + s`` holds slot ``s`` of env
+    ``e``'s ring: the frame, its bit-packed mask and the step taken from the observation whose newest frame it is.
 
     :param rows: frame slots of all rings together.
     :param frame_shape: ``(channels, height, width)`` of one frame.
     :param action_dim: size of one action.
     :param mask_bytes: bytes of one bit-packed mask, or None when masks are not stored.
     :param memmap_dir: a folder for the frames' unnamed memory-mapped file, or None for frames in RAM.
-    :param frame_stack: frames of an episode's first observation (named in the memory error's advice).
+    :param frame_stack: frames per observation (named in the memory error's advice).
     """
 
     STEP_TENSORS = ("actions", "rewards", "dones", "timeouts")
@@ -114,7 +109,6 @@ class FrameStorage:
 
     @property
     def device(self) -> th.device:
-        """Where the tensors are (meaningful once allocated)."""
         return self.frames.device
 
     def bytes_needed(self) -> tuple[int, int]:
@@ -124,8 +118,7 @@ class FrameStorage:
         return rows * int(np.prod(self.frame_shape)), rows * step
 
     def choose_device(self, request: str | th.device, training: th.device) -> th.device:
-        """The device ``request`` names on this machine: ``"auto"`` is the training GPU when everything plus a margin
-        (a quarter of the GPU's memory, at least ``MIN_DEVICE_MARGIN``) fits its free memory, else host memory."""
+        """The device ``request`` names here: ``"auto"`` is the training GPU when everything plus a margin fits."""
         if isinstance(request, th.device):
             if request.type == "cuda" and not th.cuda.is_available():  # a buffer loaded on a machine without CUDA
                 warnings.warn(f"SequenceReplayBuffer storage_device={request} needs CUDA: frames stay in host memory")
@@ -169,10 +162,7 @@ class FrameStorage:
         )
 
     def allocate(self, device: th.device, step_flags: np.ndarray) -> None:
-        """Zeroed tensors (frames in RAM, in an unnamed temporary file under ``memmap_dir``, or on a GPU).
-
-        Host arrays come from ``np.zeros`` (calloc): the OS commits their pages when they are first written, so RAM
-        grows with the frames stored rather than with the capacity (``th.zeros`` would write every page now)."""
+        """Zeroed tensors (frames in RAM, in an unnamed temporary file under ``memmap_dir``, or on a GPU)."""
         self.check_memory(device)
         rows = self.rows + 1
         self.frame_map = None
@@ -192,7 +182,7 @@ class FrameStorage:
         self.share_step_flags(step_flags)
 
     def move(self, device: th.device, step_flags: np.ndarray) -> None:
-        """Move every tensor to ``device`` (the frames are copied once)."""
+        """Move every tensor to ``device``."""
         self.check_memory(device)
         for name in ("frames", *self.STEP_TENSORS):
             setattr(self, name, getattr(self, name).to(device))
@@ -206,14 +196,12 @@ class FrameStorage:
         self.step_flags = flags if self.device.type == "cpu" else flags.to(self.device)
 
     def write_frames(self, rows: list[int], frames: np.ndarray, masks: np.ndarray | None) -> None:
-        """Store frames (and their bit-packed masks) in ``rows``."""
         write_rows(self.frames, rows, frames)
         if masks is not None:
             assert self.masks is not None, "masks are written only where they are stored"
             write_rows(self.masks, rows, masks)
 
     def write_steps(self, rows: np.ndarray, **values: np.ndarray) -> None:
-        """Store per-step arrays (``actions``, ``rewards``, ``dones``, ``timeouts``) in ``rows``."""
         for name, value in values.items():
             write_rows(getattr(self, name), rows, value)
 
