@@ -14,6 +14,7 @@ from torch import nn
 
 from sb3_ef.auxiliary.loss import AuxiliaryLoss, CarriesAuxiliary
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_stacked_frames
+from sb3_ef.common.forwarding import base_arguments
 from sb3_ef.common.layers import orthogonal_init
 
 # Conv stack of DrQ-v2: (kernel, stride) per layer, 32 filters each.
@@ -167,6 +168,7 @@ class DrQv2Policy(CarriesAuxiliary, BasePolicy):
             optimizer_kwargs=optimizer_kwargs,
             squash_output=True,
         )
+        self._constructor_kwargs = base_arguments(DrQv2Policy, locals())
         self.net_arch = net_arch if net_arch is not None else [1024, 1024]
         self.actor_arch, self.critic_arch = actor_critic_arch(self.net_arch)
         self.trunk_dim = trunk_dim
@@ -209,14 +211,10 @@ class DrQv2Policy(CarriesAuxiliary, BasePolicy):
         data = super()._get_constructor_parameters()
         del data["normalize_images"]  # fixed: the encoder scales images itself
         data.update(
+            self._constructor_kwargs,
             net_arch=self.net_arch,
-            trunk_dim=self.trunk_dim,
-            n_critics=self.n_critics,
-            features_dim=self.features_dim,
             lr_schedule=self._dummy_schedule,
-            optimizer_class=self.optimizer_class,
             optimizer_kwargs=self.optimizer_kwargs,
-            channels_last=self.channels_last,
         )
         return data
 

@@ -272,7 +272,6 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         return th.stack(latents), self._over_horizon(th.stack(errors), sequence.valid)
 
     def _reward_loss(self, rollout: th.Tensor, sequence: Sequence) -> th.Tensor:
-        """Two-hot cross-entropy of the predicted rewards."""
         logits = self.world_model.reward(rollout[:-1], sequence.actions)
         return self._over_horizon(self.world_model.two_hot.cross_entropy(logits, sequence.rewards), sequence.valid)
 

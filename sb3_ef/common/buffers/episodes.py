@@ -28,14 +28,8 @@ class Placement:
 
 
 class EpisodeRings:
-    """The host-side bookkeeping of the rings: where each step's frames and data go.
-
-    :param n_envs: number of rings.
-    :param capacity: frame slots per ring.
-    :param frame_stack: frames per stacked observation (k).
-    :param frame_channels: channels of one frame.
-    :param obs_shape: shape of a stacked observation.
-    """
+    """The host-side bookkeeping of ``n_envs`` rings of ``capacity`` frame slots: where each step's frames and data
+    go."""
 
     def __init__(
         self, n_envs: int, capacity: int, frame_stack: int, frame_channels: int, obs_shape: tuple[int, ...]

@@ -36,14 +36,9 @@ class PersistedBuffer(Protocol):
 _PARTS = ("_rings", "_storage", "_sampler", "_sb3_rows_cache")
 #: The bookkeeping fields of EpisodeRings, pickled under these names.
 _RING_FIELDS = {
-    "_has_step_rows": "has_step_rows",
-    "_head": "head",
-    "_episode_open": "episode_open",
-    "_last_obs": "last_obs",
-    "_n_transitions": "n_transitions",
-    "_n_adds": "n_adds",
+    f"_{name}": name for name in ("has_step_rows", "head", "episode_open", "last_obs", "n_transitions", "n_adds")
 }
-_STEP_FIELDS = {"_actions": "actions", "_rewards": "rewards", "_dones": "dones", "_timeouts": "timeouts"}
+_STEP_FIELDS = {f"_{name}": name for name in FrameStorage.STEP_TENSORS}
 
 
 def buffer_state(buffer: PersistedBuffer) -> dict[str, Any]:

@@ -88,17 +88,9 @@ class _Pending:
 
 
 class BatchSampler:
-    """Draws and gathers batches of n-step transitions with their windows.
-
-    :param storage: the tensors to gather from.
-    :param rings: the bookkeeping that says which slots carry steps.
-    :param n_steps: steps summed in the n-step return.
-    :param gamma: discount of the n-step return.
-    :param horizon: length of the window.
-    :param mask_size: ``(height, width)`` of the masks, or None when they are not stored.
-    :param prefetch: gather the next batch in a background thread (None: when host storage feeds a CUDA device).
-    :param seed: seed of the generator (the buffer passes ``torch.initial_seed()``).
-    """
+    """Draws and gathers batches of n-step transitions with their windows from ``storage``, where ``rings`` say
+    steps are; the other arguments are :class:`~sb3_ef.common.buffers.SequenceReplayBuffer`'s (``mask_size``: the
+    masks' ``(height, width)`` when they are stored)."""
 
     def __init__(
         self,

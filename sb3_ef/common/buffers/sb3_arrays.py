@@ -27,14 +27,8 @@ def sb3_rows(rings: EpisodeRings, pos: int) -> np.ndarray:
 
 class StackedFrameView:
     """Read-only ``(buffer_size, n_envs, 3k, h, w)`` uint8 array of the observations (``offset=0``) or next
-    observations (``offset=1``); indexing gathers only the rows asked for.
-
-    :param storage: the allocated storage, or one not allocated yet (everything reads as zeros).
-    :param rows: the storage row of each SB3 row (:func:`sb3_rows`).
-    :param capacity: frame slots per env.
-    :param frame_stack: frames per observation.
-    :param offset: 0 for the observation a step was taken from, 1 for the observation it led to.
-    """
+    observations (``offset=1``) of the storage ``rows`` (:func:`sb3_rows`); indexing gathers only the rows asked for
+    (an unallocated storage reads as zeros)."""
 
     dtype = np.dtype(np.uint8)
 
@@ -85,12 +79,17 @@ class StackedFrameView:
         return frames.reshape(*rows.shape, stack * channels, height, width)
 
 
-def step_array(storage: FrameStorage, name: str, rows: np.ndarray) -> np.ndarray:
-    """SB3's float32 array ``name`` (``actions``, ``rewards``, ``dones``, ``timeouts``) for the SB3 ``rows``, read-only
-    (a copy)."""
-    if storage.allocated:
-        values = getattr(storage, name)[th.from_numpy(rows).to(storage.device)].cpu().numpy().astype(np.float32)
-    else:
-        values = np.zeros((*rows.shape, storage.action_dim) if name == "actions" else rows.shape, np.float32)
-    values.flags.writeable = False
-    return values
+def step_array_property(name: str) -> Any:
+    """A buffer property: SB3's float32 array ``name`` (``actions``, ``rewards``, ``dones``, ``timeouts``), a read-only
+    copy."""
+
+    def array(buffer: Any) -> np.ndarray:
+        storage, rows = buffer._storage, buffer._sb3_rows()
+        if storage.allocated:
+            values = getattr(storage, name)[th.from_numpy(rows).to(storage.device)].cpu().numpy().astype(np.float32)
+        else:
+            values = np.zeros((*rows.shape, storage.action_dim) if name == "actions" else rows.shape, np.float32)
+        values.flags.writeable = False
+        return values
+
+    return property(array, doc=f"SB3's ``(buffer_size, n_envs, ...)`` float32 {name} (a read-only copy).")

@@ -18,7 +18,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 from sb3_ef.common.buffers import persistence
 from sb3_ef.common.buffers.episodes import EpisodeRings
 from sb3_ef.common.buffers.sampling import BatchSampler, SequenceReplayBufferSamples
-from sb3_ef.common.buffers.sb3_arrays import StackedFrameView, sb3_rows, step_array
+from sb3_ef.common.buffers.sb3_arrays import StackedFrameView, sb3_rows, step_array_property
 from sb3_ef.common.buffers.storage import FrameStorage, storage_request
 
 
@@ -130,7 +130,6 @@ class SequenceReplayBuffer(ReplayBuffer):
         self.storage_device = self._storage.choose_device(request, self.device)
 
     def _build_parts(self, prefetch: bool | None, seed: int = 0) -> None:
-        """The bookkeeping, the (unallocated) storage and the sampler."""
         height, width = self.frame_shape[1:]
         self._rings = EpisodeRings(self.n_envs, self.buffer_size, self.frame_stack, self.frame_channels, self.obs_shape)
         self._storage = FrameStorage(
@@ -147,7 +146,6 @@ class SequenceReplayBuffer(ReplayBuffer):
         )
         self._sb3_rows_cache: tuple[tuple[int, int], np.ndarray] | None = None
 
-    # ----------------------------------------------------------------- storage
     @property
     def device(self) -> th.device:
         """The training device; setting it (SB3's ``load_replay_buffer`` does) moves an ``"auto"`` storage."""
@@ -197,7 +195,6 @@ class SequenceReplayBuffer(ReplayBuffer):
         """Restart the sampling stream from ``seed`` (a prefetched batch is dropped)."""
         self._sampler.seed(seed)
 
-    # ------------------------------------------------------------------ writing
     def add(
         self,
         obs: np.ndarray,
@@ -241,7 +238,6 @@ class SequenceReplayBuffer(ReplayBuffer):
         self.pos = (self.pos + 1) % self.buffer_size
         self.full = self.full or self.pos == 0
 
-    # ----------------------------------------------------------------- sampling
     def sample(  # type: ignore[override]  # SB3's ReplayBufferSamples, a NamedTuple, cannot be extended
         self, batch_size: int, env: VecNormalize | None = None
     ) -> SequenceReplayBufferSamples:
@@ -260,7 +256,6 @@ class SequenceReplayBuffer(ReplayBuffer):
         mask_size = self._sampler.mask_size
         return BatchSampler(self._storage, self._rings, self.n_steps, self.gamma, self.horizon, mask_size, False, seed)
 
-    # ------------------------------------------------------- SB3's array layout
     def _sb3_rows(self) -> np.ndarray:
         key = (self._rings.version, self.pos)
         if self._sb3_rows_cache is None or self._sb3_rows_cache[0] != key:
@@ -277,27 +272,11 @@ class SequenceReplayBuffer(ReplayBuffer):
         """SB3's next observations: a read-only view gathered when indexed."""
         return StackedFrameView(self._storage, self._sb3_rows(), self.buffer_size, self.frame_stack, offset=1)
 
-    @property
-    def actions(self) -> np.ndarray:  # type: ignore[override]
-        """SB3's actions (a read-only copy)."""
-        return step_array(self._storage, "actions", self._sb3_rows())
+    actions = step_array_property("actions")
+    rewards = step_array_property("rewards")
+    dones = step_array_property("dones")  # time limits included
+    timeouts = step_array_property("timeouts")
 
-    @property
-    def rewards(self) -> np.ndarray:  # type: ignore[override]
-        """SB3's rewards (a read-only copy)."""
-        return step_array(self._storage, "rewards", self._sb3_rows())
-
-    @property
-    def dones(self) -> np.ndarray:  # type: ignore[override]
-        """SB3's episode ends, time limits included (a read-only copy)."""
-        return step_array(self._storage, "dones", self._sb3_rows())
-
-    @property
-    def timeouts(self) -> np.ndarray:  # type: ignore[override]
-        """SB3's time-limit flags (a read-only copy)."""
-        return step_array(self._storage, "timeouts", self._sb3_rows())
-
-    # ------------------------------------------------------------- save / load
     def __getstate__(self) -> dict[str, Any]:
         return persistence.buffer_state(self)
 

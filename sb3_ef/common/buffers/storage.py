@@ -27,12 +27,9 @@ def available_host_memory() -> int | None:
         pass
     try:
         with open("/proc/meminfo") as meminfo:
-            for line in meminfo:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return None
+            return next(int(line.split()[1]) * 1024 for line in meminfo if line.startswith("MemAvailable:"))
+    except (OSError, StopIteration):
+        return None
 
 
 def storage_request(storage_device: str | th.device) -> str | th.device:
@@ -81,12 +78,7 @@ class FrameStorage:
     """The buffer's tensors, allocated on demand on one device. Row ``e * capacity + s`` holds slot ``s`` of env
     ``e``'s ring: the frame, its bit-packed mask and the step taken from the observation whose newest frame it is.
 
-    :param rows: frame slots of all rings together.
-    :param frame_shape: ``(channels, height, width)`` of one frame.
-    :param action_dim: size of one action.
-    :param mask_bytes: bytes of one bit-packed mask, or None when masks are not stored.
-    :param memmap_dir: a folder for the frames' unnamed memory-mapped file, or None for frames in RAM.
-    :param frame_stack: frames per observation (named in the memory error's advice).
+    ``mask_bytes`` is None when masks are not stored; the other arguments are the buffer's settings.
     """
 
     STEP_TENSORS = ("actions", "rewards", "dones", "timeouts")
@@ -182,7 +174,6 @@ class FrameStorage:
         self.share_step_flags(step_flags)
 
     def move(self, device: th.device, step_flags: np.ndarray) -> None:
-        """Move every tensor to ``device``."""
         self.check_memory(device)
         for name in ("frames", *self.STEP_TENSORS):
             setattr(self, name, getattr(self, name).to(device))
