@@ -1,10 +1,9 @@
 """The algorithm registry: each key the workbench knows (``sb3-ef train --algo``, zoo configs, grids, ``analyze``,
 ``collect``, ``upgrade``) mapped to its class and to what the workbench does with it.
 
-This module sits at the bottom of the workbench and imports nothing heavy: classes, samplers and run functions are
-named by import path (``"module:attribute"``) and imported on first use (:func:`import_target`), so that a command
-line is checked before torch, SB3, rl-zoo3 or sheeprl are imported. A new algorithm is one entry here (and a zoo
-config ``zoo_configs/<key>.yml``) plus its own package.
+Classes, samplers and run functions are named by ``"module:attribute"`` and imported on first use
+(:func:`import_target`), so a command line is checked before anything heavy is imported. A new algorithm is one
+entry here, a zoo config ``zoo_configs/<key>.yml`` and its own package.
 """
 
 from __future__ import annotations
@@ -81,25 +80,20 @@ def _entries(*entries: AlgorithmEntry) -> dict[str, AlgorithmEntry]:
     return {entry.key: entry for entry in entries}
 
 
-_OPT = "sb3_ef.zoo.hyperparams_opt"
+def _paper_host(key: str, target: str, ef: bool) -> AlgorithmEntry:
+    """A host of the paper (DrQ-v2, TD-MPC2), with or without EF: Optuna sampler ``sample_<key>_params``."""
+    package = target.partition(":")[0]
+    return AlgorithmEntry(
+        key, target, paper=True, ef=ef, own_exploration=True, sampler=f"sb3_ef.zoo.hyperparams_opt:sample_{key}_params",
+        warm_start=ef, legacy_policy_module=f"{package}.policies",
+    )  # fmt: skip
+
 
 ALGORITHMS: dict[str, AlgorithmEntry] = _entries(
-    AlgorithmEntry(
-        "drqv2_ef", "sb3_ef.drqv2:DrQv2EF", paper=True, ef=True, own_exploration=True,
-        sampler=f"{_OPT}:sample_drqv2_ef_params", warm_start=True, legacy_policy_module="sb3_ef.drqv2.policies",
-    ),
-    AlgorithmEntry(
-        "drqv2", "sb3_ef.drqv2:DrQv2", paper=True, own_exploration=True, sampler=f"{_OPT}:sample_drqv2_params",
-        legacy_policy_module="sb3_ef.drqv2.policies",
-    ),
-    AlgorithmEntry(
-        "tdmpc2_ef", "sb3_ef.tdmpc2:TDMPC2EF", paper=True, ef=True, own_exploration=True,
-        sampler=f"{_OPT}:sample_tdmpc2_ef_params", warm_start=True, legacy_policy_module="sb3_ef.tdmpc2.policies",
-    ),
-    AlgorithmEntry(
-        "tdmpc2", "sb3_ef.tdmpc2:TDMPC2", paper=True, own_exploration=True, sampler=f"{_OPT}:sample_tdmpc2_params",
-        legacy_policy_module="sb3_ef.tdmpc2.policies",
-    ),
+    _paper_host("drqv2_ef", "sb3_ef.drqv2:DrQv2EF", ef=True),
+    _paper_host("drqv2", "sb3_ef.drqv2:DrQv2", ef=False),
+    _paper_host("tdmpc2_ef", "sb3_ef.tdmpc2:TDMPC2EF", ef=True),
+    _paper_host("tdmpc2", "sb3_ef.tdmpc2:TDMPC2", ef=False),
     AlgorithmEntry("sear", "sb3_ef.sear:SEAR", paper=True, own_exploration=True),
     AlgorithmEntry("curl", "sb3_ef.curl:CURL", paper=True, own_exploration=True),
     AlgorithmEntry("sac_ef", "sb3_ef.sb3_hosts:SACEF", ef=True, legacy_policy_module="stable_baselines3.sac.policies"),

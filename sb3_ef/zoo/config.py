@@ -1,8 +1,7 @@
 """The zoo_configs YAML files: where they are, how an entry is chosen, and which keys an entry may hold.
 
-rl-zoo3 passes every key it does not consume itself straight to the algorithm constructor, so a typo only shows up
-as a ``TypeError`` deep inside model construction (or, for a key of another task's entry, never). Checking the whole
-file up front names the entry and the key at once.
+rl-zoo3 passes every key it does not consume to the algorithm constructor, so a typo shows up deep inside model
+construction, or never; checking the whole file up front names the entry and the key at once.
 """
 
 from __future__ import annotations
@@ -18,12 +17,11 @@ import yaml
 from sb3_ef import registry
 from sb3_ef.common.validation import did_you_mean
 
-#: Algorithm keys whose configs hold the paper's tasks and settings: EF's hosts with and without EF, and the
-#: paper's baselines SEAR and CURL (rl-zoo3 trains them).
+#: Algorithm keys whose configs hold the paper's tasks and settings (rl-zoo3 trains them).
 PAPER_ALGORITHMS = registry.keys(paper=True, rl_zoo3=True)
-#: Algorithm keys this package registers in rl-zoo3: the paper's, and EF on SB3's SAC, TD3 and sb3-contrib's TQC.
+#: Algorithm keys this package registers in rl-zoo3.
 ZOO_ALGORITHMS = registry.keys(rl_zoo3=True)
-#: Algorithm keys with a zoo config: every key of the registry (Dreamer-v3's runs in sheeprl's loop, not rl-zoo3's).
+#: Algorithm keys with a zoo config: every key of the registry.
 BENCHMARK_ALGORITHMS = tuple(registry.ALGORITHMS)
 
 #: Keys rl-zoo3's ExperimentManager consumes before the remaining ones reach the algorithm constructor.
@@ -79,8 +77,8 @@ def select_entry(config: dict[str, dict[str, Any]], env_id: str) -> dict[str, An
 
 
 def allowed_keys(algo_class: type) -> frozenset[str]:
-    """Keys an entry may hold for ``algo_class``: its constructor arguments (with those of the host class an EF
-    mixin forwards ``**kwargs`` to) plus rl-zoo3's own keys."""
+    """Keys an entry may hold for ``algo_class``: its constructor arguments (through ``**kwargs`` to its bases)
+    plus rl-zoo3's own keys."""
     parameters: set[str] = set()
     for cls in algo_class.__mro__:
         init = vars(cls).get("__init__")
@@ -116,9 +114,8 @@ REFUSED_CALLBACKS = {
 
 
 def check_values(values: dict[str, Any], where: str) -> None:
-    """Raise ``ValueError`` for a string where rl-zoo3 expects a number or its schedule syntax ``lin_<initial>``
-    (it splits any string ``learning_rate`` at ``_``, and fails without one), and for a ``callback`` of
-    :data:`REFUSED_CALLBACKS`."""
+    """Raise ``ValueError`` for a string where rl-zoo3 expects a number or ``lin_<initial>``, and for a ``callback``
+    of :data:`REFUSED_CALLBACKS`."""
     for name, reason in REFUSED_CALLBACKS.items():
         if name in repr(values.get("callback", "")):
             raise ValueError(f"{where}: callback {name} is not supported with sb3-ef's algorithms: {reason}")
@@ -132,8 +129,8 @@ def check_values(values: dict[str, Any], where: str) -> None:
 
 
 def validate_config(algo: str, algo_class: type, config: dict[str, dict[str, Any]], source: str = "config") -> None:
-    """Check every entry of a zoo config: a registered env id (or ``default``), known keys, ``policy`` and
-    ``n_timesteps`` present. Raise ``ValueError`` naming the entry and the offending key or id."""
+    """Check every entry of a zoo config (env id, keys, values, ``policy`` and ``n_timesteps`` present); a
+    ``ValueError`` names the entry and the key or id."""
     registry = gym.envs.registry
     for name, entry in config.items():
         where = f"{source}, entry {name!r}"

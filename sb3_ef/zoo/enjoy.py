@@ -1,9 +1,8 @@
 """``python -m sb3_ef.zoo.enjoy``: rl-zoo3's ``enjoy`` for sb3-ef models, without a full-size replay buffer.
 
-rl-zoo3's enjoy shrinks the replay buffer only for the off-policy algorithms it knows by name; loading one of ours
-would otherwise rebuild the saved buffer size (e.g. 1M stacked pixel observations). During ``enjoy`` our keys in
-``ALGOS`` are therefore served by :class:`InferenceLoader`, which loads with ``buffer_size`` set to
-:data:`INFERENCE_BUFFER_SIZE`. Takes exactly rl-zoo3's enjoy arguments; ``sb3_ef`` is added to ``--gym-packages``.
+rl-zoo3's enjoy shrinks the replay buffer only for the algorithms it knows by name, so during ``enjoy`` our keys in
+``ALGOS`` are served by :class:`InferenceLoader`. Takes rl-zoo3's enjoy arguments; ``sb3_ef`` is added to
+``--gym-packages``.
 """
 
 from __future__ import annotations
@@ -34,15 +33,13 @@ class InferenceLoader:
         self.algo_class = algo_class
 
     def load(self, path: str, **kwargs: Any) -> BaseAlgorithm:
-        """``algo_class.load(path, **kwargs)`` with ``buffer_size`` forced to :data:`INFERENCE_BUFFER_SIZE`."""
         kwargs["buffer_size"] = INFERENCE_BUFFER_SIZE
         return self.algo_class.load(path, **kwargs)
 
 
 def check_run_folder(folder: str, algo: str, env: str, exp_id: int) -> None:
-    """Raise ``ValueError`` naming the runs there are when ``--exp-id`` (0: the latest run) names none (rl-zoo3
-    asserts); ``-1`` (no run folder) is left to rl-zoo3, and so is its ``rl-trained-agents`` folder, which it fills
-    from the Hugging Face hub."""
+    """Raise ``ValueError`` naming the runs there are when ``--exp-id`` (0: the latest) names none; ``-1`` and
+    ``rl-trained-agents`` (filled from the Hugging Face hub) are left to rl-zoo3."""
     if exp_id < 0 or "rl-trained-agents" in folder:
         return
     env_name = utils.EnvironmentName(env)
@@ -54,9 +51,7 @@ def check_run_folder(folder: str, algo: str, env: str, exp_id: int) -> None:
         ),
         key=lambda name: int(name.rsplit("_", 1)[1]) if name.rsplit("_", 1)[1].isdigit() else -1,
     )
-    if exp_id > 0 and f"{env_name}_{exp_id}" in runs:
-        return
-    if exp_id == 0 and runs:
+    if (exp_id > 0 and f"{env_name}_{exp_id}" in runs) or (exp_id == 0 and runs):
         return
     wanted = "any run" if exp_id == 0 else f"run {env_name}_{exp_id}"
     found = (

@@ -1,13 +1,9 @@
 """Optuna samplers for rl-zoo3's ``-optimize``: Ego-Foresight's hyperparameters and each host's main ones.
 
-Each algorithm has a *sampler* (``trial -> constructor kwargs``, rl-zoo3's ``HYPERPARAMS_SAMPLER`` signature) and
-a *converter* (``trial.params -> constructor kwargs``, used by rl-zoo3 when ``--trial-id`` loads a stored trial).
-The sampler only suggests raw values and hands them to the converter, so both always agree.
-
-EF parameters: ``beta`` (loss weight), ``agent_dim`` (size of h_a, a policy argument), ``ef_horizon`` and
-``babbling_steps``; a trial whose ``agent_dim`` is not smaller than the encoder's features is pruned. Hosts:
-learning rate and batch size for both; DrQ-v2's n-step return and exploration-std schedule; TD-MPC2's planning /
-world-model horizon.
+Each algorithm's *sampler* (``trial -> constructor kwargs``) suggests raw values and hands them to the one
+*converter* (``trial.params -> constructor kwargs``, also used for ``--trial-id``), so both agree. EF:
+``beta``, ``agent_dim``, ``ef_horizon``, ``babbling_steps`` (a trial whose ``agent_dim`` takes every feature is
+pruned); hosts: learning rate, batch size, DrQ-v2's n-step and exploration std, TD-MPC2's horizon.
 """
 
 from __future__ import annotations
@@ -51,8 +47,7 @@ def _suggest_tdmpc2(trial: optuna.Trial) -> None:
 
 
 def convert_params(params: Params, base_policy_kwargs: Params | None = None) -> Params:
-    """Map raw trial values (``trial.params``) to constructor kwargs, for any of the four algorithms: each
-    conversion applies only when its raw values were sampled."""
+    """Map raw trial values (``trial.params``) to constructor kwargs; each conversion applies when sampled."""
     hyperparams = dict(params)
     if "batch_size_pow" in hyperparams:
         hyperparams["batch_size"] = 2 ** hyperparams.pop("batch_size_pow")
@@ -79,8 +74,7 @@ def _tdmpc2_feature_dim(policy_kwargs: Params) -> int:
 
 
 def _prune_if_no_scene_features(trial: optuna.Trial, feature_dim: int | None) -> None:
-    """Prune a trial whose sampled ``agent_dim`` takes every feature (EF needs ``agent_dim < features``): the
-    model could not be built, and rl-zoo3 would stop the whole study on that error."""
+    """Prune a trial whose ``agent_dim`` takes every feature: rl-zoo3 would stop the study on the build error."""
     agent_dim = trial.params["agent_dim"]
     if feature_dim is not None and agent_dim >= feature_dim:
         raise optuna.TrialPruned(

@@ -1,22 +1,11 @@
 """The command-line options of ``sb3-ef train``, ``optimize`` and ``enjoy``, checked before anything heavy is imported.
 
-rl-zoo3 builds its parsers inside ``train()`` and ``enjoy()``, after importing torch, SB3 and every algorithm (several
-seconds); a mistyped option would only be reported then. The tables below list rl-zoo3's options (names, whether
-they take values, their type, their choices); a test compares them with rl-zoo3's own parsers, so they follow
-rl-zoo3 upgrades. :func:`check_zoo_argv` parses a command line against them and checks the values that rl-zoo3
-accepts silently or turns into a traceback:
-
-- unknown options (with the closest names), values of the wrong type, ``key:value`` pairs without ``:`` or whose
-  value is not a Python expression (rl-zoo3 evaluates them while parsing);
-- counts that must be positive: ``-n`` (rl-zoo3 reads ``-n -5`` as "use the config's n_timesteps"),
-  ``--eval-episodes``, ``--n-eval-envs``, ``--log-interval``, ``--eval-freq`` and ``--save-freq`` (or ``-1``,
-  rl-zoo3's "off"), ``--keep-checkpoints``; ``--checkpoint-buffer`` and ``--keep-checkpoints`` only with
-  ``--save-freq``;
-- the ``--algo`` key (sb3-ef's and rl-zoo3's, :data:`RL_ZOO3_ALGORITHMS`) and the ``--env`` id (gymnasium's registry
-  with sb3-ef's ids and those of the ``--gym-packages``), with the closest names.
-
-:func:`merge_train_argv` gives the command line of a resumed run: the recorded one with the new options over it.
-This module imports only the standard library, gymnasium and the ``--gym-packages`` (for the env ids).
+rl-zoo3 builds its parsers inside ``train()`` and ``enjoy()``, seconds of imports later. The tables below list its
+options (a test compares them with rl-zoo3's parsers); :func:`check_zoo_argv` checks a command line against them:
+unknown options and ill-formed values, ``key:value`` values that are not Python expressions, counts that must be
+positive (:data:`POSITIVE`), the ``--algo`` key and the ``--env`` id, with the closest names.
+:func:`merge_train_argv` gives the command line of a resumed run. Imports only the standard library, gymnasium and
+the ``--gym-packages``.
 """
 
 from __future__ import annotations
@@ -31,8 +20,8 @@ from sb3_ef.common.validation import did_you_mean
 
 
 class Option(NamedTuple):
-    """One option: its spellings, ``kind`` (``flag``, ``int``, ``str``, ``list`` for ``nargs="+"``, ``pairs`` for
-    rl-zoo3's ``key:value`` lists), its choices, and help text (for sb3-ef's own options)."""
+    """One option: its spellings, ``kind`` (``flag``, ``int``, ``str``, ``list``, ``pairs`` of ``key:value``),
+    choices and help text (sb3-ef's own options)."""
 
     names: tuple[str, ...]
     kind: str = "str"
@@ -200,8 +189,8 @@ def check_zoo_argv(argv: Sequence[str], options: Sequence[Option], prog: str) ->
 
 
 def check_algo_and_env(args: argparse.Namespace) -> None:
-    """Raise :class:`UsageError` for an ``--algo`` that neither sb3-ef nor rl-zoo3 registers, or an ``--env`` id
-    that is not registered once sb3-ef and the ``--gym-packages`` are imported (rl-zoo3's defaults when not given)."""
+    """Raise :class:`UsageError` for an ``--algo`` or ``--env`` that is not registered (``--gym-packages``
+    imported)."""
     from sb3_ef import registry
 
     algorithms = (*registry.ALGORITHMS, *RL_ZOO3_ALGORITHMS)
@@ -229,8 +218,8 @@ def check_algo_and_env(args: argparse.Namespace) -> None:
 
 
 def check_train_argv(argv: Sequence[str]) -> argparse.Namespace:
-    """Check the arguments of ``sb3-ef train`` / ``optimize`` (rl-zoo3's plus sb3-ef's); with ``--resume``, the
-    algorithm and env come from the run and are checked once its command line is read."""
+    """Check the arguments of ``sb3-ef train`` / ``optimize`` (with ``--resume``, algo and env are the run's,
+    checked later)."""
     args = check_zoo_argv(argv, (*TRAIN_OPTIONS, *SB3_EF_TRAIN_OPTIONS), "sb3-ef train")
     if args.resume is None:
         check_algo_and_env(args)
@@ -251,13 +240,9 @@ def check_enjoy_argv(argv: Sequence[str]) -> argparse.Namespace:
     return args
 
 
-def _long_name(option: Option) -> str:
-    """The option's ``--name`` (argparse names its ``dest`` after it)."""
-    return next(name for name in option.names if name.startswith("--"))
-
-
 def _dest(option: Option) -> str:
-    return _long_name(option)[2:].replace("-", "_")
+    """The option's argparse ``dest``, from its ``--name``."""
+    return next(name for name in option.names if name.startswith("--"))[2:].replace("-", "_")
 
 
 def _as_argv(args: argparse.Namespace, options: Sequence[Option]) -> list[str]:
@@ -283,9 +268,8 @@ def _merged_pairs(recorded: list[str] | None, given: list[str]) -> list[str]:
 
 
 def merge_train_argv(recorded: Sequence[str], given: Sequence[str]) -> list[str]:
-    """The train arguments of a resumed run: every option of ``recorded`` that ``given`` does not set, and ``given``'s
-    options; ``key:value`` lists (``--hyperparams``, ``--env-kwargs``, ``--eval-env-kwargs``) are merged key by key,
-    so ``--hyperparams learning_rate:1e-4`` changes that key only. Flags cannot be unset."""
+    """The train arguments of a resumed run: ``recorded`` with ``given``'s options over it, ``key:value`` lists
+    merged key by key (``--hyperparams learning_rate:1e-4`` changes that key only). Flags cannot be unset."""
     options = (*TRAIN_OPTIONS, *SB3_EF_TRAIN_OPTIONS)
     parser = build_parser(options, "sb3-ef train --resume")
     merged, given_args = parser.parse_args(list(recorded)), parser.parse_args(list(given))
@@ -303,8 +287,7 @@ class _ParserBuilt(Exception):
 
 
 def rl_zoo3_parser(module: types.ModuleType, function: str) -> argparse.ArgumentParser:
-    """The parser rl-zoo3's ``module.function()`` (``train`` or ``enjoy``) builds inside itself, taken at the moment
-    it would parse: what ``--help`` shows and what the tables above are tested against."""
+    """The parser rl-zoo3's ``module.function()`` (``train`` or ``enjoy``) builds, taken when it would parse."""
 
     class Capture(argparse.ArgumentParser):
         def parse_args(self, *args: Any, **kwargs: Any) -> Any:

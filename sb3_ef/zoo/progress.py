@@ -1,8 +1,7 @@
 """Progress lines for long training runs, readable in a terminal and in a log file.
 
-SB3 logs its table every ``log_interval`` episodes (4 by default: minutes apart for 1000-step pixel episodes) and
-rl-zoo3's ``-P`` bar draws nothing when the output goes to a file. :class:`ProgressLogCallback` prints one line at
-most every ``interval_s`` seconds of wall time, e.g.::
+SB3's table comes minutes apart on pixel tasks and rl-zoo3's ``-P`` bar draws nothing into a file, so
+:class:`ProgressLogCallback` prints a line at most every ``interval_s`` seconds, e.g.::
 
     step 12000/500000 (2.4%)  41 steps/s  elapsed 0:04:52  left ~3:18:20  return 312.4 (mean of the last 10 episodes)
 """

@@ -1,15 +1,8 @@
 """Evaluation CSVs of rl-zoo3 runs, in the format ``sb3-ef analyze results`` reads (:mod:`sb3_ef.analysis.records`).
 
-``sb3-ef train`` records each evaluation as it happens (:func:`run_records_path`, :func:`finish_run`): a run folder
-``<logs>/<algo>/<env>_<n>/`` holds ``<env>.csv``, one row per evaluation and each step once (a resumed run drops
-the rows after its checkpoint before it evaluates them again), and ``<env>/result.json`` once the run has reached
-its total step count, as ``sb3-ef benchmark`` marks a finished run (``analyze results --finished-only``).
-
-Runs trained otherwise (rl-zoo3's own ``train``) can be exported from the ``evaluations.npz`` rl-zoo3's
-EvalCallback writes into each run folder (steps, per-episode returns, successes when the env reports them; the
-run's ``<env>/args.yml`` holds the env id and seed). Each run becomes one CSV ``<out>/<Algo>/<env>_<run>.csv``,
-where ``<Algo>`` is the algorithm's class name (``drqv2_ef`` -> ``DrQv2EF``): the name
-:class:`~sb3_ef.analysis.records.EvalRecorderCallback` writes, so runs of both kinds make one algorithm.
+``sb3-ef train`` records each evaluation in ``<run>/<env>.csv`` and marks a run that reached its steps with
+``<env>/result.json``, as ``sb3-ef benchmark`` does. Runs of rl-zoo3's own ``train`` are exported from their
+``evaluations.npz``, one CSV ``<out>/<Algo>/<env>_<run>.csv`` each under the algorithm's class name:
 
     python -m sb3_ef.zoo.records logs results     # results/DrQv2EF/dmc-cheetah-run-v0_1.csv, ...
     sb3-ef analyze results results
@@ -30,7 +23,7 @@ from sb3_ef.common.files import write_text_atomically
 
 
 def run_records_path(save_path: str | os.PathLike, env_name: str) -> Path:
-    """The evaluation CSV of the rl-zoo3 run folder ``save_path`` of env ``env_name`` (its folder form)."""
+    """The evaluation CSV of the rl-zoo3 run folder ``save_path``."""
     return Path(save_path) / f"{env_name}.csv"
 
 
@@ -40,20 +33,15 @@ def run_result_path(save_path: str | os.PathLike, env_name: str) -> Path:
 
 
 def finish_run(save_path: str | os.PathLike, env_name: str, steps: int) -> None:
-    """Mark the run finished at ``steps``: its ``result.json`` with the steps and the last recorded mean return
-    (``null`` without an evaluation), written atomically."""
+    """Mark the run finished at ``steps``, with its last recorded mean return."""
     rows = read_records(run_records_path(save_path, env_name))
     result = {"status": "finished", "steps": steps, "final_return": rows[-1]["return"] if rows else None}
     write_text_atomically(run_result_path(save_path, env_name), json.dumps(result, indent=1))
 
 
 def export_records(log_folder: str, out: str, action_repeat: int | None = None) -> list[str]:
-    """Write one evaluation CSV per rl-zoo3 run under ``log_folder`` that has evaluations, under the algorithm's class
-    name; return their paths. ``action_repeat`` (frames per agent step) defaults to the run's recorded one
-    (:func:`~sb3_ef.analysis.zoo_logs.zoo_run_records`).
-
-    Existing CSVs are replaced, so exporting twice gives the same files.
-    """
+    """Write (or replace) one evaluation CSV per rl-zoo3 run under ``log_folder`` that has evaluations; return their
+    paths. ``action_repeat`` defaults to the run's recorded one."""
     written = []
     for npz in sorted(glob.glob(os.path.join(log_folder, "*", "*", EVALUATIONS_FILE))):
         run_folder = os.path.dirname(npz)

@@ -61,6 +61,18 @@ class CheckpointOptions:
     keep: int = 2
 
 
+def recorded_argv(run_dir: str | os.PathLike) -> tuple[Path, list[str]]:
+    """The ``<env>`` folder of the sb3-ef run in ``run_dir`` and the train arguments it recorded, for ``--resume``."""
+    folder = Path(run_dir)
+    saved = sorted(folder.glob(f"*/{ARGV_FILE}"))
+    if not folder.is_dir() or len(saved) != 1:
+        raise ValueError(
+            f"--resume expects an sb3-ef run folder holding <env>/{ARGV_FILE}, got {str(run_dir)!r} "
+            f"({'not a folder' if not folder.is_dir() else f'{len(saved)} such files'})"
+        )
+    return saved[0].parent, json.loads(saved[0].read_text())
+
+
 def is_run_folder(folder: Path, env_name: str) -> bool:
     """Whether ``folder`` is an rl-zoo3 run folder of ``env_name`` (it holds ``<env_name>/args.yml``)."""
     return (folder / env_name / "args.yml").is_file()

@@ -1,12 +1,7 @@
-"""``sb3-ef train --algo dreamerv3`` and ``sb3-ef enjoy --algo dreamerv3``: Dreamer-v3 trains in sheeprl's loop, not
-rl-zoo3's, with rl-zoo3's arguments and run folders and the training of a ``dreamerv3`` grid row
-(:func:`sb3_ef.dreamerv3.grid_run.train_dreamerv3`).
-
-A run folder ``<logs>/<algo>/<env>_<n>/`` holds what an rl-zoo3 run of sb3-ef holds: the final model ``<env>.zip``,
-the evaluation CSV ``<env>.csv`` (one row per ``--eval-freq`` steps), ``<env>/args.yml``, ``<env>/config.yml`` (the
-zoo entry), ``<env>/train_argv.json`` (for ``--resume``), the ``--save-freq`` checkpoints in
-``<env>/checkpoints/`` and ``<env>/result.json`` once the run has reached its steps. ``--resume RUN_DIR`` continues
-the run in its own folder from its latest checkpoint, with its recorded arguments under the new ones.
+"""``sb3-ef train`` and ``sb3-ef enjoy`` with ``--algo dreamerv3``: sheeprl's loop (a grid row's training,
+:func:`sb3_ef.dreamerv3.grid_run.train_dreamerv3`) with rl-zoo3's arguments and run folders: ``<env>.zip``,
+``<env>.csv``, ``<env>/args.yml``, ``config.yml``, ``train_argv.json``, ``checkpoints/`` and ``result.json``.
+``--resume RUN_DIR`` continues a run in its own folder from its latest checkpoint.
 """
 
 from __future__ import annotations
@@ -26,7 +21,7 @@ from sb3_ef.grid.run import RunPaths, build_env
 from sb3_ef.zoo import config
 from sb3_ef.zoo.options import ENJOY_OPTIONS, TRAIN_OPTIONS, check_enjoy_argv, check_train_argv, merge_train_argv
 from sb3_ef.zoo.records import finish_run, run_result_path
-from sb3_ef.zoo.resume import ARGV_FILE, with_seed
+from sb3_ef.zoo.resume import ARGV_FILE, recorded_argv, with_seed
 
 #: The train options these runs take; rl-zoo3's others (Optuna, vectorised envs, -i, tracking) do not apply.
 TRAIN_SUPPORTED = frozenset(
@@ -59,15 +54,6 @@ def _pairs(items: Sequence[str] | None, option: str) -> dict[str, Any]:
     from sb3_ef.zoo.train import override_values
 
     return override_values(list(items or ()), option)
-
-
-def _recorded_argv(run_dir: str, extra: list[str]) -> tuple[list[str], Path]:
-    """The arguments that continue the run in ``run_dir`` (its recorded ones under ``extra``) and the folder."""
-    folder = Path(run_dir)
-    saved = sorted(folder.glob(f"*/{ARGV_FILE}"))
-    if len(saved) != 1:
-        raise ValueError(f"--resume expects an sb3-ef run folder holding <env>/{ARGV_FILE}, got {run_dir!r}")
-    return merge_train_argv(json.loads(saved[0].read_text()), extra), folder
 
 
 def _new_run_folder(log_folder: str, algo: str, env_name: str) -> Path:
@@ -117,7 +103,8 @@ def train_main(argv: list[str]) -> None:
     folder = None
     if args.resume is not None:
         extra = [arg for arg in argv if arg not in ("--resume", args.resume)]
-        argv, folder = _recorded_argv(args.resume, extra)
+        folder = Path(args.resume)
+        argv = merge_train_argv(recorded_argv(folder)[1], extra)
         args = check_train_argv(argv)
     _refuse_unsupported(args, TRAIN_OPTIONS, TRAIN_SUPPORTED, "trains in its own loop, not rl-zoo3's")
     if args.seed is None:
@@ -136,8 +123,7 @@ def train_main(argv: list[str]) -> None:
 
 
 def enjoy_main(argv: list[str]) -> None:
-    """``sb3-ef enjoy --algo dreamerv3``: the run's final model acting ``-n`` steps on its env, each episode's return
-    and length printed as rl-zoo3's enjoy prints them."""
+    """``sb3-ef enjoy --algo dreamerv3``: the run's final model acting ``-n`` steps, printed as rl-zoo3 prints."""
     args = check_enjoy_argv(argv)
     _refuse_unsupported(args, ENJOY_OPTIONS, ENJOY_SUPPORTED, "acts outside rl-zoo3")
     folder = args.folder or "rl-trained-agents"

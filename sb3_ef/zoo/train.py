@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import functools
 import itertools
-import json
 import os
 import sys
 import warnings
@@ -32,7 +31,7 @@ from sb3_ef.zoo import config
 from sb3_ef.zoo.hyperparams_opt import SAMPLERS
 from sb3_ef.zoo.options import SB3_EF_TRAIN_OPTIONS, check_train_argv, merge_train_argv, rl_zoo3_parser
 from sb3_ef.zoo.registration import register_algorithms
-from sb3_ef.zoo.resume import ARGV_FILE, CheckpointOptions, ResumingExperimentManager
+from sb3_ef.zoo.resume import CheckpointOptions, ResumingExperimentManager, recorded_argv
 
 GYM_PACKAGE = "sb3_ef"
 
@@ -179,15 +178,9 @@ def resume_point(run_dir: Path, env_folder: str) -> Checkpoint:
 
 def resume_argv(run_dir: str, extra: list[str]) -> list[str]:
     """The run's recorded train arguments with ``-i`` at :func:`resume_point` and ``extra`` merged over them."""
-    folder = Path(run_dir)
-    saved = sorted(folder.glob(f"*/{ARGV_FILE}"))
-    if not folder.is_dir() or len(saved) != 1:
-        raise ValueError(
-            f"--resume expects an sb3-ef run folder holding <env>/{ARGV_FILE}, got {run_dir!r} "
-            f"({'not a folder' if not folder.is_dir() else f'{len(saved)} such files'})"
-        )
-    model_path = resume_point(folder, saved[0].parent.name).model_path
-    return merge_train_argv(json.loads(saved[0].read_text()), ["-i", str(model_path), *extra])
+    env_folder, recorded = recorded_argv(run_dir)
+    model_path = resume_point(Path(run_dir), env_folder.name).model_path
+    return merge_train_argv(recorded, ["-i", str(model_path), *extra])
 
 
 def trained_agent(argv: list[str]) -> str | None:
@@ -208,8 +201,10 @@ def own_loop_main(argv: list[str], command: str) -> Callable[[list[str]], None] 
     own loop; ``None`` when rl-zoo3 trains it."""
     options, _ = _sb3_ef_parser().parse_known_args(argv)
     if options.resume is not None:
-        saved = sorted(Path(options.resume).glob(f"*/{ARGV_FILE}"))
-        argv = json.loads(saved[0].read_text()) if len(saved) == 1 else []
+        try:
+            argv = recorded_argv(options.resume)[1]
+        except ValueError:  # reported when the run is resumed
+            argv = []
     algo = _pre_parser().parse_known_args(argv)[0].algo
     item = registry.ALGORITHMS.get(algo)
     if item is None or item.zoo_run is None:
