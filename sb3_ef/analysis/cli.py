@@ -6,13 +6,9 @@ sb3-ef analyze model PATH --env NAME [--algo drqv2_ef|tdmpc2_ef|sac_ef|td3_ef|tq
                                      [--actions policy|figure8] [--action-repeat 2] [--env-kwargs key:value ...]
                                      [--seed 0] [--out DIR]
 
-``analyze results`` reads the evaluation CSVs under DIR and the ``evaluations.npz`` of rl-zoo3 run folders
-(``sb3-ef train``'s ``logs/``). ``analyze model`` loads the model as the algorithm its file records (``--algo`` is
-needed only for files that record none).
-
-``analyze model`` builds the env the model was trained on: rendering settings such as ``fast_render`` change the
-frames, so they come from ``--env-kwargs`` or, for a model inside an rl-zoo3 run folder, from the run's
-``<env>/args.yml`` and ``<env>/config.yml``.
+``analyze results`` reads the evaluation CSVs under DIR and the ``evaluations.npz`` of rl-zoo3 run folders.
+``analyze model`` loads the model as the algorithm its file records, on the env it was trained on: its options
+(``fast_render`` changes the frames) from ``--env-kwargs`` or the rl-zoo3 run folder that holds the model.
 """
 
 from __future__ import annotations
@@ -36,8 +32,7 @@ if TYPE_CHECKING:
 
 #: The Ego-Foresight algorithms ``analyze model`` shows (``sb3_ef.registry``), by key, and their class names.
 EF_ALGORITHMS = {key: registry.entry(key).class_name for key in registry.keys(ef=True)}
-#: The published references of ``analyze results --reference`` (``sb3_ef.analysis.reference.REFERENCES``, named here
-#: so that the parser imports nothing heavy).
+#: The published references of ``analyze results --reference`` (``sb3_ef.analysis.reference.REFERENCES``).
 REFERENCE_NAMES = ("drqv2", "tdmpc2", "dreamerv3", "curl")
 #: Replay-buffer capacity (frames) given to a model loaded for analysis: it never trains.
 ANALYSIS_BUFFER_SIZE = 256
@@ -91,8 +86,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def parse_env_kwargs(pairs: list[str]) -> dict[str, Any]:
-    """``["size:64", "fast_render:True"]`` -> ``{"size": 64, "fast_render": True}`` (values as Python literals,
-    else strings), as rl-zoo3 writes ``--env-kwargs``."""
+    """``["size:64", "fast_render:True"]`` -> ``{"size": 64, "fast_render": True}`` (literals, else strings)."""
     kwargs = {}
     for pair in pairs:
         key, separator, value = pair.partition(":")
@@ -106,8 +100,7 @@ def parse_env_kwargs(pairs: list[str]) -> dict[str, Any]:
 
 
 def run_env_kwargs(model_path: str | os.PathLike) -> dict[str, Any]:
-    """The env options of the rl-zoo3 run whose folder holds ``model_path`` (``{}`` elsewhere): the command line's
-    ``--env-kwargs`` (``<env>/args.yml``), else the config entry's (``<env>/config.yml``), as rl-zoo3 uses them."""
+    """The env options of the rl-zoo3 run whose folder holds ``model_path`` (``{}`` elsewhere)."""
     from sb3_ef.analysis.zoo_logs import recorded_env_kwargs
 
     return recorded_env_kwargs(Path(model_path).resolve().parent)
@@ -120,11 +113,8 @@ def make_analysis_env(
     action_repeat: int,
     env_kwargs: dict[str, Any] | None = None,
 ) -> gym.Env:
-    """The model's env at its frame size: ``make_env`` for dmc/ and metaworld/ names, ``gym.make`` otherwise.
-
-    :param env_kwargs: the other options of the training env (``fast_render``, ``camera``, ...); its ``size`` and
-        ``frame_stack`` must agree with the model's.
-    """
+    """The model's env at its frame size, with the training env's other ``env_kwargs`` (``size`` and
+    ``frame_stack`` must agree with the model's)."""
     kwargs = dict(env_kwargs or {})
     size = frame_shape[-1]
     for key, expected in (("size", size), ("frame_stack", frame_stack)):
@@ -139,9 +129,8 @@ def make_analysis_env(
 
 
 def saved_algorithm_classes(path: str, algo: str | None) -> list[type[BaseAlgorithm]]:
-    """The classes to load ``path`` with: the sb3-ef algorithm its file records, else ``algo``'s or every EF
-    algorithm in turn. A ``ValueError`` says what to do when that cannot give an Ego-Foresight model: another
-    ``--algo`` than the file's, an algorithm without EF (e.g. ``SEAR``, ``CURL``), a file of sb3-ef 0.1.0."""
+    """The classes to load ``path`` with: the algorithm its file records, else ``algo``'s or every EF algorithm in
+    turn; a ``ValueError`` says what to do when that cannot give an Ego-Foresight model."""
     from sb3_ef.common.saved_models import is_legacy, saved_algorithm, saved_data
     from sb3_ef.common.validation import check_model_path
 
@@ -198,9 +187,8 @@ def analyze_model(
     seed: int = 0,
     env_kwargs: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Write ``prediction.png`` (context / predicted / true rows), ``prediction.gif`` (predicted | true),
-    ``saliency.png`` and ``scores.json`` for one rollout of a saved model on ``env_name``, built with
-    ``env_kwargs`` (default: :func:`run_env_kwargs`)."""
+    """Write ``prediction.png``, ``prediction.gif``, ``saliency.png`` and ``scores.json`` for one rollout of a
+    saved model on ``env_name``, built with ``env_kwargs`` (default: :func:`run_env_kwargs`)."""
     from sb3_ef.analysis.plots import plot_prediction, plot_saliency
     from sb3_ef.analysis.prediction import figure_eight_actions, save_video
     from sb3_ef.analysis.report import foresight_report, record_rollout
@@ -235,13 +223,8 @@ def analyze_model(
         "video": save_video(os.path.join(out, "prediction.gif"), report.predicted, report.rollout.true_frames),
         "saliency": plot_saliency(report, os.path.join(out, "saliency.png"), f"{title}, t+{len(report.predicted)}"),
     }
-    scores = {
-        "env": env_name,
-        "env_kwargs": env_kwargs,
-        "steps": len(report.predicted),
-        "actions": actions,
-        **report.scalars(),
-    }
+    scores = {"env": env_name, "env_kwargs": env_kwargs, "steps": len(report.predicted), "actions": actions}
+    scores.update(report.scalars())
     written["scores"] = os.path.join(out, "scores.json")
     recorded = {key: None if isinstance(value, float) and np.isnan(value) else value for key, value in scores.items()}
     write_text_atomically(written["scores"], json.dumps(recorded, indent=2))

@@ -69,8 +69,7 @@ def read_records(path: str | os.PathLike) -> list[dict[str, Any]]:
 
 
 def truncate_records(path: str | os.PathLike, last_step: int) -> None:
-    """Keep only the evaluation rows up to ``last_step`` (those a resumed run will not repeat); the file is replaced
-    whole, so a kill leaves the old rows or the kept ones (no row kept: the file is removed)."""
+    """Keep only the evaluation rows up to ``last_step`` (the file replaced whole, removed when none is kept)."""
     rows = read_records(path)
     kept = [row for row in rows if row["step"] <= last_step]
     if not kept:
@@ -80,10 +79,7 @@ def truncate_records(path: str | os.PathLike, last_step: int) -> None:
 
 
 def append_records(path: str | os.PathLike, rows: list[dict[str, object]]) -> None:
-    """Append rows to an evaluation CSV, writing the header only when the file is new or empty.
-
-    An existing file with a different header is refused, never overwritten.
-    """
+    """Append rows to an evaluation CSV (header when new); a file with another header is refused."""
     _check_rows(rows)
     path = os.fspath(path)
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
@@ -103,14 +99,13 @@ def append_records(path: str | os.PathLike, rows: list[dict[str, object]]) -> No
 class EvalRecorderCallback(BaseCallback):
     """Append each evaluation of an :class:`~stable_baselines3.common.callbacks.EvalCallback` to a CSV.
 
-    Use it as the EvalCallback's ``callback_after_eval``, so SB3 keeps doing the evaluation and this only records::
+    Use it as the EvalCallback's ``callback_after_eval``::
 
         recorder = EvalRecorderCallback("results/drqv2_ef/reacher-easy_0.csv", task="dmc/reacher-easy", action_repeat=2)
         model.learn(50_000, callback=EvalCallback(eval_env, eval_freq=5_000, callback_after_eval=recorder))
 
-    One row per evaluation: ``return`` is the mean episode return, ``success`` the fraction of episodes whose
-    final ``info["is_success"]`` was true (empty when the env reports none), ``step`` the agent steps
-    (``model.num_timesteps``) and ``frame = step * action_repeat``.
+    One row per evaluation: mean ``return``, ``success`` rate of the final ``info["is_success"]`` (empty when the
+    env reports none), agent ``step`` and ``frame = step * action_repeat``.
 
     :param path: CSV file; created with a header, or appended to if it already holds records.
     :param algo: algorithm name; default the model's class name.

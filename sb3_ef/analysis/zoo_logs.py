@@ -1,14 +1,10 @@
 """rl-zoo3's log folders read as evaluation records, so ``sb3-ef analyze results logs`` works after ``sb3-ef train``.
 
-rl-zoo3 writes each run to ``<logs>/<algo>/<env>_<n>/`` (``<env>`` is the env id with ``/`` written as ``-``):
-its ``EvalCallback`` saves ``evaluations.npz`` there (``timesteps``: agent steps; ``results``: one row of episode
-returns per evaluation; ``successes`` when the env reports them), the final model is ``<env>.zip`` and
-``<env>/args.yml`` records the command line (env id, seed, ``env_kwargs``), ``<env>/config.yml`` the config entry.
-A run becomes rows ``algo, task, seed, step, frame, return, success`` as
-:class:`~sb3_ef.analysis.records.EvalRecorderCallback` writes them: the algorithm's class name (``drqv2_ef`` ->
-``DrQv2EF``), the env id and seed of ``args.yml`` (without it: the env id whose folder name matches, and the run
-number ``<n>`` in place of the seed), the mean return and success rate of each evaluation, and
-``frame = step * action repeat`` with the run's recorded ``action_repeat`` (else the env's registered default).
+A run folder ``<logs>/<algo>/<env>_<n>/`` holds ``evaluations.npz`` (rl-zoo3's ``EvalCallback``),
+``<env>/args.yml`` (env id, seed, ``env_kwargs``) and ``<env>/config.yml`` (the config entry). It becomes the rows
+:class:`~sb3_ef.analysis.records.EvalRecorderCallback` writes: the algorithm's class name, the env id and seed of
+``args.yml`` (else the env whose folder name matches and the run number), each evaluation's mean return and success
+rate, and ``frame = step * action_repeat`` (the run's recorded one, else the env's default).
 """
 
 from __future__ import annotations

@@ -1,13 +1,9 @@
 """Where runs execute: a local process pool, or a Ray cluster (the optional ``ray`` extra).
 
-Both backends share one contract: :meth:`execute` takes the runs to train and yields events as they happen,
-``("start", spec, None)``, ``("retry", spec, error)`` and ``("finish", spec, result)``. At most ``capacity`` runs are
-in flight, so a ``start`` event is the moment the run gets its worker. A failed run is retried ``retries`` times
-(resuming from its last checkpoint); after that it finishes with status ``failed``.
-
-When :meth:`execute` is left early (Ctrl-C in the driver, or the caller stops iterating), the runs in flight are
-stopped at once: local workers are ended (they ignore the terminal's Ctrl-C themselves, and remove a file they are
-writing), Ray tasks cancelled. Their checkpoints, written atomically, stay for the next invocation to resume from.
+Both backends' :meth:`execute` takes the runs and yields ``("start", spec, None)`` (the run got its worker),
+``("retry", spec, error)`` and ``("finish", spec, result)``. A failed run is retried ``retries`` times (resuming),
+then finishes ``failed``. Leaving :meth:`execute` early (Ctrl-C, or the caller stops iterating) stops the runs in
+flight at once; their checkpoints stay for the next invocation.
 """
 
 from __future__ import annotations
@@ -40,11 +36,8 @@ def _failure(spec: RunSpec, error: BaseException) -> RunResult:
 
 
 class LocalBackend:
-    """Runs in a pool of ``workers`` processes (spawned, one fresh process per run), ``threads`` torch threads each.
-
-    A worker that dies (killed, out of memory) breaks the pool: the runs in flight count a failed attempt and the
-    pool is rebuilt. A worker whose driver dies ends within a second or so, rather than training on unseen.
-    """
+    """Runs in a pool of ``workers`` spawned processes (a fresh one per run), ``threads`` torch threads each; a
+    worker that dies counts a failed attempt for the runs in flight and the pool is rebuilt."""
 
     def __init__(
         self,
@@ -107,8 +100,7 @@ class LocalBackend:
 
 
 def _stop(pool: ProcessPoolExecutor) -> None:
-    """End the runs in flight of ``pool`` now: its workers get SIGTERM (SIGKILL after :data:`STOP_TIMEOUT`), the pool
-    sees them gone and shuts down without starting others."""
+    """End the runs in flight of ``pool`` now: SIGTERM, SIGKILL after :data:`STOP_TIMEOUT`."""
     # ProcessPoolExecutor has no public way to end running tasks before Python 3.14 (terminate_workers).
     processes = list((getattr(pool, "_processes", None) or {}).values())
     for process in processes:
@@ -130,13 +122,9 @@ def _execute_on_node(spec: RunSpec, out: str, **run_kwargs: Any) -> RunResult:
 
 
 class RayBackend:
-    """One Ray task per run with ``threads`` CPUs (also its torch threads) and ``gpus`` GPUs.
-
-    Connects to ``address`` (``auto``, ``host:port`` or ``ray://host:10001``) or, without one, starts Ray on this
-    machine; a Ray session already initialised by the caller is used as is. Ray reruns a task whose worker crashed
-    or raised up to ``retries`` times. The driver writes each finished run's records into its own results folder
-    too, so the results are gathered even when the workers' ``out`` is not a shared filesystem.
-    """
+    """One Ray task per run with ``threads`` CPUs (its torch threads) and ``gpus`` GPUs, on the cluster at
+    ``address`` (default: Ray started here; a caller's Ray session is used as is). The driver writes each finished
+    run's records too, so ``out`` need not be a shared filesystem."""
 
     def __init__(
         self,

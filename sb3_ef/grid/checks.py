@@ -1,17 +1,8 @@
-"""The checks of a grid's rows before anything trains: what each row's start would check, so that a grid that passes
-them starts (``sb3-ef benchmark --dry-run``, and before a local run).
+"""The checks of a grid's rows before anything trains (``sb3-ef benchmark --dry-run``, and before a local run).
 
-A row (one algorithm on one task; its seeds share everything else) is checked by building what its start builds,
-short of networks, replay buffers and rendered frames:
-
-- its env, made as the run makes it (:func:`sb3_ef.grid.run.build_env`): the env id and every ``env_kwargs``
-  option, Distracting Control's options and its background videos (each frame decoded, as the env does when made);
-- its algorithm, by the check its registry entry names (``grid_check``): for the algorithms SB3's ``learn``
-  trains, the class built on that env without its model (``_init_setup_model=False``): every argument's name and
-  value, the policy against the env's observations; and the crop of an algorithm that crops (CURL's 84 of larger
-  frames) against the frame size.
-
-Every row is checked, each problem named with its row.
+A row (one algorithm on one task) is checked by building what its start builds, short of networks, buffers and
+rendered frames: its env, made as the run makes it, and its algorithm by the registry entry's ``grid_check``
+(:func:`check_sb3_row` for SB3's ``learn``). Every row is checked, each problem named with its row.
 """
 
 from __future__ import annotations
@@ -30,8 +21,7 @@ EXPECTED_ERRORS = (ValueError, TypeError, OSError, ImportError)
 
 
 def check_sb3_row(spec: RunSpec, env: Any, device: str) -> None:
-    """Check a row of an algorithm SB3's ``learn`` trains: its class built on ``env`` with the row's arguments,
-    without its networks and buffer, and its ``crop_size`` (if it crops) against the frames."""
+    """Check a row that SB3's ``learn`` trains: its class built on ``env`` without networks, and its crop."""
     from sb3_ef.curl.crop import check_crop_size
 
     model = new_model(spec, env, device, _init_setup_model=False)
@@ -59,8 +49,7 @@ def check_row(spec: RunSpec, device: str = "auto") -> None:
 
 
 def check_rows(runs: Sequence[RunSpec], out: str | os.PathLike, device: str = "auto") -> list[str]:
-    """The problems of the rows of ``runs`` that have not finished in ``out``, one line each naming its row
-    (``<label> on <task>``); ``[]`` when every row can start."""
+    """The problems of the unfinished rows of ``runs``, one line each (``<label> on <task>: ...``)."""
     rows: dict[tuple[str, str], RunSpec] = {}
     for spec in runs:
         if read_result(RunPaths.of(out, spec)) is None:

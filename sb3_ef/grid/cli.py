@@ -73,9 +73,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``sb3-ef benchmark``; returns 1 when a run failed, 2 when the grid has problems (each printed
-    on a line of its own; nothing is trained), else 0. Ctrl-C raises :class:`~sb3_ef.common.interrupt.Interrupted`
-    saying what was kept."""
+    """Entry point of ``sb3-ef benchmark``; returns 1 when a run failed, 2 when the grid has problems (one line
+    each, nothing trained), else 0."""
     args = build_parser().parse_args(argv)
     from sb3_ef.grid.grid import GridError, load_grid, read_grid_file
 
@@ -88,12 +87,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if os.environ.get("SB3_EF_TRACEBACK") == "1":
             raise
         count = len(error.problems)
-        print(
-            f"sb3-ef benchmark: error: {count} problem{'s' * (count > 1)} in the grid, nothing trained:",
-            file=sys.stderr,
-        )
-        for problem in error.problems:
-            print(f"  {problem}", file=sys.stderr)
+        lines = [f"{count} problem{'s' * (count > 1)} in the grid, nothing trained:", *error.problems]
+        print("sb3-ef benchmark: error: " + "\n  ".join(lines), file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         raise Interrupted(
@@ -103,8 +98,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _run(args: argparse.Namespace, runs: list[RunSpec]) -> int:
-    """Select, plan or train the runs of the grid as ``args`` say. The rows are checked here first (on this machine:
-    for a dry run, and before a local run; a Ray cluster's nodes may hold data this machine lacks)."""
+    """Select, plan or train the runs as ``args`` say; rows are checked here for a dry run and a local run (a Ray
+    cluster's nodes may hold data this machine lacks)."""
     from sb3_ef.grid.checks import check_rows
     from sb3_ef.grid.grid import GridError, select_runs
     from sb3_ef.grid.runner import plan_table
@@ -120,18 +115,8 @@ def _run(args: argparse.Namespace, runs: list[RunSpec]) -> int:
         return 0
     from sb3_ef.grid.runner import run_benchmark
 
-    results = run_benchmark(
-        runs,
-        args.out,
-        backend=args.backend,
-        workers=args.workers,
-        threads=args.threads,
-        device=args.device,
-        retries=args.retries,
-        address=args.address,
-        gpus=args.gpus,
-        keep_checkpoints=args.keep_checkpoints,
-    )
+    names = ("backend", "workers", "threads", "device", "retries", "address", "gpus", "keep_checkpoints")
+    results = run_benchmark(runs, args.out, **{name: getattr(args, name) for name in names})
     return int(any(result.status == "failed" for result in results))
 
 

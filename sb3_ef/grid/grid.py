@@ -1,8 +1,7 @@
 """A benchmark grid: algorithms x tasks x seeds, expanded into fully specified runs.
 
-Each run's hyperparameters are the zoo config entry of its task (``zoo_configs/<algo>.yml`` or another file in
-that format), then the grid's overrides, then the algorithm's own overrides. Everything is resolved and checked
-here, in the process that reads the grid, so a bad key or task fails before any run starts.
+Each run's hyperparameters are its task's zoo config entry, then the grid's overrides, then the algorithm's own,
+resolved and checked when the grid is read, so a bad key or task fails before any run starts.
 
 A grid file holds one or more blocks; settings shared between blocks can be YAML anchors under ``anchors``::
 
@@ -190,7 +189,7 @@ def _positive(name: str, value: Any) -> int:
 
 
 def _entry(algorithm: Algorithm, task: str, overrides: Mapping[str, Any]) -> dict[str, Any]:
-    """The zoo entry for ``task`` with ``overrides`` applied, every key checked against the algorithm class."""
+    """The zoo entry for ``task`` with ``overrides`` applied, every key checked."""
     algo_class = registry.entry(algorithm.algo).algorithm_class
     path = algorithm.conf_file or zoo_config.default_config_path(algorithm.algo)
     entries = zoo_config.load_config(path)
@@ -210,8 +209,8 @@ def _entry(algorithm: Algorithm, task: str, overrides: Mapping[str, Any]) -> dic
 
 
 def constructor_kwargs(hyperparams: Mapping[str, Any]) -> dict[str, Any]:
-    """A zoo entry's values as constructor arguments: strings of :data:`EVALUATED_KEYS` evaluated the way
-    rl-zoo3 does (in its namespace plus sb3-ef's names, e.g. ``SequenceReplayBuffer``), runner keys left out."""
+    """A zoo entry's values as constructor arguments: strings of :data:`EVALUATED_KEYS` evaluated as rl-zoo3 does,
+    runner keys left out."""
     from rl_zoo3 import exp_manager
 
     from sb3_ef.zoo.registration import config_namespace
@@ -290,8 +289,7 @@ def grid_runs(
     if problems:
         raise GridError(list(problems))
     # Seed-major order: a grid stopped part-way has whole seeds of every algorithm and task, comparable already.
-    runs = [RunSpec(seed=seed, **arguments) for seed in _seeds(seeds) for arguments in runs_of_seed]
-    return runs
+    return [RunSpec(seed=seed, **arguments) for seed in _seeds(seeds) for arguments in runs_of_seed]
 
 
 def check_unique(runs: Sequence[RunSpec]) -> None:
@@ -325,8 +323,7 @@ def _yaml_error(error: yaml.MarkedYAMLError) -> str:
 
 
 def read_grid_file(path: str | os.PathLike) -> list[dict[str, Any]]:
-    """The blocks of a grid file, their keys checked (cheap: nothing heavy is imported); a YAML error names the
-    file, line and column."""
+    """The blocks of a grid file, their keys checked (nothing heavy is imported)."""
     try:
         with open(path) as file:
             document = yaml.safe_load(file)
@@ -358,8 +355,7 @@ def read_grid_file(path: str | os.PathLike) -> list[dict[str, Any]]:
 
 
 def load_grid(path: str | os.PathLike) -> list[RunSpec]:
-    """Read a grid file (see the module docstring) and expand every block; run ids must be unique. A
-    :class:`GridError` names every problem of every block."""
+    """Read a grid file and expand every block; a :class:`GridError` names every problem of every block."""
     runs, problems = [], []
     for index, block in enumerate(read_grid_file(path)):
         try:

@@ -29,13 +29,9 @@ def _stop(signum: int, frame: Any) -> None:
 
 
 def set_up_worker(parent_pid: int) -> None:
-    """Pool-worker initializer. Leave Ctrl-C to the driver (a terminal sends SIGINT to every process of the
-    command), which ends its workers with SIGTERM (:class:`Stopped`); end this worker when the driver process is
-    gone (killed, even by SIGKILL), so that no orphaned worker goes on training a run that the next invocation
-    trains too. Checkpoint files are written atomically, so ending mid-write leaves the last complete checkpoint.
-
-    A worker started inside :func:`sigint_held_for_workers` begins with SIGINT blocked: a Ctrl-C during its start
-    is pending until here, where ignoring SIGINT discards it."""
+    """Pool-worker initializer: Ctrl-C is left to the driver (which ends workers with SIGTERM), and the worker ends
+    when the driver is gone, so no orphan trains a run the next invocation trains too. A Ctrl-C pending from
+    :func:`sigint_held_for_workers` is discarded here."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if hasattr(signal, "pthread_sigmask"):
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
@@ -51,13 +47,9 @@ def set_up_worker(parent_pid: int) -> None:
 
 @contextlib.contextmanager
 def sigint_held_for_workers() -> Iterator[None]:
-    """Block SIGINT in the calling thread for the block. Processes started meanwhile inherit the mask, and so do
-    threads, such as a process pool's manager thread, which starts the workers that replace finished ones: a Ctrl-C
-    that comes while a worker starts (Python's start-up, before :func:`set_up_worker` runs) does not end it with a
-    traceback. The calling process gets the Ctrl-C when the block ends. Where signal masks do not exist
-    (Windows), the block runs as it is.
-
-    multiprocessing's resource tracker is started first: starting it unblocks SIGINT in the thread that does."""
+    """Block SIGINT in the calling thread for the block, so workers (and a pool's manager thread) started meanwhile
+    inherit the mask and a Ctrl-C during their start-up gives no traceback; the caller gets it when the block ends.
+    No-op where signal masks do not exist. The resource tracker is started first: starting it unblocks SIGINT."""
     if not hasattr(signal, "pthread_sigmask"):
         yield
         return
@@ -72,8 +64,7 @@ def sigint_held_for_workers() -> Iterator[None]:
 
 
 def call_in_worker(task: Callable[[], Result]) -> Result:
-    """``task()`` in a pool worker; stopped by the driver, the worker exits at once with :data:`STOPPED_STATUS` once
-    the run has unwound (the pool sees a worker gone, not a result)."""
+    """``task()`` in a pool worker; stopped by the driver, it exits with :data:`STOPPED_STATUS` once unwound."""
     try:
         return task()
     except Stopped:

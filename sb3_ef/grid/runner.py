@@ -51,8 +51,7 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
 
 
 def summary_table(runs: Sequence[RunSpec], results: Sequence[RunResult]) -> str:
-    """Per algorithm and task: runs finished / failed of all, final return mean +- sample std over seeds (the one
-    return alone when a single run has finished), training hours."""
+    """Per algorithm and task: runs finished and failed, final return mean +- std over seeds, training hours."""
     groups: dict[tuple[str, str], list[RunResult]] = {}
     for spec, result in zip(runs, results, strict=True):
         groups.setdefault((spec.label, spec.task), []).append(result)
@@ -81,9 +80,8 @@ def run_status(out: str | os.PathLike, spec: RunSpec) -> str:
 
 
 def plan_table(runs: Sequence[RunSpec], out: str | os.PathLike) -> str:
-    """Per algorithm and task: runs by status, agent steps per run, and the expected hours of all its runs from
-    the algorithm's ``steps_per_second`` (``-`` when not given); a total line at the end (a lower bound, ``>=``, when
-    some hours are unknown), then a note on how to get the missing hours."""
+    """Per algorithm and task: runs by status, steps per run and expected hours (from ``steps_per_second``), with a
+    total line and a note on the hours unknown."""
     groups: dict[tuple[str, str], list[RunSpec]] = {}
     for spec in runs:
         groups.setdefault((spec.label, spec.task), []).append(spec)
@@ -129,11 +127,9 @@ def run_benchmark(
 ) -> list[RunResult]:
     """Execute ``runs`` into the results folder ``out`` and return their results in the order of ``runs``.
 
-    Finished runs are skipped; interrupted ones resume from their last checkpoint. ``workers`` and ``threads``:
-    parallel runs and torch threads per run of the local backend; with ``backend="ray"``, each run is a Ray task
-    with ``threads`` CPUs and ``gpus`` GPUs on the cluster at ``address`` (default: a Ray started on this machine),
-    and as many run at once as the cluster holds. Failed runs are retried ``retries`` times. ``keep_checkpoints``:
-    the newest checkpoints kept per run while it trains (deleted when it finishes); ``None`` keeps them all, for good.
+    Finished runs are skipped; interrupted ones resume. The options are those of :class:`~sb3_ef.grid.backends.
+    LocalBackend` (``workers``) and :class:`~sb3_ef.grid.backends.RayBackend` (``address``, ``gpus``), and of
+    :func:`~sb3_ef.grid.run.execute_run` (``keep_checkpoints``).
     """
     if backend not in BACKENDS:
         raise ValueError(f"Unknown backend {backend!r}: expected one of {BACKENDS}")
@@ -151,12 +147,7 @@ def run_benchmark(
             results[spec.run_id] = stored
             log(progress_line("skip", spec, stored, position[spec.run_id], len(runs)))
     if pending:
-        options: _BackendOptions = {
-            "threads": threads,
-            "device": device,
-            "retries": retries,
-            "keep_checkpoints": keep_checkpoints,
-        }
+        options = _BackendOptions(threads=threads, device=device, retries=retries, keep_checkpoints=keep_checkpoints)
         executor: LocalBackend | RayBackend
         if backend == "local":
             executor = LocalBackend(out, workers=workers, **options)
