@@ -1,7 +1,7 @@
 """``sb3-ef analyze``: tables and plots from evaluation CSVs, or predictions and saliency of a saved model.
 
 sb3-ef analyze results DIR [--out DIR] [--return-scale 1000] [--reps 2000] [--at STEP ...] [--finished-only]
-                        [--reference drqv2|tdmpc2|dreamerv3|curl]
+                        [--reference drqv2|tdmpc2|dreamerv3|dreamerv3-2023|curl]
 sb3-ef analyze model PATH --env NAME [--algo drqv2_ef|tdmpc2_ef|sac_ef|td3_ef|tqc_ef] [--steps T]
                                      [--actions policy|figure8] [--action-repeat 2] [--env-kwargs key:value ...]
                                      [--seed 0] [--out DIR]
@@ -33,7 +33,7 @@ if TYPE_CHECKING:
 #: The Ego-Foresight algorithms ``analyze model`` shows (``sb3_ef.registry``), by key, and their class names.
 EF_ALGORITHMS = {key: registry.entry(key).class_name for key in registry.keys(ef=True)}
 #: The published references of ``analyze results --reference`` (``sb3_ef.analysis.reference.REFERENCES``).
-REFERENCE_NAMES = ("drqv2", "tdmpc2", "dreamerv3", "curl")
+REFERENCE_NAMES = ("drqv2", "tdmpc2", "dreamerv3", "dreamerv3-2023", "curl")
 #: Replay-buffer capacity (frames) given to a model loaded for analysis: it never trains.
 ANALYSIS_BUFFER_SIZE = 256
 
@@ -59,7 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--reference",
         choices=REFERENCE_NAMES,
         help="put the runs beside published DMC curves: DrQ-v2's (frames), TD-MPC2's pixel results (agent steps), "
-        "Dreamer-v3's or CURL's from danijar/dreamerv3 (frames)",
+        "Dreamer-v3's (2024 release: dreamerv3; 2023 paper: dreamerv3-2023) or CURL's from danijar/dreamerv3 (frames)",
     )
 
     model = commands.add_parser("model", help="open-loop prediction, saliency and mask scores of a saved model")
