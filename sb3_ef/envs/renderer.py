@@ -4,7 +4,6 @@ flags for fast rendering; gymnasium's segmentation crashes under numpy 2). Impor
 from __future__ import annotations
 
 import atexit
-import functools
 import weakref
 
 import mujoco
@@ -30,10 +29,11 @@ def _close_live_renderers() -> None:
         renderer.close()
 
 
-@functools.cache
 def _close_renderers_at_exit() -> None:
-    """Register the exit hook once, after MuJoCo's EGL ``eglTerminate`` (``atexit`` is last-in first-out), so the
-    contexts are freed while the display exists; ``weakref.finalize``'s own hook may be registered earlier."""
+    """(Re-)register the exit hook as the newest, so it runs before any EGL ``eglTerminate`` registered so far
+    (``atexit`` is last-in first-out; dm_control registers one when a later env first imports its renderer), and the
+    contexts are freed while the display exists."""
+    atexit.unregister(_close_live_renderers)
     atexit.register(_close_live_renderers)
 
 
