@@ -3,11 +3,13 @@ so that bad input (a wrong argument, a malformed record) leaves nothing behind."
 
 from __future__ import annotations
 
+import glob
 import os
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from sb3_ef.analysis._optional import pyplot
+from sb3_ef.analysis.records import RECORD_COLUMNS
 from sb3_ef.common.files import write_text_atomically
 
 if TYPE_CHECKING:
@@ -49,21 +51,31 @@ class ResultTables:
 
 
 def _aggregate(records: pd.DataFrame, return_scale: float, reps: int, at: tuple[int, ...]) -> ResultTables:
-    """Scores, ENS and rliable metrics (both over the tasks every algorithm has; rliable with even seed counts there)
-    and ``returns_at``."""
+    """Scores, ENS and rliable metrics (over the tasks every algorithm has) and ``returns_at``."""
+    from sb3_ef.analysis.metrics import records_to_scores
+
+    left_out = _check_steps_reached(records, at)  # before the bootstrap
+    scores = records_to_scores(records, return_scale=return_scale)
+    result = ResultTables(scores, {"scores.csv": (scores, False)})
+    _compare(records, return_scale, reps, result)
+    if at:
+        _returns_at(records, at, result)
+        result.lines += left_out
+    return result
+
+
+def _compare(records: pd.DataFrame, return_scale: float, reps: int, result: ResultTables) -> None:
+    """ENS and rliable metrics over the tasks every algorithm has (rliable with even seed counts there)."""
     from sb3_ef.analysis.metrics import (
         ENS_THRESHOLDS,
         efficiency_normalized_score,
         ens_table,
-        records_to_scores,
-        returns_at,
         rliable_metrics,
         tasks_with_every_algorithm,
         uneven_seed_counts,
     )
 
-    scores = records_to_scores(records, return_scale=return_scale)
-    result = ResultTables(scores, {"scores.csv": (scores, False)})
+    scores = result.scores
     shared = tasks_with_every_algorithm(scores)
     compared = scores[scores["task"].isin(shared)]
     left_out = sorted(set(scores["task"]) - set(shared))
@@ -74,7 +86,12 @@ def _aggregate(records: pd.DataFrame, return_scale: float, reps: int, at: tuple[
     if scores["algo"].nunique() < 2:
         result.lines.append("ENS compares algorithms: skipped with a single algorithm")
     elif not shared:
-        result.lines.append("ENS and rliable skipped: no task has results of every algorithm")
+        tasks = {str(algo): sorted(map(str, group.unique())) for algo, group in scores.groupby("algo")["task"]}
+        result.lines.append(
+            "ENS and rliable skipped: they compare algorithms on the same tasks, and no task has results of every "
+            f"algorithm; tasks per algorithm: {tasks}"
+        )
+        return
     else:
         result.tables["ens_details.csv"] = (ens_table(compared), False)
         result.ens = efficiency_normalized_score(compared)
@@ -89,20 +106,60 @@ def _aggregate(records: pd.DataFrame, return_scale: float, reps: int, at: tuple[
     uneven = uneven_seed_counts(compared)
     if uneven:
         result.lines.append(f"rliable metrics skipped: they need as many seeds on every task, seeds per task: {uneven}")
-    elif shared:
-        result.rliable = rliable_metrics(compared, reps=reps)
-        result.tables["rliable.csv"] = (result.rliable, False)
-        result.lines.append(
-            f"rliable aggregates of each run's best score ({_score_scale(records, return_scale)}), with 95% "
-            f"stratified-bootstrap confidence intervals over {reps} resamples:"
+        return
+    result.rliable = rliable_metrics(compared, reps=reps)
+    result.tables["rliable.csv"] = (result.rliable, False)
+    result.lines.append(
+        f"rliable aggregates of each run's best score ({_score_scale(records, return_scale)}), with 95% "
+        f"stratified-bootstrap confidence intervals over {reps} resamples:"
+    )
+    result.lines.append(result.rliable.to_string(index=False, float_format="%.3f"))
+
+
+def _check_steps_reached(records: pd.DataFrame, at: tuple[int, ...]) -> list[str]:
+    """Raise a ``ValueError`` for a step of ``at`` past every run's last step; the lines naming the runs left out
+    of a step that only some runs reach."""
+    last = records.groupby(["algo", "task", "seed"], dropna=False)["step"].max()
+    latest = int(last.max())
+    past = [step for step in at if step > latest]
+    if past:
+        raise ValueError(
+            f"Steps (--at) {past} lie past the last step of every run (the longest run ends at step {latest}): "
+            f"pick a step <= {latest}"
         )
-        result.lines.append(result.rliable.to_string(index=False, float_format="%.3f"))
-    if at:
-        at_steps = returns_at(records, at)
-        result.tables["returns_at.csv"] = (at_steps, False)
-        result.lines.append("Evaluation return at the --at agent steps (episode returns, not scaled), over seeds:")
-        result.lines.append(at_steps.to_string(index=False, float_format="%.1f"))
-    return result
+    lines = []
+    for step in at:
+        short = last[last < step]
+        if not short.empty:
+            runs = [f"{algo} on {task} seed {seed} (last step {end})" for (algo, task, seed), end in short.items()]
+            lines.append(f"Left out at step {step} (--at), ended before it: {', '.join(runs)}")
+    return lines
+
+
+def _returns_at(records: pd.DataFrame, at: tuple[int, ...], result: ResultTables) -> None:
+    """The ``returns_at`` table at the ``--at`` steps, with the runs and steps it leaves out."""
+    from sb3_ef.analysis.metrics import returns_at
+
+    at_steps = returns_at(records, at)
+    result.tables["returns_at.csv"] = (at_steps, False)
+    result.lines.append("Evaluation return at the --at agent steps (episode returns, not scaled), over seeds:")
+    result.lines.append(at_steps.to_string(index=False, float_format="%.1f"))
+    unevaluated = sorted(set(at) - set(at_steps["step"]))
+    if unevaluated:
+        result.lines.append(f"No run was evaluated at step(s) {unevaluated} exactly: returns_at.csv has no row there")
+
+
+def _skipped_csvs(directory: str) -> list[str]:
+    """The CSVs under ``directory`` that look like evaluation records (a ``return`` column) but lack the record
+    header, so the reader skips them: each named with its columns."""
+    skipped = []
+    for path in sorted(glob.glob(os.path.join(directory, "**", "*.csv"), recursive=True)):
+        with open(path, errors="replace") as file:
+            header = file.readline().strip().split(",")
+        if "return" in header and tuple(header) != RECORD_COLUMNS:
+            missing = [column for column in RECORD_COLUMNS if column not in header]
+            skipped.append(f"{path} (columns {header}, missing {missing})")
+    return skipped
 
 
 def _score_scale(records: pd.DataFrame, return_scale: float) -> str:
@@ -163,8 +220,16 @@ def analyze_results(
     at = tuple(at)
     check_results_arguments(directory, out, return_scale, reps, at, reference)
     pyplot()  # matplotlib missing is reported before anything is written
-    records = load_records(directory, finished_only)
+    skipped = _skipped_csvs(directory)
+    try:
+        records = load_records(directory, finished_only)
+    except FileNotFoundError as error:
+        if not skipped:
+            raise
+        raise ValueError(f"{error}; skipped, without that header: {'; '.join(skipped)}") from error
     result = _aggregate(records, return_scale, reps, at)
+    header = ",".join(RECORD_COLUMNS)
+    result.lines[:0] = [f"Warning: skipped {csv}: evaluation records need the header {header}" for csv in skipped]
     if reference is not None:
         _against_reference(records, reference, at, result)
     os.makedirs(out, exist_ok=True)

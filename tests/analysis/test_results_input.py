@@ -104,3 +104,48 @@ def test_good_records_give_every_file_and_no_temporary_is_left(tmp_path):
     assert main(["results", str(tmp_path / "runs"), "--reps", "10", "--at", "100"]) == 0
     written = sorted(path.name for path in (tmp_path / "runs" / "analysis").iterdir())
     assert written == ["curve_dmc_walker-walk-v0.png", "returns_at.csv", "rliable.csv", "rliable.png", "scores.csv"]
+
+
+def test_steps_past_every_run_are_refused_with_the_last_step(tmp_path, capsys, monkeypatch):
+    write_csv(tmp_path / "runs", GOOD_ROWS)
+    status, err = run_cli(["analyze", "results", str(tmp_path / "runs"), "--at", "999999"], capsys, monkeypatch)
+    assert status == 2 and "Traceback" not in err
+    assert "Steps (--at) [999999] lie past the last step of every run" in err and "pick a step <= 100" in err
+    assert [path.name for path in (tmp_path / "runs").iterdir()] == ["run.csv"]
+
+
+def test_runs_that_end_before_a_step_are_named(tmp_path, capsys):
+    write_csv(tmp_path, [*GOOD_ROWS, "A,dmc/walker-walk-v0,1,0,0,2.0,", "A,dmc/walker-walk-v0,1,50,100,9.0,"])
+    assert main(["results", str(tmp_path), "--reps", "10", "--at", "100", "70"]) == 0
+    printed = capsys.readouterr().out
+    assert "Left out at step 100 (--at), ended before it: A on dmc/walker-walk-v0 seed 1 (last step 50)" in printed
+    assert "No run was evaluated at step(s) [70] exactly: returns_at.csv has no row there" in printed
+
+
+FRAMELESS = "algo,task,seed,step,return,success\nA,dmc/walker-walk-v0,0,0,1.5,\n"
+
+
+def test_a_csv_without_the_frame_column_is_skipped_with_a_warning(tmp_path, capsys):
+    write_csv(tmp_path / "good", GOOD_ROWS)
+    (tmp_path / "old.csv").write_text(FRAMELESS)
+    assert main(["results", str(tmp_path), "--reps", "10"]) == 0
+    printed = capsys.readouterr().out
+    assert re.search(r"Warning: skipped .*old.csv \(columns \['algo', .*'success'\], missing \['frame'\]\)", printed)
+
+
+def test_nothing_readable_names_the_skipped_csv(tmp_path, capsys, monkeypatch):
+    (tmp_path / "old.csv").write_text(FRAMELESS)
+    status, err = run_cli(["analyze", "results", str(tmp_path)], capsys, monkeypatch)
+    assert status == 2 and "Traceback" not in err
+    assert re.search(r"skipped, without that header: .*old.csv \(columns .*missing \['frame'\]\)", err)
+
+
+def test_algorithms_without_a_shared_task_are_named_with_their_tasks(tmp_path, capsys):
+    write_csv(tmp_path / "a", GOOD_ROWS)
+    write_csv(tmp_path / "b", [row.replace("A,dmc/walker-walk-v0", "B,dmc/cheetah-run-v0") for row in GOOD_ROWS])
+    assert main(["results", str(tmp_path), "--reps", "10"]) == 0
+    printed = capsys.readouterr().out
+    assert "no task has results of every algorithm; tasks per algorithm: " in printed
+    assert "{'A': ['dmc/walker-walk-v0'], 'B': ['dmc/cheetah-run-v0']}" in printed
+    written = sorted(path.name for path in (tmp_path / "analysis").iterdir())
+    assert written == ["curve_dmc_cheetah-run-v0.png", "curve_dmc_walker-walk-v0.png", "scores.csv"]
