@@ -20,7 +20,7 @@ if TYPE_CHECKING:
     from sb3_ef.analysis.report import ForesightReport
 
 
-#: The even grid the official curves are drawn on (``seed_band``'s ``points``).
+#: Points of the even grid the official curves are drawn on.
 REFERENCE_POINTS = 200
 
 
@@ -41,12 +41,9 @@ def _save(figure, path: str | os.PathLike) -> str:
 
 
 def plot_learning_curves(scores: pd.DataFrame, out_dir: str | os.PathLike, xlabel: str = "step") -> list[str]:
-    """One PNG per task: each algorithm's mean score over seeds against step, with a 95% confidence band
-    (mean +- 1.96 standard errors over seeds; no band for a single seed), the seeds on one common grid
-    (:func:`~sb3_ef.analysis.reference.seed_band`: up to the last step every seed reached).
-
-    :return: the written paths, ``<out_dir>/curve_<task>.png``.
-    """
+    """``<out_dir>/curve_<task>.png`` (the paths returned): each algorithm's mean score over seeds (on one grid,
+    :func:`~sb3_ef.analysis.reference.seed_band`) against step, with a 95% band (1.96 standard errors; none for one
+    seed)."""
     from sb3_ef.analysis.reference import seed_band
 
     check_columns(scores, SCORE_COLUMNS)
@@ -66,12 +63,8 @@ def plot_learning_curves(scores: pd.DataFrame, out_dir: str | os.PathLike, xlabe
 
 
 def plot_reference_curves(records: pd.DataFrame, name: str, out_dir: str | os.PathLike) -> list[str]:
-    """One PNG per task the reference has: each algorithm's mean return over seeds (band: min-max over seeds)
-    and the official mean with its min-max band, up to the end of your runs (plus 10%); each set of seeds on its own
-    common grid (:func:`~sb3_ef.analysis.reference.seed_band`), the legend naming the reference's version.
-
-    :return: the written paths, ``<out_dir>/reference_<name>_<task>.png``.
-    """
+    """``<out_dir>/reference_<name>_<task>.png`` per task the reference has (the paths returned): each algorithm's
+    mean and min-max return over seeds beside the official ones, up to 10% past the end of your runs."""
     from sb3_ef.analysis.reference import get_reference, load_reference, reference_task, seed_band
 
     check_columns(records, RECORD_COLUMNS)
@@ -108,8 +101,8 @@ def plot_ens(ens: pd.Series, path: str | os.PathLike) -> str:
 
 
 def plot_intervals(table: pd.DataFrame, path: str | os.PathLike) -> str:
-    """rliable-style interval plot: one panel per metric, a bar from lower to upper CI and a tick at the estimate
-    for each algorithm (``table`` from :func:`sb3_ef.analysis.metrics.rliable_metrics`)."""
+    """One panel per metric of :func:`~sb3_ef.analysis.metrics.rliable_metrics`: per algorithm, a bar over the CI and
+    a tick at the estimate."""
     check_columns(table, ("algo", "metric", "estimate", "lower", "upper"))
     plt = pyplot()
     metrics = list(dict.fromkeys(table["metric"]))
@@ -148,7 +141,7 @@ def prediction_figure(report: ForesightReport, title: str):
     frame_size = report.predicted.shape[1]
     _frame_row_axes(axis, ["context", "predicted", "true"], columns, frame_size)
     axis.set_xlabel("predicted and true frames")
-    # The context row holds the stacked frames up to t: its columns get their own labels, above the grid.
+    # The context row's columns (the stacked frames up to t) get their own labels, above the grid.
     contexts = report.rollout.first_observation.shape[0] // 3
     context = axis.secondary_xaxis("top")
     context.set_xticks(

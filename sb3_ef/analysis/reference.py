@@ -1,25 +1,9 @@
-"""Published learning curves, shipped with the package, and a user's runs put beside them.
+"""Published learning curves, shipped with the package (``reference_data/``; sources, licences and units in its
+``SOURCES.md``), and a user's runs put beside them.
 
-Five references, read from ``reference_data/`` (sources, licences and units in ``reference_data/SOURCES.md``); each
-names the agent's version (and, for Dreamer-v3, its model size) and the source commit:
-
-- ``"drqv2"``: DrQ-v2's official DMC curves (facebookresearch/drqv2, ``curves/``; 24 tasks, 8-10 seeds), episode
-  return against **frames** (agent steps x action repeat 2);
-- ``"tdmpc2"``: TD-MPC2's official DMC pixel results (nicklashansen/tdmpc2, ``results/tdmpc2-pixels/``; 12 tasks,
-  3 seeds), episode return against **agent steps** (action repeat 2);
-- ``"dreamerv3"``: Dreamer-v3's DMC vision scores of the authors' 2024 release (danijar/dreamerv3,
-  ``scores/dmc_vision-dreamerv3.json.gz``; 20 tasks, 8-10 seeds), the return of each training episode against
-  **frames** (action repeat 2);
-- ``"dreamerv3-2023"``: those of the 2023 paper's release (``scores/data/dmcvision_dreamerv3.json.gz`` of its
-  history), the agent that sheeprl's Dreamer-v3 and the zoo's ``dreamerv3`` entries follow, read as the authors
-  wrote the file (:func:`authors_scores`), on the same axis;
-- ``"curl"``: the CURL scores of the same repository (``scores/dmc_vision-curl.json.gz``; 20 tasks, 10 seeds),
-  episode return against **frames**, every 20k frames.
-
-A run's evaluation records hold both ``step`` (agent steps) and ``frame``; each reference is compared on its own
-axis (frames from the records' ``frame`` column, not from an assumed action repeat). Seeds are put on one common
-grid (:func:`seed_band`): each interpolated linearly between its points, never extrapolated beyond its first or last
-one.
+Each reference is compared on its own axis (:data:`REFERENCES`: frames, read from the records' ``frame`` column, or
+agent steps), never on an assumed action repeat; seeds are put on one common grid (:func:`seed_band`), each
+interpolated linearly between its points, never extrapolated.
 """
 
 from __future__ import annotations
@@ -43,7 +27,7 @@ if TYPE_CHECKING:
     import pandas as pd
 
 REFERENCE_COLUMNS = ("task", "seed", "x", "return")
-#: Returns of DMC tasks lie in [0, 1000]; records whose returns all lie in [0, 1] are likely something else.
+#: DMC returns lie in [0, 1000]: records whose returns all lie in [0, 1] are likely something else.
 UNIT_INTERVAL = (0.0, 1.0)
 
 
@@ -120,8 +104,7 @@ def get_reference(name: str) -> Reference:
 
 
 def reference_task(task: str) -> str:
-    """The references' name of a DMC task: ``dmc/cartpole-balance-v0`` or ``dmc/cartpole_balance`` ->
-    ``cartpole-balance``."""
+    """The references' name of a DMC task: ``dmc/cartpole_balance-v0`` -> ``cartpole-balance``."""
     name = task.split("/", 1)[1] if task.startswith("dmc/") else task
     return re.sub(r"-v\d+$", "", name).replace("_", "-")
 
@@ -138,10 +121,8 @@ def check_reference_data(name: str) -> None:
 
 
 def authors_scores(path: str | os.PathLike, method: str = "dreamerv3") -> pd.DataFrame:
-    """The scores file of danijar/dreamerv3 (gzipped JSON: a list of runs, each ``task`` as ``dmc_<domain>_<task>``,
-    ``method``, ``seed``, ``xs`` and ``ys``), the runs of ``method`` one row per point: columns ``task`` (sb3-ef's
-    name: ``walker-walk``), ``seed``, ``x`` (the file's ``xs``) and ``return`` (its ``ys``, rounded to 0.01 as in
-    the shipped CSVs)."""
+    """The runs of ``method`` in a danijar/dreamerv3 scores file (gzipped JSON runs of ``task``, ``method``, ``seed``,
+    ``xs``, ``ys``), one row per point: ``task`` (``walker-walk``), ``seed``, ``x`` and ``return`` (to 0.01)."""
     pandas = require("pandas")
     with gzip.open(path, "rt") as file:
         runs = json.load(file)
@@ -194,12 +175,9 @@ def _seed_values(curves: pd.DataFrame, xs: np.ndarray, x: str = "x", y: str = "r
 def seed_band(
     curves: pd.DataFrame, x: str = "x", y: str = "return", end: float = np.inf, points: int | None = None
 ) -> pd.DataFrame:
-    """Seeds (``seed``, ``x``, ``y``) on one common grid where every seed has points on both sides (up to ``end``):
-    the union of their points, or ``points`` evenly spaced x's; each seed interpolated linearly onto it, none
-    extrapolated. Seeds that log at other steps (another evaluation grid, bursts of training episodes) thus average
-    at the same x, and the band does not jump where a seed's points start or stop. An even grid suits curves of one
-    point per training episode (Dreamer-v3's), whose consecutive episodes differ by a lot: the union would draw
-    every episode of a burst.
+    """Seeds (``seed``, ``x``, ``y``) interpolated onto one grid where every seed has points (up to ``end``): the
+    union of their points, or ``points`` evenly spaced x's (for curves of one point per training episode), so seeds
+    logged at other steps average at the same x and the band does not jump where a seed starts or stops.
 
     :return: columns ``x``, ``mean``, ``std`` (over seeds, ``ddof=1``; NaN for one seed), ``min``, ``max``,
         ``seeds``.
@@ -218,8 +196,7 @@ def seed_band(
 
 
 def official_at(official: pd.DataFrame, x: float) -> np.ndarray:
-    """Each official seed's return at ``x`` (linear between its points); seeds whose points do not span ``x`` are
-    left out."""
+    """Each official seed's return at ``x`` (linear between its points), of the seeds whose points span ``x``."""
     values = _seed_values(official, np.asarray([x], dtype=float))[:, 0]
     return values[~np.isnan(values)]
 
@@ -231,16 +208,11 @@ def _frames_per_step(group: pd.DataFrame) -> float:
 
 
 def reference_table(records: pd.DataFrame, name: str, at: tuple[int, ...] = ()) -> pd.DataFrame:
-    """Your mean at a step vs the official mean (min-max) at the same point, per algorithm and task of ``records``.
+    """Your mean at each agent step of ``at`` (default: the last step all seeds reached) vs the official mean and
+    min-max at the same point of the reference's axis, per algorithm and task the reference has.
 
-    ``at`` gives agent steps (as ``--at`` does everywhere); by default each algorithm's last step that all its seeds
-    reached on that task. The comparison is made on the reference's own axis (``x``, in ``unit``: frames for
-    DrQ-v2, Dreamer-v3 and CURL, read from the records' ``frame`` column, agent steps for TD-MPC2). Tasks the
-    reference lacks are left out (see :func:`missing_tasks`).
-
-    :return: columns ``reference`` (its label: agent, version, model size), ``algo, task, step, x, unit, seeds, mean,
-        std, official_seeds, official_mean, official_min, official_max``; ``official_*`` are NaN (and
-        ``official_seeds`` 0) where no official seed reached ``x``.
+    :return: columns ``reference`` (its label), ``algo, task, step, x, unit, seeds, mean, std, official_seeds,
+        official_mean, official_min, official_max`` (``official_*`` NaN where no official seed reached ``x``).
     """
     pandas = require("pandas")
     check_columns(records, RECORD_COLUMNS)
@@ -287,12 +259,8 @@ def missing_tasks(records: pd.DataFrame, name: str) -> list[str]:
 
 
 def unit_warnings(records: pd.DataFrame, name: str) -> list[str]:
-    """Doubts about the units of ``records`` next to the reference, one sentence each (none when all looks right).
-
-    The references hold DMC episode returns in [0, 1000] from runs at action repeat 2 (where recorded): returns
-    that all lie in [0, 1] look like success rates or normalised scores, and ``frame == step`` means action repeat 1
-    or a ``frame`` column that holds agent steps.
-    """
+    """Doubts about the units of ``records`` next to the reference, one sentence each: returns all in [0, 1]
+    (success rates or normalised scores?) and ``frame == step`` (action repeat 1, or agent steps as frames)."""
     reference = get_reference(name)
     compared = records[~records["task"].astype(str).isin(missing_tasks(records, name))]
     warnings = []

@@ -16,8 +16,8 @@ from sb3_ef.analysis.saliency import Saliency, compute_saliency, saliency_overla
 
 @dataclass(frozen=True)
 class Rollout:
-    """What happened in the env: the first stacked observation, the T actions taken, the T newest frames seen
-    after them (uint8 (T, h, w, 3)) and the agent mask after the last step (None if the env has no masks)."""
+    """The first stacked observation, the T actions taken, the T newest frames after them (uint8 (T, h, w, 3)) and
+    the agent mask after the last step (None without masks)."""
 
     first_observation: np.ndarray
     actions: np.ndarray
@@ -83,8 +83,8 @@ def foresight_report(
     num_std: float = 1.0,
     fraction: float = 0.1,
 ) -> ForesightReport:
-    """Predict ``rollout`` open loop from its first observation, saliency of the last predicted frame, and
-    precision / recall / IoU of the thresholded h_a map (:func:`threshold_saliency`) against the agent mask."""
+    """``rollout`` predicted open loop, the saliency of its last predicted frame, and the thresholded h_a map's
+    scores against the agent mask."""
     predicted = predict_open_loop(rollout.first_observation, rollout.actions, model=model)
     saliency = compute_saliency(rollout.first_observation, rollout.actions, model=model, patch_size=patch_size)
     mse = float(np.mean((predicted / 255.0 - rollout.true_frames / 255.0) ** 2))

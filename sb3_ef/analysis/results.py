@@ -19,7 +19,7 @@ if TYPE_CHECKING:
 def check_results_arguments(
     directory: str, out: str, return_scale: float, reps: int, at: tuple[int, ...], reference: str | None
 ) -> None:
-    """Raise a ``ValueError`` / ``FileNotFoundError`` naming the first argument that cannot work, before any read."""
+    """Raise a ``ValueError`` / ``FileNotFoundError`` naming the first argument that cannot work."""
     from sb3_ef.analysis.reference import check_reference_data, get_reference
 
     if not os.path.isdir(directory):
@@ -40,7 +40,7 @@ def check_results_arguments(
 
 @dataclass
 class ResultTables:
-    """What ``analyze results`` writes, computed first: tables by file name, and the lines to print."""
+    """What ``analyze results`` writes, computed first: tables by file name and the lines to print."""
 
     scores: pd.DataFrame
     tables: dict[str, tuple[pd.DataFrame, bool]] = field(default_factory=dict)  # name -> (table, with index)
@@ -117,8 +117,7 @@ def _compare(records: pd.DataFrame, return_scale: float, reps: int, result: Resu
 
 
 def _check_steps_reached(records: pd.DataFrame, at: tuple[int, ...]) -> list[str]:
-    """Raise a ``ValueError`` for a step of ``at`` past every run's last step; the lines naming the runs left out
-    of a step that only some runs reach."""
+    """Refuse steps past every run's last step; the lines naming the runs that end before a step of ``at``."""
     last = records.groupby(["algo", "task", "seed"], dropna=False)["step"].max()
     latest = int(last.max())
     past = [step for step in at if step > latest]
@@ -137,7 +136,7 @@ def _check_steps_reached(records: pd.DataFrame, at: tuple[int, ...]) -> list[str
 
 
 def _returns_at(records: pd.DataFrame, at: tuple[int, ...], result: ResultTables) -> None:
-    """The ``returns_at`` table at the ``--at`` steps, with the runs and steps it leaves out."""
+    """The ``returns_at`` table at the ``--at`` steps, and the steps no run was evaluated at."""
     from sb3_ef.analysis.metrics import returns_at
 
     at_steps = returns_at(records, at)
@@ -150,8 +149,7 @@ def _returns_at(records: pd.DataFrame, at: tuple[int, ...], result: ResultTables
 
 
 def _skipped_csvs(directory: str) -> list[str]:
-    """The CSVs under ``directory`` that look like evaluation records (a ``return`` column) but lack the record
-    header, so the reader skips them: each named with its columns."""
+    """The CSVs under ``directory`` with a ``return`` column but not the record header (skipped by the reader)."""
     skipped = []
     for path in sorted(glob.glob(os.path.join(directory, "**", "*.csv"), recursive=True)):
         with open(path, errors="replace") as file:
@@ -163,7 +161,7 @@ def _skipped_csvs(directory: str) -> list[str]:
 
 
 def _score_scale(records: pd.DataFrame, return_scale: float) -> str:
-    """How scores come from the records: returns over ``return_scale``, success rates as they are."""
+    """How scores come from the records, in words."""
     with_success = records.groupby("task")["success"].agg(lambda column: column.notna().all())
     parts = []
     if not with_success.all():
@@ -174,7 +172,7 @@ def _score_scale(records: pd.DataFrame, return_scale: float) -> str:
 
 
 def _against_reference(records: pd.DataFrame, name: str, at: tuple[int, ...], result: ResultTables) -> None:
-    """Add the table of your runs beside a published reference, its unit warnings and its lines."""
+    """Add the table of your runs beside a published reference, with its unit warnings."""
     from sb3_ef.analysis.reference import get_reference, missing_tasks, reference_table, unit_warnings
 
     reference = get_reference(name)
@@ -202,24 +200,17 @@ def analyze_results(
     finished_only: bool = False,
     reference: str | None = None,
 ) -> dict[str, Any]:
-    """Write ``scores.csv``, ``ens.csv``, ``ens_details.csv``, ``rliable.csv`` and the plots to ``out``, and
-    ``returns_at.csv`` for the steps ``at``; ``finished_only`` reads only finished runs. With ``reference``
-    (a key of :data:`sb3_ef.analysis.reference.REFERENCES`: ``drqv2``, ``tdmpc2``, ``dreamerv3``, ``dreamerv3-2023``
-    or ``curl``), also the published curves beside the runs
-    (``reference_<name>_<task>.png``) and ``reference_<name>.csv``: your mean at each step of ``at`` (default: the
-    last step all seeds reached) against the official mean and min-max, with warnings where the units look wrong.
-
-    The arguments are checked, the records read and checked and every table computed before ``out`` is created,
-    so bad input writes nothing. A grid part-way through, or one whose algorithms ran on different tasks, is
-    analysed as far as it allows: ENS and rliable metrics over the tasks that every algorithm has results on,
-    rliable only when each algorithm has as many seeds on each of those tasks; what is left out is printed.
+    """Write ``scores.csv``, ``ens.csv``, ``ens_details.csv``, ``rliable.csv``, the plots and, for the steps ``at``,
+    ``returns_at.csv`` to ``out``; ``finished_only`` reads only finished runs; ``reference`` (a key of
+    :data:`sb3_ef.analysis.reference.REFERENCES`) adds ``reference_<name>.csv`` and its plots. Every table is
+    computed before ``out`` is created, so bad input writes nothing; what a partial grid leaves out is printed.
     """
     from sb3_ef.analysis.metrics import load_records
     from sb3_ef.analysis.plots import plot_ens, plot_intervals, plot_learning_curves, plot_reference_curves
 
     at = tuple(at)
     check_results_arguments(directory, out, return_scale, reps, at, reference)
-    pyplot()  # matplotlib missing is reported before anything is written
+    pyplot()  # matplotlib missing: reported before anything is written
     skipped = _skipped_csvs(directory)
     try:
         records = load_records(directory, finished_only)
