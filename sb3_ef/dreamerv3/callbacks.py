@@ -1,16 +1,8 @@
-"""The Fabric callback of a Dreamer-v3 run: evaluation, then sheeprl's checkpoint, then the pointer to it.
+"""The Fabric callback sheeprl calls at its checkpoint steps: evaluate (appending the evaluation CSV's row), write
+sheeprl's checkpoint, then name it in ``latest.json``, in that order.
 
-sheeprl calls its checkpoint callback every ``checkpoint.every`` policy steps and at the end of training. There,
-:class:`RunCallback`, in this order:
-
-1. evaluates the checkpoint's weights (when the step is a multiple of the evaluation frequency) and appends the
-   row to the run's evaluation CSV (:mod:`sb3_ef.analysis.records`);
-2. writes sheeprl's checkpoint (weights, optimisers, replay buffer);
-3. records the checkpoint as the run's latest in ``latest.json``, written atomically.
-
-A run resumes from the checkpoint ``latest.json`` names, after dropping the evaluation rows past its step: a kill
-at any point leaves either a row that the resumed run drops and writes again, or a checkpoint that is not yet
-named and is not used, never a missing or a repeated row.
+A run resumes from the checkpoint ``latest.json`` names, dropping the rows past its step: a kill at any point leaves
+a row written again on resume, or a checkpoint not yet named, never a missing or repeated row.
 """
 
 from __future__ import annotations
@@ -37,10 +29,8 @@ LATEST_FILE = "latest.json"
 
 @dataclass(frozen=True)
 class Evaluation:
-    """Periodic evaluation of a run: ``n_episodes`` episodes on ``env`` (stacked frames, as sb3-ef's envs) every
-    ``freq`` agent steps, seeded with :func:`~sb3_ef.common.evaluation.evaluation_seed` of ``seed`` and the step, one
-    row per evaluation appended to ``records`` as ``algo`` / ``task`` with ``frame = step * action_repeat``. The
-    actions are sampled from the policy, as the authors' evaluation mode does (``deterministic=True``: its mode)."""
+    """``n_episodes`` episodes on ``env`` every ``freq`` agent steps (seeded by ``seed`` and the step), a row each
+    appended to ``records``; actions sampled, as the authors' evaluation does (``deterministic``: the mode)."""
 
     env: gym.Env
     freq: int
@@ -60,8 +50,7 @@ class Evaluation:
 
 
 def read_latest(work_dir: str | os.PathLike) -> dict[str, Any] | None:
-    """The latest complete checkpoint of the run in ``work_dir``: ``{"checkpoint": path, "step": n, "settings":
-    {...}}``, or ``None`` when it has none."""
+    """``{"checkpoint", "step", "settings"}`` of the run's latest complete checkpoint, or ``None``."""
     path = Path(work_dir) / LATEST_FILE
     if not path.is_file():
         return None
@@ -72,17 +61,15 @@ def read_latest(work_dir: str | os.PathLike) -> dict[str, Any] | None:
 
 
 class RunCallback:
-    """sheeprl's ``CheckpointCallback`` with the evaluation before it and ``latest.json`` after it (see the module
-    docstring); keeps the newest checkpoint's state without its replay buffer in :attr:`last_state`.
+    """sheeprl's ``CheckpointCallback`` with the evaluation before it and ``latest.json`` after it.
 
     :param work_dir: the run's folder (``latest.json`` goes there).
-    :param settings: what ``latest.json`` records to rebuild the model (``DreamerV3``'s arguments).
+    :param settings: ``DreamerV3``'s arguments, recorded in ``latest.json``.
     :param evaluation: the periodic evaluation, or ``None``.
     :param keep_last: the newest checkpoints sheeprl keeps (all with ``None``).
-    :param save_every: the steps between checkpoints written to disk (sheeprl calls the callback at every
-        evaluation; the other calls only keep :attr:`last_state`).
+    :param save_every: the steps between checkpoints written to disk (other calls only keep the weights).
     :param total_steps: the step of the run's last call, whose checkpoint is always written.
-    :param on_weights: called with each call's state (without its replay buffer), the newest weights.
+    :param on_weights: called with each call's state without its replay buffer.
     """
 
     def __init__(
@@ -100,18 +87,14 @@ class RunCallback:
         from sheeprl.utils.callback import CheckpointCallback
 
         self.checkpointer = CheckpointCallback(keep_last=keep_last)
-        self.work_dir = Path(work_dir)
-        self.settings = settings
-        self.frame_shape = frame_shape
-        self.action_space = action_space
-        self.evaluation = evaluation
-        self.save_every, self.total_steps = save_every, total_steps
+        self.work_dir, self.settings, self.evaluation = Path(work_dir), settings, evaluation
+        self.frame_shape, self.action_space = frame_shape, action_space
+        self.save_every, self.total_steps, self.on_weights = save_every, total_steps, on_weights
         self.log_prefix: str | None = None  # print a line per evaluation, after this prefix
         self.start_step = 0  # the step this call of learn starts from (for the speed in the lines)
         self._start_time = time.monotonic()
         self.config: Any = None  # the run's resolved sheeprl configuration, set before training starts
         self.last_state: dict[str, Any] | None = None
-        self.on_weights = on_weights
         self.last_checkpoint: str | None = None
 
     def on_checkpoint_coupled(
@@ -134,8 +117,7 @@ class RunCallback:
     def _evaluate(self, fabric: Any, state: dict[str, Any], step: int) -> None:
         assert self.evaluation is not None and self.config is not None
         evaluation = self.evaluation
-        # A player with this checkpoint's weights, built without drawing from the training's random streams
-        with forked_rng(fabric.device):
+        with forked_rng(fabric.device):  # the training's random stream untouched
             player = Player(fabric, self.config, self.frame_shape, self.action_space, state)
         seed = evaluation_seed(evaluation.seed, step)
         mean_return, success = run_episodes(
@@ -149,15 +131,14 @@ class RunCallback:
             print(f"{self.log_prefix}{self._progress(step)}  return {mean_return:.1f} (evaluation)", flush=True)
 
     def _progress(self, step: int) -> str:
-        """``step 2000/500000 (0.4%)  12 steps/s``: the speed over this call of ``learn`` (evaluations included)."""
+        """``step 2000/500000 (0.4%)  12 steps/s``, over this call of ``learn``."""
         elapsed = time.monotonic() - self._start_time
         speed = (step - self.start_step) / elapsed if elapsed > 0 else 0.0
         return f"step {step}/{self.total_steps} ({100 * step / max(self.total_steps, 1):.1f}%)  {speed:.1f} steps/s"
 
 
 def live_callback(token: str) -> Any:
-    """Hydra target of the run's Fabric callback: the registered object (a :class:`RunCallback`, or the timing
-    callback of :mod:`sb3_ef.dreamerv3.timing`), which sheeprl calls at its checkpoint steps."""
+    """Hydra target of the run's Fabric callback: the registered object with ``on_checkpoint_coupled``."""
     callback = live.lookup(token)
     if not callable(getattr(callback, "on_checkpoint_coupled", None)):
         raise TypeError(f"{token!r} names a {type(callback).__name__}, which has no on_checkpoint_coupled")

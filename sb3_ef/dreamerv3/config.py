@@ -1,10 +1,6 @@
-"""sheeprl's configuration of a Dreamer-v3 run, composed from its own Hydra files and sb3-ef's arguments.
-
-The algorithm's settings start from sheeprl's ``exp=dreamer_v3`` experiment with the model preset
-``algo=dreamer_v3_<model_size>``; :class:`~sb3_ef.dreamerv3.DreamerV3`'s named arguments set the training recipe,
-``sheeprl_overrides`` any other key of sheeprl's configuration (``{"algo.horizon": 15}``), and the run's session
-(env, Fabric, callbacks, folders, steps, checkpoints) is set here and cannot be overridden.
-"""
+"""sheeprl's configuration of a Dreamer-v3 run: its ``exp=dreamer_v3`` experiment and ``algo=dreamer_v3_<size>``
+preset, the recipe from ``DreamerV3``'s arguments and ``sheeprl_overrides``, and the run's session (env, Fabric,
+callbacks, folders, steps, checkpoints), which cannot be overridden."""
 
 from __future__ import annotations
 
@@ -23,30 +19,16 @@ MODEL_SIZES = ("XS", "S", "M", "L", "XL")
 FRAME_KEY = "rgb"
 #: Keys (and the sections below them) that the run sets itself, with the argument that sets them instead.
 SESSION_KEYS = {
-    "seed": "seed",
-    "algo.total_steps": "learn(total_timesteps)",
-    "algo.per_rank_batch_size": "batch_size",
-    "algo.per_rank_sequence_length": "sequence_length",
-    "algo.replay_ratio": "replay_ratio",
-    "algo.learning_starts": "learning_starts",
-    "algo.cnn_keys": "the env (frames only)",
-    "algo.mlp_keys": "the env (frames only)",
-    "algo.run_test": "learn's evaluation",
-    "buffer.size": "buffer_size",
-    "buffer.checkpoint": "the run (replay buffers are checkpointed)",
-    "env": "env",
-    "checkpoint": "learn's checkpoint_freq / keep_checkpoints",
-    "fabric.accelerator": "device",
-    "fabric.devices": "device",
-    "fabric.num_nodes": "the run (one device)",
-    "fabric.strategy": "the run (one device)",
-    "fabric.callbacks": "the run (evaluation and checkpoints)",
-    "log_root": "work_dir",
-    "root_dir": "work_dir",
-    "run_name": "work_dir",
-    "model_manager": "the run (no MLflow)",
-    "dry_run": "the run",
-}
+    "seed": "seed", "algo.total_steps": "learn(total_timesteps)", "algo.per_rank_batch_size": "batch_size",
+    "algo.per_rank_sequence_length": "sequence_length", "algo.replay_ratio": "replay_ratio",
+    "algo.learning_starts": "learning_starts", "algo.cnn_keys": "the env (frames only)",
+    "algo.mlp_keys": "the env (frames only)", "algo.run_test": "learn's evaluation", "buffer.size": "buffer_size",
+    "buffer.checkpoint": "the run (replay buffers are checkpointed)", "env": "env",
+    "checkpoint": "learn's checkpoint_freq / keep_checkpoints", "fabric.accelerator": "device",
+    "fabric.devices": "device", "fabric.num_nodes": "the run (one device)", "fabric.strategy": "the run (one device)",
+    "fabric.callbacks": "the run (evaluation and checkpoints)", "log_root": "work_dir", "root_dir": "work_dir",
+    "run_name": "work_dir", "model_manager": "the run (no MLflow)", "dry_run": "the run",
+}  # fmt: skip
 
 
 def require_sheeprl() -> Any:
@@ -101,7 +83,7 @@ class Recipe:
 
 
 def _dotted_keys(cfg: Any, prefix: str = "") -> Iterator[str]:
-    """Every key of a configuration, dotted, sections and their keys."""
+    """Every key of a configuration, dotted, sections included."""
     from omegaconf import OmegaConf
 
     for key in cfg:
@@ -113,9 +95,8 @@ def _dotted_keys(cfg: Any, prefix: str = "") -> Iterator[str]:
 
 
 def _type_mismatch(current: Any, value: Any) -> str | None:
-    """What ``value`` should be to replace ``current`` (a resolved configuration value), or ``None`` when it fits:
-    the same kind (a whole number for an integer, a number for a float, a list for a list, a dict for a section);
-    ``None`` in the configuration takes anything, ``None`` as a value replaces anything."""
+    """What ``value`` should be to replace ``current`` (a configuration value of the same kind; ``None`` on either
+    side fits), or ``None`` when it fits."""
     from omegaconf import OmegaConf
 
     if current is None or value is None:
@@ -135,9 +116,8 @@ def _type_mismatch(current: Any, value: Any) -> str | None:
 
 
 def _set(cfg: Any, key: str, value: Any, typed: bool = True) -> None:
-    """Set an existing key of sheeprl's configuration (to a value of its type when ``typed``); an unknown key (a typo
-    sheeprl would ignore) or a value of another type (one sheeprl's loop would fail on) is an error naming what was
-    expected."""
+    """Set an existing key of sheeprl's configuration (to a value of its type when ``typed``): a typo sheeprl would
+    ignore, or a type its loop would fail on, is refused here."""
     from omegaconf import OmegaConf
 
     parent_key, _, leaf = key.rpartition(".")
@@ -157,26 +137,19 @@ def _set(cfg: Any, key: str, value: Any, typed: bool = True) -> None:
 
 
 def compose_config(recipe: Recipe) -> Any:
-    """sheeprl's Dreamer-v3 configuration with ``recipe`` applied (an OmegaConf ``DictConfig``; session keys are
-    set by :func:`set_session`)."""
+    """sheeprl's Dreamer-v3 configuration (a ``DictConfig``) with ``recipe`` applied."""
     require_sheeprl()
     from hydra import compose, initialize_config_module
 
     with initialize_config_module("sheeprl.configs", version_base="1.3"):
         cfg = compose("config", overrides=["exp=dreamer_v3", "env=default", f"algo=dreamer_v3_{recipe.model_size}"])
     for key, value in {
-        "algo.per_rank_batch_size": recipe.batch_size,
-        "algo.per_rank_sequence_length": recipe.sequence_length,
-        "algo.replay_ratio": float(recipe.replay_ratio),
-        "algo.learning_starts": recipe.learning_starts,
-        "algo.cnn_keys.encoder": [FRAME_KEY],
-        "algo.mlp_keys.encoder": [],
-        "algo.run_test": False,
-        "buffer.size": recipe.buffer_size,
-        "buffer.checkpoint": True,
-        "metric.log_level": 0,
+        "algo.per_rank_batch_size": recipe.batch_size, "algo.per_rank_sequence_length": recipe.sequence_length,
+        "algo.replay_ratio": float(recipe.replay_ratio), "algo.learning_starts": recipe.learning_starts,
+        "algo.cnn_keys.encoder": [FRAME_KEY], "algo.mlp_keys.encoder": [], "algo.run_test": False,
+        "buffer.size": recipe.buffer_size, "buffer.checkpoint": True, "metric.log_level": 0,
         "model_manager.disabled": True,
-    }.items():
+    }.items():  # fmt: skip
         _set(cfg, key, value, typed=False)  # the recipe's own values (a float replay ratio where sheeprl has 1)
     for key, value in recipe.sheeprl_overrides.items():
         _set(cfg, key, value)
@@ -185,8 +158,7 @@ def compose_config(recipe: Recipe) -> Any:
 
 @dataclass(frozen=True)
 class Session:
-    """What one call of ``learn`` sets: the env and callback tokens (:mod:`sb3_ef.dreamerv3.live`), where the run
-    writes, how long it trains and how it checkpoints, on which device."""
+    """What one call of ``learn`` sets: the live env and callback tokens, folders, steps, checkpoints, device."""
 
     env_token: str
     callback_token: str
@@ -216,10 +188,7 @@ def set_session(cfg: Any, session: Session) -> None:
 
     accelerator, devices = fabric_device(session.device)
     with open_dict(cfg):
-        cfg.seed = session.seed
-        cfg.dry_run = False
-        cfg.log_root = session.work_dir
-        cfg.root_dir = "sheeprl"
+        cfg.update(seed=session.seed, dry_run=False, log_root=session.work_dir, root_dir="sheeprl")
         cfg.run_name = session.run_name
         cfg.algo.total_steps = session.total_steps
         cfg.env = OmegaConf.merge(
@@ -236,14 +205,9 @@ def set_session(cfg: Any, session: Session) -> None:
                 "wrapper": {"_target_": "sb3_ef.dreamerv3.env.live_env", "token": session.env_token},
             },
         )
-        cfg.checkpoint.every = session.checkpoint_every
-        cfg.checkpoint.keep_last = session.keep_last
-        cfg.checkpoint.save_last = True
-        cfg.checkpoint.resume_from = session.resume_from
-        cfg.fabric.accelerator = accelerator
-        cfg.fabric.devices = devices
-        cfg.fabric.num_nodes = 1
-        cfg.fabric.strategy = "auto"
-        cfg.fabric.callbacks = [
-            {"_target_": "sb3_ef.dreamerv3.callbacks.live_callback", "token": session.callback_token}
-        ]
+        cfg.checkpoint.update(
+            every=session.checkpoint_every, keep_last=session.keep_last, save_last=True,
+            resume_from=session.resume_from,
+        )  # fmt: skip
+        callback = {"_target_": "sb3_ef.dreamerv3.callbacks.live_callback", "token": session.callback_token}
+        cfg.fabric.update(accelerator=accelerator, devices=devices, num_nodes=1, strategy="auto", callbacks=[callback])

@@ -1,17 +1,10 @@
-"""``DreamerV3``: sheeprl's Dreamer-v3 behind a Stable-Baselines3-style interface (learn / predict / save / load).
+"""``DreamerV3``: sheeprl's Dreamer-v3 (its networks, replay buffer and training loop, run in this process) behind
+SB3's learn / predict / save / load.
 
-Dreamer-v3 itself is sheeprl's (``sheeprl.algos.dreamer_v3``, its world model, actor-critic, replay buffer and
-training loop): this class composes sheeprl's configuration, hands it the env, runs its training entry point in
-this process, and acts with sheeprl's player. What differs from SB3's algorithms follows from that:
-
-- ``learn`` calls SB3 callbacks after each env step (from the env sheeprl steps); one that returns ``False`` stops
-  the run there, and the model keeps the weights of the newest evaluation or checkpoint step (sheeprl's loop keeps
-  its networks to itself between them); ``evaluation`` / ``checkpoint_freq`` evaluate and checkpoint at sheeprl's
-  own checkpoint steps (:mod:`sb3_ef.dreamerv3.callbacks`);
-- ``learn(n, reset_num_timesteps=False)`` continues from the newest checkpoint, with its replay buffer, as
-  sheeprl's resume does (the env starts a new episode there); a trained model does not restart its step count
-  (``learn`` with ``reset_num_timesteps=True`` is refused once it has trained);
-- the env is one gymnasium env of stacked frames (sb3-ef's); Dreamer-v3 reads the newest frame of each observation.
+SB3 callbacks run after each env step; one returning ``False`` stops the run with the weights of the newest
+evaluation or checkpoint step (sheeprl keeps its networks to itself between them). ``learn(n,
+reset_num_timesteps=False)`` continues from the newest checkpoint as sheeprl's resume does; a trained model does not
+restart its step count.
 """
 
 from __future__ import annotations
@@ -46,31 +39,26 @@ from sb3_ef.dreamerv3.player import Player, forked_rng
 from sb3_ef.dreamerv3.saving import PathOrFile, read_model, write_model
 from sb3_ef.dreamerv3.training import resolved_config, run
 
-#: The policy name a zoo entry gives (Dreamer-v3 has one network design: sheeprl's, sized by ``model_size``).
+#: The only policy: sheeprl's networks, sized by ``model_size``.
 POLICY = "CnnPolicy"
-#: The name of the configuration file of a sheeprl run folder.
-_CONFIG = "config.yaml"
 
 
 class DreamerV3:
     """Dreamer-v3 (Hafner et al., 2023), trained by sheeprl on an sb3-ef pixel env.
 
-    :param policy: ``"CnnPolicy"`` (the only one: the networks are sheeprl's).
-    :param env: one gymnasium env of stacked uint8 RGB frames, channels-first, square, of a power-of-2 size
-        (``make_env(..., size=64)``), Box actions; ``None`` only when loading a model to act with.
+    :param policy: ``"CnnPolicy"`` (the networks are sheeprl's).
+    :param env: one gymnasium env of stacked uint8 RGB frames, channels-first, square, of a power-of-2 size, Box
+        actions; ``None`` only when loading a model to act with.
     :param model_size: sheeprl's preset ``XS``, ``S`` (the authors' DMC-vision model), ``M``, ``L`` or ``XL``.
-    :param replay_ratio: gradient steps per env (agent) step; the authors' ``train_ratio`` divided by
-        ``batch_size * sequence_length``.
+    :param replay_ratio: gradient steps per agent step (the authors' ``train_ratio / (batch_size * sequence_length)``).
     :param batch_size: sequences per gradient step.
     :param sequence_length: steps per sequence.
     :param buffer_size: replay capacity in steps.
     :param learning_starts: random-action steps before training (sheeprl also waits for one whole sequence).
     :param sheeprl_overrides: other keys of sheeprl's configuration, dotted (``{"algo.horizon": 15}``).
-    :param work_dir: where sheeprl writes its runs, checkpoints and memory-mapped replay buffer (default: a new
-        temporary folder).
-    :param seed: the run's seed (sheeprl seeds Python, NumPy, torch and the env with it); default a random one.
-    :param device: ``auto``, ``cpu``, ``cuda`` or ``cuda:<index>``; CUDA asked for on a machine without it falls
-        back to the CPU with a warning, as the other algorithms do.
+    :param work_dir: where sheeprl writes its runs, checkpoints and replay buffer (default: a new temporary folder).
+    :param seed: the run's seed (of Python, NumPy, torch and the env); default a random one.
+    :param device: ``auto``, ``cpu``, ``cuda`` or ``cuda:<index>`` (missing CUDA: the CPU, with a warning).
     :param verbose: 1 prints a line per evaluation.
     """
 
@@ -157,11 +145,9 @@ class DreamerV3:
         keep_checkpoints: int | None = None,
         log_prefix: str | None = None,
     ) -> DreamerV3:
-        """Train ``total_timesteps`` agent steps (more, with ``reset_num_timesteps=False``, from the newest
-        checkpoint), calling ``callback`` (SB3 callbacks) after each env step; evaluate every ``evaluation.freq``
-        steps; checkpoint every ``checkpoint_freq`` steps (a multiple of ``evaluation.freq``; default: at the end
-        only) keeping the newest ``keep_checkpoints``; print a progress line per evaluation after ``log_prefix`` (and
-        with ``verbose=1``)."""
+        """Train ``total_timesteps`` agent steps (from the newest checkpoint with ``reset_num_timesteps=False``),
+        evaluating every ``evaluation.freq`` steps and checkpointing every ``checkpoint_freq`` (a multiple of it;
+        default: at the end) keeping ``keep_checkpoints``; a line per evaluation after ``log_prefix``."""
         if isinstance(total_timesteps, bool) or not isinstance(total_timesteps, int) or total_timesteps < 1:
             raise ValueError(f"total_timesteps must be a positive integer, got {total_timesteps!r}")
         if self.env is None:
@@ -208,11 +194,11 @@ class DreamerV3:
         return self
 
     def _take_weights(self, state: dict[str, Any]) -> None:
-        """Act with ``state`` from now on (sheeprl's newest weights, at one of its checkpoint steps)."""
+        """Act with sheeprl's newest weights from now on."""
         self._state, self._player = state, None
 
     def _check_frames(self, frame_size: tuple[int, ...], given_by: str) -> None:
-        """Refuse frames (``(h, w)``) that Dreamer-v3 cannot read, or of another size than the model trained on."""
+        """Refuse frames ``(h, w)`` Dreamer-v3 cannot read, or of another size than it trained on."""
         height, width = (int(size) for size in frame_size)
         check_frame_size(height, width)
         if self._state is None and self._checkpoint is None:
@@ -240,8 +226,8 @@ class DreamerV3:
 
     @classmethod
     def resume(cls, work_dir: str | os.PathLike, env: gym.Env, device: str = "auto") -> DreamerV3 | None:
-        """The model of the run in ``work_dir`` at its latest complete checkpoint (``learn(n,
-        reset_num_timesteps=False)`` continues it), or ``None`` when the run has no checkpoint yet."""
+        """The run in ``work_dir`` at its latest complete checkpoint (to ``learn(n, reset_num_timesteps=False)``), or
+        ``None`` before its first."""
         latest = read_latest(work_dir)
         if latest is None:
             return None
@@ -285,10 +271,8 @@ class DreamerV3:
         episode_start: np.ndarray | None = None,
         deterministic: bool = False,
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
-        """The action(s) for one observation ``(3 * k, h, w)`` or a batch ``(n, 3 * k, h, w)`` of stacked uint8
-        frames (the newest frame is read), and the player's memory after it, to pass back as ``state`` at the next
-        step (as SB3's recurrent policies do). ``state=None`` starts every env's episode; ``episode_start`` marks
-        the envs whose episode starts at this observation; ``deterministic`` takes the policy's mode."""
+        """The action(s) for stacked uint8 frames ``(3 * k, h, w)`` or ``(n, 3 * k, h, w)`` and the player's memory,
+        to pass back as ``state`` (as SB3's recurrent policies do; ``None`` starts every episode)."""
         batch = np.asarray(observation)
         single = batch.ndim == 3
         batch = batch[np.newaxis] if single else batch
@@ -329,8 +313,8 @@ class DreamerV3:
         return player
 
     def save(self, path: PathOrFile) -> None:
-        """Write the model (settings, sheeprl's configuration, weights and optimiser states; no replay buffer) to one
-        zip file, atomically (``.zip`` added to a path without a suffix, as SB3 does), or into an open binary file."""
+        """Write settings, sheeprl's configuration, weights and optimiser states (no replay buffer) to one zip, whole
+        or not at all (``.zip`` added to a path without a suffix), or into an open binary file."""
         config = self._config()
         space = self.action_space
         info = {
@@ -354,10 +338,8 @@ class DreamerV3:
         device: str = "auto",
         work_dir: str | os.PathLike | None = None,
     ) -> DreamerV3:
-        """A model written by :meth:`save` (a path, with or without its ``.zip``, or an open binary file). Without
-        ``env`` it acts (:meth:`predict`); with one, ``learn(n, reset_num_timesteps=False)`` continues it (with a new
-        replay buffer: sheeprl fills it, acting with the loaded policy for ``learning_starts`` steps, before training
-        again)."""
+        """A model :meth:`save` wrote. With ``env``, ``learn(n, reset_num_timesteps=False)`` continues it with a new
+        replay buffer, filled for ``learning_starts`` steps by the loaded policy."""
         from omegaconf import OmegaConf
         from sheeprl.utils.utils import dotdict
 
@@ -369,11 +351,11 @@ class DreamerV3:
         model._saved_action_space = gym.spaces.Box(
             np.array(space["low"], dtype=space["dtype"]), np.array(space["high"], dtype=space["dtype"])
         )
-        # A sheeprl run folder (config.yaml beside checkpoint/), from which sheeprl's resume continues
+        # A sheeprl run folder for sheeprl's resume: config.yaml beside checkpoint/
         step = int(info["num_timesteps"])
         folder = model.work_dir / "loaded"
         (folder / "checkpoint").mkdir(parents=True, exist_ok=True)
-        write_atomically(folder / _CONFIG, lambda file: file.write(config))
+        write_atomically(folder / "config.yaml", lambda file: file.write(config))
         checkpoint = folder / "checkpoint" / f"ckpt_{step}_0.ckpt"
         write_atomically(checkpoint, lambda file: file.write(weights))
         model._checkpoint, model._buffer_in_checkpoint, model.num_timesteps = str(checkpoint), False, step
@@ -385,13 +367,11 @@ class DreamerV3:
 
 
 def _sb3_callback(callback: MaybeCallback, progress_bar: bool) -> BaseCallback | None:
-    """SB3's callbacks as one (a list as a ``CallbackList``, with SB3's progress bar when ``progress_bar``)."""
-    given = list(callback) if isinstance(callback, list) else ([] if callback is None else [callback])
-    callbacks: list[BaseCallback] = []
-    for one in given:
+    """SB3's callbacks as one, with SB3's progress bar when ``progress_bar``."""
+    callbacks = list(callback) if isinstance(callback, list) else ([] if callback is None else [callback])
+    for one in callbacks:
         if not isinstance(one, BaseCallback):
             raise ValueError(f"callback must be an SB3 BaseCallback or a list of them, got {type(one).__name__}")
-        callbacks.append(one)
     if progress_bar:
         callbacks.append(ProgressBarCallback())
     if not callbacks:

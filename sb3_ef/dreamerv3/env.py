@@ -1,11 +1,5 @@
-"""What Dreamer-v3 sees of an sb3-ef env: the newest RGB frame of its stacked observation.
-
-sb3-ef's envs (``make_env``, the toy env) emit ``(3 * frame_stack, size, size)`` uint8 frames, channels-first,
-oldest first. Dreamer-v3 keeps its own memory (the recurrent state of its world model) and reads one frame per
-step, so :class:`NewestFrame` passes on ``obs[-3:]``: the ``(3, size, size)`` uint8 RGB frame of the current step,
-channels-first, as sheeprl's pixel observations are. Actions, rewards, ``terminated`` / ``truncated`` (time limits)
-and infos pass through unchanged; action repeat is the env's own (``make_env``'s ``action_repeat``).
-"""
+"""What Dreamer-v3 sees of an sb3-ef env: the newest ``(3, size, size)`` RGB frame of its stacked observation (its
+world model keeps its own memory); actions, rewards, episode ends, infos and action repeat are the env's."""
 
 from __future__ import annotations
 
@@ -20,8 +14,7 @@ from sb3_ef.dreamerv3 import live
 
 
 def task_id(env: gym.Env) -> str:
-    """The env's name for sheeprl (its ``env.id``, which a resumed run must share): the gymnasium id, ``/`` as
-    ``-``, or the class name of an env made without ``gym.make``."""
+    """sheeprl's ``env.id`` (a resumed run must share it): the gymnasium id with ``-`` for ``/``, or the class name."""
     name = env.spec.id if env.spec is not None else type(env.unwrapped).__name__
     return name.replace("/", "-")
 
@@ -36,9 +29,9 @@ def check_frame_size(height: int, width: int) -> None:
 
 
 class NewestFrame(gym.ObservationWrapper):
-    """The newest RGB frame of an env of stacked frames (see the module docstring).
+    """The newest RGB frame of an env of stacked frames.
 
-    :param env: an env whose observations are stacked uint8 RGB frames, channels-first, with Box actions.
+    :param env: an env of stacked uint8 RGB frames, channels-first, with Box actions.
     """
 
     def __init__(self, env: gym.Env):
@@ -53,15 +46,13 @@ class NewestFrame(gym.ObservationWrapper):
 
 
 class StopTraining(BaseException):
-    """Raised from the env's ``step`` when an SB3 callback returns ``False``: it ends sheeprl's loop there. A
-    ``BaseException``, so that sheeprl's ``RestartOnException`` (which rebuilds an env that raised an ``Exception``)
-    lets it through."""
+    """Raised from ``step`` when an SB3 callback returns ``False``; a ``BaseException`` so that sheeprl's
+    ``RestartOnException`` lets it through."""
 
 
 class StepCallbacks(gym.Wrapper):
-    """An env that counts the steps sheeprl takes (one per agent step: sheeprl resets an ended episode in the same
-    step) on ``model.num_timesteps`` and calls the SB3 callback ``callback.on_step()`` after each, as SB3's
-    algorithms do after each env step; ``False`` raises :class:`StopTraining`.
+    """Counts sheeprl's env steps on ``model.num_timesteps`` and calls ``callback.on_step()`` after each, as SB3
+    does; ``False`` raises :class:`StopTraining`.
 
     :param locals_: the dict the callback reads as ``callback.locals`` (updated with each step's values).
     """
@@ -83,15 +74,13 @@ class StepCallbacks(gym.Wrapper):
 
 
 class _KeptOpen(gym.Wrapper):
-    """An env whose ``close`` leaves it open: sheeprl closes its envs at the end of training, but the env belongs
-    to the caller (as with SB3, who closes it)."""
+    """An env sheeprl's ``close`` leaves open: it belongs to the caller, as with SB3."""
 
     def close(self) -> None:
         pass
 
 
 def live_env(token: str) -> gym.Env:
-    """Hydra target of sheeprl's ``env.wrapper``: the registered env (:mod:`sb3_ef.dreamerv3.live`), newest frame
-    first, left open by sheeprl."""
+    """Hydra target of sheeprl's ``env.wrapper``: the registered env's newest frames, left open by sheeprl."""
     env = live.lookup(token)
     return _KeptOpen(NewestFrame(env))

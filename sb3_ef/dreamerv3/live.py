@@ -1,10 +1,5 @@
-"""Python objects handed to sheeprl through its configuration.
-
-sheeprl builds its envs and Fabric callbacks from its (Hydra) configuration, which holds plain values only. The env
-and the callback of a training run are objects of this process (the user's env, the evaluation that writes the
-records), so the configuration names them by a token, and the Hydra targets below look the token up here. A token
-lives as long as the training run that registered it (:func:`registered`).
-"""
+"""Objects of this process (the user's env, the run's callback) handed to sheeprl, whose Hydra configuration holds
+plain values only: it names them by a token, looked up here, that lives as long as its training run."""
 
 from __future__ import annotations
 

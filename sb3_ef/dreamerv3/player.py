@@ -15,14 +15,12 @@ from sb3_ef.dreamerv3.config import FRAME_KEY
 
 
 def forked_rng(device: th.device) -> AbstractContextManager[None]:
-    """torch's random state (of the CPU and of ``device``) restored at the end of the block: a block drawing
-    random numbers (building a player, evaluating) leaves the caller's random stream as it was."""
+    """torch's random state (CPU and ``device``) restored at the end of the block."""
     return th.random.fork_rng(devices=[device.index or 0] if device.type == "cuda" else [])
 
 
 def env_actions(actions: np.ndarray, action_space: gym.spaces.Box, normalize: bool) -> np.ndarray:
-    """The actor's actions (in [-1, 1] on the bounded dimensions when ``normalize``) in the env's bounds, as
-    sheeprl's ``NormalizeAction`` wrapper gives them to the env during training."""
+    """The actor's actions in the env's bounds, as sheeprl's ``NormalizeAction`` gives them in training."""
     if not normalize:
         return actions.astype(action_space.dtype, copy=False)
     bounded = np.isfinite(action_space.low) & np.isfinite(action_space.high)
@@ -32,8 +30,7 @@ def env_actions(actions: np.ndarray, action_space: gym.spaces.Box, normalize: bo
 
 
 def distribution_mode(distribution: th.distributions.Distribution) -> th.Tensor:
-    """The mode of one of sheeprl's action distributions: torch's ``mode``, and for a transformed distribution
-    (tanh-normal) its base distribution's mode through its transforms."""
+    """The mode of a sheeprl action distribution (of a transformed one: its base's mode through the transforms)."""
     inner = distribution
     while isinstance(inner, th.distributions.Independent):
         inner = inner.base_dist
@@ -46,8 +43,7 @@ def distribution_mode(distribution: th.distributions.Distribution) -> th.Tensor:
 
 
 class Player:
-    """sheeprl's Dreamer-v3 player for ``n_envs`` envs of ``action_space``, with the weights of a checkpoint's
-    ``state``; :meth:`act` takes one ``(n_envs, 3, h, w)`` uint8 frame per env and updates the recurrent state.
+    """sheeprl's Dreamer-v3 player for ``n_envs`` envs with a checkpoint ``state``'s weights, a frame per env a step.
 
     :param fabric: the Lightning Fabric the models are set up with (its device and precision).
     :param cfg: the run's resolved sheeprl configuration (a ``dotdict``).
@@ -86,7 +82,7 @@ class Player:
         self.player.init_states()
 
     def reset(self, envs: list[int] | None = None) -> None:
-        """Start new episodes in ``envs`` (all by default): the initial recurrent state and a zero action."""
+        """Start new episodes in ``envs`` (all by default)."""
         self.player.init_states(envs)
 
     @th.no_grad()
@@ -103,9 +99,7 @@ class Player:
         return env_actions(actions.reshape(n_envs, -1).cpu().numpy(), self.action_space, self.normalize)
 
     def _modes(self, observation: dict[str, th.Tensor]) -> th.Tensor:
-        """sheeprl's acting step with nothing drawn: the posterior's mode (each categorical latent's most likely
-        class) and the actor's mode (its distribution's mode before the squashing transforms, then through them),
-        clipped as sheeprl clips its actions. sheeprl's own greedy step samples both."""
+        """sheeprl's acting step with the posterior's and the actor's modes (sheeprl's greedy step samples both)."""
         from sheeprl.algos.dreamer_v2.utils import compute_stochastic_state
         from sheeprl.algos.dreamer_v3.agent import clip_actions
 
@@ -124,7 +118,7 @@ class Player:
         return player.actions
 
     def recurrent_state(self) -> tuple[np.ndarray, ...]:
-        """The per-env memory of the player: recurrent state, stochastic state, previous action (numpy copies)."""
+        """The per-env recurrent state, stochastic state and previous action (numpy copies)."""
         return tuple(t.detach().cpu().numpy().copy() for t in self._state_tensors())
 
     def set_recurrent_state(self, state: tuple[np.ndarray, ...]) -> None:
@@ -146,11 +140,8 @@ class Player:
 def run_episodes(
     player: Player, env: gym.Env, n_episodes: int, seed: int, greedy: bool = False
 ) -> tuple[float, float | None]:
-    """Mean return over ``n_episodes`` episodes on ``env`` (stacked frames), the first reset with ``seed``, the
-    actions sampled (the policy's mode when ``greedy``); and the fraction of episodes whose last
-    ``info["is_success"]`` was true (``None`` when the env reports none). The player's draws (actions, posterior
-    states) come from torch's generator seeded with ``seed`` and restored afterwards, so an evaluation is
-    reproducible and leaves the training's random stream as it was."""
+    """Mean return over ``n_episodes`` episodes and the success rate (``None`` without ``info["is_success"]``); the
+    env and torch seeded with ``seed``, torch's random state restored afterwards."""
     returns, successes = [], []
     with forked_rng(player.device):
         th.manual_seed(seed)

@@ -1,7 +1,5 @@
-"""The zip file of a saved :class:`~sb3_ef.dreamerv3.DreamerV3`, read and written as SB3 reads and writes its own:
-a path without a suffix gets ``.zip``, a file object is written to or read from directly, and the entry ``data``
-(JSON) names the class that saved it, so that another class's ``load`` (and ``sb3-ef analyze model``) names it
-(:func:`sb3_ef.common.saved_models.check_saved_model`)."""
+"""The zip of a saved ``DreamerV3``, as SB3's: ``.zip`` added to a path without a suffix, file objects used directly,
+and the ``data`` entry naming the class that saved it (:func:`sb3_ef.common.saved_models.check_saved_model`)."""
 
 from __future__ import annotations
 
@@ -23,8 +21,7 @@ PathOrFile = str | os.PathLike | IO[bytes] | io.BufferedIOBase
 
 
 def write_model(path: PathOrFile, info: dict[str, Any], config: str, weights: bytes) -> None:
-    """Write the three entries to ``path`` (``.zip`` added when it has no suffix; complete or not at all) or into
-    an open binary file."""
+    """Write the three entries to ``path`` (whole or not at all) or into an open binary file."""
 
     def write(file: Any) -> None:
         with zipfile.ZipFile(file, "w") as archive:
@@ -43,8 +40,7 @@ def write_model(path: PathOrFile, info: dict[str, Any], config: str, weights: by
 
 
 def read_model(path: PathOrFile) -> tuple[dict[str, Any], bytes, bytes]:
-    """The settings, sheeprl configuration and weights of a file :func:`write_model` wrote: ``path`` as given, or
-    with ``.zip`` added when that is the file; or an open binary file."""
+    """The settings, sheeprl configuration and weights that :func:`write_model` wrote."""
     source: Any = path
     if isinstance(path, (str, os.PathLike)):
         given = Path(path)

@@ -1,5 +1,5 @@
-"""One training call into sheeprl: its configuration resolved and checked as ``sheeprl`` (its command line) does,
-then its Dreamer-v3 entry point run in this process, on one device."""
+"""One training call into sheeprl: its configuration resolved and checked as its command line does, then its
+Dreamer-v3 entry point run in this process."""
 
 from __future__ import annotations
 
@@ -11,12 +11,10 @@ from sb3_ef.dreamerv3.config import Session, set_session
 
 
 def resolved_config(cfg: Any, session: Session, buffer_in_checkpoint: bool = True) -> Any:
-    """``cfg`` with the session set, merged with the configuration of the run it resumes (``session.resume_from``:
-    the resumed run continues with its own settings, as sheeprl's resume does), resolved into sheeprl's
-    ``dotdict`` and checked by sheeprl.
+    """``cfg`` with the session set, merged into the resumed run's own configuration as sheeprl's resume does,
+    resolved into sheeprl's ``dotdict`` and checked by sheeprl.
 
-    :param buffer_in_checkpoint: whether the resumed checkpoint holds its replay buffer (a saved model does not:
-        sheeprl then fills a new buffer, acting with the loaded policy for ``learning_starts`` steps).
+    :param buffer_in_checkpoint: whether the resumed checkpoint holds its replay buffer (a saved model does not).
     """
     from omegaconf import OmegaConf, open_dict
     from sheeprl.cli import check_configs, resume_from_checkpoint
@@ -34,9 +32,7 @@ def resolved_config(cfg: Any, session: Session, buffer_in_checkpoint: bool = Tru
 
 
 def run(resolved: Any) -> None:
-    """Run sheeprl's Dreamer-v3 on ``resolved`` (:func:`resolved_config`). sheeprl sets process-wide torch settings
-    (the default of the distributions' argument checks, float32 matmul precision, cuDNN benchmark and determinism,
-    deterministic algorithms); they are put back afterwards, so other models in the process keep theirs."""
+    """Run sheeprl's Dreamer-v3 on ``resolved``, putting back the process-wide torch settings sheeprl changes."""
     from sheeprl.cli import run_algorithm
 
     settings = (
