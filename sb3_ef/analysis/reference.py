@@ -38,62 +38,45 @@ class Reference:
     label: str
     file: str
     x_column: str  # the records' column on the same axis: "frame" or "step"
-    axis: str  # the x-axis label of the plots
     unit: str
     source: str
     action_repeat: int | None  # of the official runs, where the source records it
     version: str = "official"  # the agent's version (and model size) where more than one was published
 
+    @property
+    def axis(self) -> str:
+        """The x-axis label of the plots."""
+        return "frames" if self.x_column == "frame" else "agent steps"
 
+
+_FRAMES = "frames (agent steps x action repeat; "
 REFERENCES = {
     "drqv2": Reference(
-        "DrQ-v2 (official)",
-        "drqv2_dmc.csv.gz",
-        "frame",
-        "frames",
-        "frames (agent steps x action repeat; official runs at action repeat 2)",
-        "facebookresearch/drqv2 curves/ (MIT licence)",
-        2,
+        "DrQ-v2 (official)", "drqv2_dmc.csv.gz", "frame", _FRAMES + "official runs at action repeat 2)",
+        "facebookresearch/drqv2 curves/ (MIT licence)", 2,
     ),
     "tdmpc2": Reference(
-        "TD-MPC2 (official)",
-        "tdmpc2_pixels_dmc.csv.gz",
-        "step",
-        "agent steps",
-        "agent steps (official runs at action repeat 2)",
-        "nicklashansen/tdmpc2 results/tdmpc2-pixels/ (MIT licence)",
-        2,
+        "TD-MPC2 (official)", "tdmpc2_pixels_dmc.csv.gz", "step", "agent steps (official runs at action repeat 2)",
+        "nicklashansen/tdmpc2 results/tdmpc2-pixels/ (MIT licence)", 2,
     ),
     "dreamerv3": Reference(
-        "Dreamer-v3 (official, 2024 release, model 12M)",
-        "dreamerv3_dmc_vision.csv.xz",
-        "frame",
-        "frames",
-        "frames (agent steps x action repeat; official runs at action repeat 2; one point per training episode)",
-        "danijar/dreamerv3 scores/dmc_vision-dreamerv3.json.gz at commit e3f0224 (MIT licence)",
-        2,
+        "Dreamer-v3 (official, 2024 release, model 12M)", "dreamerv3_dmc_vision.csv.xz", "frame",
+        _FRAMES + "official runs at action repeat 2; one point per training episode)",
+        "danijar/dreamerv3 scores/dmc_vision-dreamerv3.json.gz at commit e3f0224 (MIT licence)", 2,
         "2024 release (the 2025 article's scores), model 12M (the size12m preset its dmc_vision block sets)",
     ),
     "dreamerv3-2023": Reference(
-        "Dreamer-v3 (official, 2023 release, model S)",
-        "dmcvision_dreamerv3_2023.json.gz",
-        "frame",
-        "frames",
-        "frames (agent steps x action repeat; official runs at action repeat 2; a point every 30k frames)",
-        "danijar/dreamerv3 scores/data/dmcvision_dreamerv3.json.gz at commit 8fa35f8 (MIT licence)",
-        2,
+        "Dreamer-v3 (official, 2023 release, model S)", "dmcvision_dreamerv3_2023.json.gz", "frame",
+        _FRAMES + "official runs at action repeat 2; a point every 30k frames)",
+        "danijar/dreamerv3 scores/data/dmcvision_dreamerv3.json.gz at commit 8fa35f8 (MIT licence)", 2,
         "2023 paper's release, model S (its dmc_vision preset: 512 recurrent units, CNN depth 32, 2 x 512 MLPs)",
     ),
     "curl": Reference(
-        "CURL (Dreamer-v3's baseline scores)",
-        "curl_dmc_vision.csv.gz",
-        "frame",
-        "frames",
-        "frames (agent steps x action repeat; the source does not record the runs' action repeat)",
-        "danijar/dreamerv3 scores/dmc_vision-curl.json.gz (MIT licence)",
-        None,
+        "CURL (Dreamer-v3's baseline scores)", "curl_dmc_vision.csv.gz", "frame",
+        _FRAMES + "the source does not record the runs' action repeat)",
+        "danijar/dreamerv3 scores/dmc_vision-curl.json.gz (MIT licence)", None,
     ),
-}
+}  # fmt: skip
 
 
 def get_reference(name: str) -> Reference:
