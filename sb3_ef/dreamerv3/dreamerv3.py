@@ -10,6 +10,7 @@ restart its step count.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
 import os
 import tempfile
@@ -118,13 +119,7 @@ class DreamerV3:
     @property
     def settings(self) -> dict[str, Any]:
         """The constructor arguments that rebuild this model (without env, work folder and device)."""
-        recipe = self.recipe
-        return {
-            "policy": POLICY, "model_size": recipe.model_size, "replay_ratio": recipe.replay_ratio,
-            "batch_size": recipe.batch_size, "sequence_length": recipe.sequence_length,
-            "buffer_size": recipe.buffer_size, "learning_starts": recipe.learning_starts,
-            "sheeprl_overrides": dict(recipe.sheeprl_overrides), "seed": self.seed, "verbose": self.verbose,
-        }  # fmt: skip
+        return {"policy": POLICY, **dataclasses.asdict(self.recipe), "seed": self.seed, "verbose": self.verbose}
 
     @property
     def frame_shape(self) -> tuple[int, int, int]:
@@ -368,10 +363,12 @@ class DreamerV3:
 
 def _sb3_callback(callback: MaybeCallback, progress_bar: bool) -> BaseCallback | None:
     """SB3's callbacks as one, with SB3's progress bar when ``progress_bar``."""
-    callbacks = list(callback) if isinstance(callback, list) else ([] if callback is None else [callback])
-    for one in callbacks:
+    given = list(callback) if isinstance(callback, list) else ([] if callback is None else [callback])
+    callbacks: list[BaseCallback] = []
+    for one in given:
         if not isinstance(one, BaseCallback):
             raise ValueError(f"callback must be an SB3 BaseCallback or a list of them, got {type(one).__name__}")
+        callbacks.append(one)
     if progress_bar:
         callbacks.append(ProgressBarCallback())
     if not callbacks:
