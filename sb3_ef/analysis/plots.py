@@ -160,14 +160,7 @@ def plot_saliency(report: ForesightReport, path: str | os.PathLike, title: str) 
 
 def saliency_figure(report: ForesightReport, title: str):
     """The figure of :func:`plot_saliency` (open, for display or inspection)."""
-    from sb3_ef.analysis.saliency import saliency_overlay
-
-    saliency = report.saliency
-    panels = {
-        "predicted frame": saliency.frame,
-        "h_a saliency (red)": saliency_overlay(saliency.frame, saliency.agent, color=(255, 0, 0)),
-        "h_s saliency (blue)": saliency_overlay(saliency.frame, saliency.scene, color=(0, 0, 255)),
-    }
+    panels = report.saliency_panels()
     if report.rollout.agent_mask is not None:
         panels["true agent mask"] = report.rollout.agent_mask
     figure, axes = pyplot().subplots(1, len(panels), figsize=(2.4 * len(panels), 2.9))

@@ -57,15 +57,18 @@ class ForesightReport:
         """Rows: context frames, predicted frames, true frames."""
         return frame_grid([context_frames(self.rollout.first_observation), self.predicted, self.rollout.true_frames])
 
-    def saliency_image(self) -> np.ndarray:
-        """Last predicted frame, with its h_a saliency in red, with its h_s saliency in blue."""
+    def saliency_panels(self) -> dict[str, np.ndarray]:
+        """The last predicted frame, with its h_a saliency in red and with its h_s saliency in blue, by title."""
         frame = self.saliency.frame
-        panels = [
-            frame,
-            saliency_overlay(frame, self.saliency.agent, color=(255, 0, 0)),
-            saliency_overlay(frame, self.saliency.scene, color=(0, 0, 255)),
-        ]
-        return frame_grid([np.stack(panels)])
+        return {
+            "predicted frame": frame,
+            "h_a saliency (red)": saliency_overlay(frame, self.saliency.agent, color=(255, 0, 0)),
+            "h_s saliency (blue)": saliency_overlay(frame, self.saliency.scene, color=(0, 0, 255)),
+        }
+
+    def saliency_image(self) -> np.ndarray:
+        """The :meth:`saliency_panels` side by side."""
+        return frame_grid([np.stack(list(self.saliency_panels().values()))])
 
     def scalars(self) -> dict[str, float]:
         """``prediction_mse`` (pixels in [0, 1]) and ``mask_precision`` / ``mask_recall`` / ``mask_iou`` if scored."""

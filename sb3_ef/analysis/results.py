@@ -20,7 +20,7 @@ def check_results_arguments(
     directory: str, out: str, return_scale: float, reps: int, at: tuple[int, ...], reference: str | None
 ) -> None:
     """Raise a ``ValueError`` / ``FileNotFoundError`` naming the first argument that cannot work."""
-    from sb3_ef.analysis.reference import check_reference_data, get_reference
+    from sb3_ef.analysis.reference import check_reference_data
 
     if not os.path.isdir(directory):
         what = "is a file, not a folder" if os.path.exists(directory) else "does not exist"
@@ -34,8 +34,7 @@ def check_results_arguments(
     if any(step < 0 for step in at):
         raise ValueError(f"Steps (--at) must be non-negative agent steps, got {list(at)}")
     if reference is not None:
-        get_reference(reference)
-        check_reference_data(reference)
+        check_reference_data(reference)  # an unknown name first
 
 
 @dataclass
