@@ -14,6 +14,7 @@ from __future__ import annotations
 import io
 import pathlib
 import warnings
+from collections.abc import Iterable
 from typing import Any, TypeVar
 
 import numpy as np
@@ -29,7 +30,8 @@ from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_sequence_buffer
 from sb3_ef.common.exploration import ActionOverrideMixin
-from sb3_ef.common.saved_models import check_saved_model, saved_data
+from sb3_ef.common.interrupt import progress_bar_callback
+from sb3_ef.common.saved_models import check_saved_model, save_model_atomically, saved_data
 from sb3_ef.common.validation import check_learn, check_model_path, check_observation
 
 SelfHost = TypeVar("SelfHost", bound="AuxiliaryHostMixin")
@@ -169,14 +171,24 @@ class AuxiliaryHostMixin(ActionOverrideMixin):
     ) -> SelfHost:
         """SB3's ``learn``; ``tb_log_name`` defaults to the class name (so plain and EF variants log apart)."""
         check_learn(self, total_timesteps, reset_num_timesteps)
-        return super().learn(  # type: ignore[misc]
-            total_timesteps=total_timesteps,
-            callback=callback,
-            log_interval=log_interval,
-            tb_log_name=tb_log_name or type(self).__name__,
-            reset_num_timesteps=reset_num_timesteps,
-            progress_bar=progress_bar,
-        )
+        with progress_bar_callback(callback, progress_bar) as callback:
+            return super().learn(  # type: ignore[misc]
+                total_timesteps=total_timesteps,
+                callback=callback,
+                log_interval=log_interval,
+                tb_log_name=tb_log_name or type(self).__name__,
+                reset_num_timesteps=reset_num_timesteps,
+                progress_bar=False,
+            )
+
+    def save(
+        self,
+        path: str | pathlib.Path | io.BufferedIOBase,
+        exclude: Iterable[str] | None = None,
+        include: Iterable[str] | None = None,
+    ) -> None:
+        """SB3's ``save``, written whole or not at all (a temporary file beside the target, fsynced, renamed)."""
+        save_model_atomically(super().save, path, exclude, include)  # type: ignore[misc]
 
     @classmethod
     def load(

@@ -66,7 +66,6 @@ def test_ctrl_c_in_learn_with_a_progress_bar_gives_one_traceback():
     assert "Exception ignored" not in err
 
 
-@pytest.mark.xfail(strict=True, reason="the host mixin's learn does not use progress_bar_callback yet")
 def test_model_learn_with_progress_bar_true_gives_one_traceback():
     err = _interrupted_learn("learn")
     assert err.count("Traceback") == 1 and "Exception ignored" not in err, err
