@@ -145,7 +145,8 @@ def test_ef_parameters_get_a_group_of_their_own_with_the_saved_settings(host):
 
 @pytest.mark.parametrize("host", HOSTS, ids=repr)
 def test_acts_as_it_did(host):
-    np.testing.assert_array_equal(host.actions(host.load()), host.expected()["actions"])
+    # Float rounding differs across CPUs (vector instructions), not the network the file holds.
+    np.testing.assert_allclose(host.actions(host.load()), host.expected()["actions"], rtol=0, atol=1e-5)
 
 
 @pytest.mark.parametrize("host", HOSTS, ids=repr)
@@ -207,4 +208,4 @@ def test_set_parameters_reads_an_upgraded_file_into_a_model_of_the_same_sizes(ho
     expected = host.expected()
     for name, value in model.ef.state_dict().items():
         np.testing.assert_array_equal(value.numpy(), expected[f"ef/{name}"], err_msg=name)
-    np.testing.assert_array_equal(host.actions(model), expected["actions"])
+    np.testing.assert_allclose(host.actions(model), expected["actions"], rtol=0, atol=1e-5)
