@@ -1,10 +1,6 @@
 """Offline pretraining of an encoder + Ego-Foresight on (frames, actions) episodes, as in the paper's BAIR
-experiment: held-out episodes, TensorBoard scalars and image grids, resumable checkpoints and a progress bar.
-
-Files are written whole or not at all (:mod:`sb3_ef.common.files`). A resumed run must have the model
-configuration and the training settings (learning rate, batch size, shift, held-out split) of the checkpoint it
-continues; Ctrl-C saves a checkpoint at the last finished update and raises
-:class:`~sb3_ef.common.interrupt.Interrupted`.
+experiment: held-out episodes, TensorBoard scalars and image grids, atomic resumable checkpoints (a resumed run keeps
+the checkpoint's model and training settings; Ctrl-C saves one and raises ``Interrupted``) and a progress bar.
 """
 
 from __future__ import annotations
@@ -36,25 +32,11 @@ CHECKPOINT = "checkpoint.pt"
 MODEL = "model.pt"
 METRICS = "metrics.json"
 #: ``pretrain``'s arguments and the ``sb3-ef pretrain`` options that set them, for the messages.
-OPTIONS = {
-    "steps": "--steps",
-    "batch_size": "--batch-size",
-    "learning_rate": "--lr",
-    "shift_pad": "--shift-pad",
-    "holdout": "--holdout",
-    "eval_every": "--eval-every",
-    "checkpoint_every": "--checkpoint-every",
-    "encoder": "--encoder",
-    "context": "--context",
-    "horizon": "--horizon",
-    "agent_dim": "--agent-dim",
-    "encoder_kwargs": "--encoder-kwargs",
-    "ef_kwargs": "--ef-kwargs",
-    "frame_shape": "the dataset's frames",
-    "action_dim": "the dataset's actions",
-    "cache_mb": "--cache-mb",
-    "workers": "--workers",
-}
+_DASHED = (
+    "steps batch_size shift_pad holdout eval_every checkpoint_every encoder context horizon agent_dim cache_mb workers"
+)
+OPTIONS = {name: f"--{name.replace('_', '-')}" for name in (*_DASHED.split(), "encoder_kwargs", "ef_kwargs")}
+OPTIONS.update(learning_rate="--lr", frame_shape="the dataset's frames", action_dim="the dataset's actions")
 #: The training settings a resumed run shares with the checkpoint it continues (recorded in every checkpoint).
 RESUMED_SETTINGS = ("learning_rate", "batch_size", "shift_pad", "holdout")
 T = TypeVar("T")
@@ -276,9 +258,8 @@ def _train(run: _Run, batches: Iterator[Windows], start: int, show_progress: boo
             with sigint_deferred():  # Ctrl-C lands between updates, never inside one
                 loss = _update(run, batch)
                 done = step + 1
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(loss=f"{loss:.1f}")
+            bar.update(1)
+            bar.set_postfix(loss=f"{loss:.1f}")
             if run.writer is not None and (done % 50 == 0 or done == run.steps):
                 run.writer.add_scalar("train/ef_loss", loss, done)
             if run.held_out and run.writer is not None and done % run.settings["eval_every"] == 0 and done < run.steps:
@@ -288,14 +269,12 @@ def _train(run: _Run, batches: Iterator[Windows], start: int, show_progress: boo
             if done % run.settings["checkpoint_every"] == 0 or done == run.steps:
                 run.save(CHECKPOINT, done)
     except KeyboardInterrupt:
-        if bar is not None:
-            bar.close()
+        bar.close()
         if done == start:
             raise Interrupted(f"stopped at step {done} of {run.steps}, before another update finished") from None
         path = run.save(CHECKPOINT, done)
         raise Interrupted(f"stopped at step {done} of {run.steps}; {path} saved: rerun the command to go on") from None
-    if bar is not None:
-        bar.close()
+    bar.close()
 
 
 def _update(run: _Run, batch: Windows) -> float:

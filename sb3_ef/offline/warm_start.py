@@ -42,13 +42,9 @@ def _mismatches(source: nn.Module, target: nn.Module) -> list[str]:
 
 
 def load_ef(model: Any, pretrained: str | os.PathLike | OfflineEF) -> Any:
-    """Copy a pretrained encoder and ``EgoForesight`` into a DrQv2EF / TDMPC2EF whose architecture matches.
-
-    The pretrained model must have been trained with the host's encoder (``--encoder drqv2`` for DrQv2EF,
-    ``tdmpc2`` for TDMPC2EF) with its settings (``features_dim``, ``num_channels``), ``context`` equal to the
-    agent's frame stack, the same frame size and action size, and an EF built like the agent's (``agent_dim``,
-    ``ef_kwargs``). Only weights move; the optimisers, critic, actor and world-model heads stay as they were. Latent
-    EF's momentum target is set to the copied encoder and projection.
+    """Copy a pretrained encoder and ``EgoForesight`` into a DrQv2EF / TDMPC2EF whose architecture matches: the
+    host's encoder and settings (``--encoder drqv2`` / ``tdmpc2``), ``context`` equal to the frame stack, the same frame
+    and action sizes and EF settings. Only weights move (latent EF's momentum target included).
 
     :param model: a DrQv2EF or TDMPC2EF (``model.policy`` holds the networks).
     :param pretrained: a ``model.pt`` / ``checkpoint.pt`` written by ``pretrain``, or an :class:`OfflineEF`.
