@@ -83,21 +83,11 @@ def collect_main(argv: list[str] | None = None) -> int:
     args = collect_parser().parse_args(argv)
     from sb3_ef.offline.collect import collect
 
+    names = ("episodes", "size", "action_repeat", "mode", "policy", "algo", "seed")
     paths = collect(
-        args.env,
-        args.out,
-        episodes=args.episodes,
-        size=args.size,
-        action_repeat=args.action_repeat,
-        mode=args.mode,
-        policy=args.policy,
-        algo=args.algo,
-        seed=args.seed,
-        fast_render=not args.slow_render,
-        masks=not args.no_masks,
-        file_format=args.format,
-        progress_bar=not args.no_progress,
-    )
+        args.env, args.out, fast_render=not args.slow_render, masks=not args.no_masks, file_format=args.format,
+        progress_bar=not args.no_progress, **{name: getattr(args, name) for name in names},
+    )  # fmt: skip
     if args.format == "lerobot":
         with open(os.path.join(args.out, "meta", "info.json")) as file:
             count = json.load(file)["total_episodes"]
@@ -167,9 +157,8 @@ def reader_options(args: argparse.Namespace) -> dict[str, Any]:
     from sb3_ef.offline.readers import RLDS_PREFIX
     from sb3_ef.offline.rlds import is_rlds_folder
 
-    names = {"camera": "camera", "action_key": "action_key", "image_key": "image_key", "action_keys": "action_keys"}
-    names.update(layout="layout", image_size="image_size")
-    options = {key: getattr(args, name) for name, key in names.items() if getattr(args, name) is not None}
+    names = ("camera", "action_key", "image_key", "action_keys", "layout", "image_size")
+    options = {name: getattr(args, name) for name in names if getattr(args, name) is not None}
     lerobot, rlds = {"camera", "action_key"}, {"image_key", "action_keys", "layout"}
     if is_lerobot_dataset(args.dataset):
         kind, allowed = "a LeRobot dataset", lerobot | {"image_size"}
@@ -195,36 +184,14 @@ def pretrain_main(argv: list[str] | None = None) -> int:
     holdout = args.holdout if args.holdout < 1 else int(args.holdout)
     options = reader_options(args)
     dataset = open_dataset(args.dataset, args.context + args.horizon, **options) if options else args.dataset
-    _, scores = _pretrain(pretrain, dataset, args, holdout)
+    names = "encoder context horizon agent_dim steps batch_size shift_pad eval_every checkpoint_every encoder_kwargs"
+    kwargs = {name: getattr(args, name) for name in (*names.split(), "ef_kwargs", "seed", "device", "overwrite")}
+    _, scores = pretrain(
+        dataset, args.out, learning_rate=args.lr, holdout=holdout, resume=not args.no_resume,
+        progress_bar=not args.no_progress, cache_mb=args.cache_mb, workers=args.workers, **kwargs,
+    )  # fmt: skip
     print(json.dumps({key: value for key, value in scores.items() if not isinstance(value, list)}, indent=2))
     return 0
-
-
-def _pretrain(pretrain: Any, dataset: Any, args: argparse.Namespace, holdout: float | int) -> Any:
-    return pretrain(
-        dataset,
-        args.out,
-        encoder=args.encoder,
-        context=args.context,
-        horizon=args.horizon,
-        agent_dim=args.agent_dim,
-        steps=args.steps,
-        batch_size=args.batch_size,
-        learning_rate=args.lr,
-        shift_pad=args.shift_pad,
-        holdout=holdout,
-        eval_every=args.eval_every,
-        checkpoint_every=args.checkpoint_every,
-        encoder_kwargs=args.encoder_kwargs,
-        ef_kwargs=args.ef_kwargs,
-        seed=args.seed,
-        device=args.device,
-        resume=not args.no_resume,
-        overwrite=args.overwrite,
-        progress_bar=not args.no_progress,
-        cache_mb=args.cache_mb,
-        workers=args.workers,
-    )
 
 
 def predict_parser() -> argparse.ArgumentParser:
