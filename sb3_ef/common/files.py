@@ -63,3 +63,10 @@ def write_atomically(path: str | os.PathLike, write: Callable[[Any], Any]) -> No
 def write_text_atomically(path: str | os.PathLike, text: str) -> None:
     """``text`` (UTF-8) into ``path``, complete or not at all."""
     write_atomically(path, lambda file: file.write(text.encode("utf-8")))
+
+
+def refuse_files_in(folder: str, why: str) -> None:
+    """Raise ``FileExistsError`` when ``folder`` (or a subfolder) holds a file; ``why`` ends the message."""
+    files = sorted(os.path.relpath(os.path.join(d, f), folder) for d, _, fs in os.walk(folder) for f in fs)
+    if files:
+        raise FileExistsError(f"{folder} is not empty ({len(files)} files, e.g. {files[0]}){why}")

@@ -16,7 +16,7 @@ import numpy as np
 
 from sb3_ef.common.acting import EpisodeActor
 from sb3_ef.common.env_checks import FRAME_CHANNELS
-from sb3_ef.common.files import write_text_atomically
+from sb3_ef.common.files import refuse_files_in, write_text_atomically
 from sb3_ef.common.interrupt import Interrupted, sigint_deferred
 from sb3_ef.ef.babbling import babble, check_babbling
 from sb3_ef.offline.episodes import (
@@ -160,13 +160,9 @@ def _check_folder(out_dir: str, settings: dict[str, Any]) -> None:
                 f"{out_dir} holds a collection with other settings ({'; '.join(differences)}): rerun with its "
                 "settings to continue it, or collect into another folder"
             )
-    elif settings["file_format"] == "lerobot" and os.path.isdir(out_dir):
-        files = sorted(os.path.relpath(os.path.join(d, f), out_dir) for d, _, fs in os.walk(out_dir) for f in fs)
-        if files:
-            raise FileExistsError(
-                f"{out_dir} is not empty ({len(files)} files, e.g. {files[0]}) and holds no collection of sb3-ef "
-                "collect: --format lerobot writes into a new or empty folder"
-            )
+    elif settings["file_format"] == "lerobot":
+        why = " and holds no collection of sb3-ef collect: --format lerobot writes into a new or empty folder"
+        refuse_files_in(out_dir, why)
 
 
 def _write_record(out_dir: str, settings: dict[str, Any]) -> None:

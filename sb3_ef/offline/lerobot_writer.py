@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from sb3_ef.common.files import atomic_path, temporary_path, write_text_atomically
+from sb3_ef.common.files import atomic_path, refuse_files_in, temporary_path, write_text_atomically
 from sb3_ef.common.interrupt import sigint_deferred
 from sb3_ef.offline import lerobot_stats
 from sb3_ef.offline.episodes import Episode
@@ -123,7 +123,7 @@ class LeRobotWriter:
         crf: int = 30,
         append: bool = False,
     ):
-        self.av, self.pq = lerobot_imports()
+        self.av, self.pq = lerobot_imports()  # a message naming the extra to install when one is missing
         import pyarrow as pa
 
         self.pa = pa
@@ -181,8 +181,7 @@ class LeRobotWriter:
             "meta/episodes/file_index": 0,
             **lerobot_stats.to_columns(stats),
         }
-        table = self._table(columns)
-        segment.tables.append(table)  # from here on the episode is complete: kept by close()
+        segment.tables.append(self._table(columns))  # from here on the episode is complete: kept by close()
         self._rows.append(row)
         self._frames += length
 
@@ -201,15 +200,14 @@ class LeRobotWriter:
         self._finish_segment()
         if not self._rows:
             raise ValueError(f"No episode was added to {self.root}")
-        pa, pq = self.pa, self.pq
         path = os.path.join(self.root, V3_EPISODES_PATH.format(chunk_index=0, file_index=0))
         os.makedirs(os.path.dirname(path), exist_ok=True)
         with atomic_path(path) as temporary:
-            pq.write_table(pa.Table.from_pylist(self._rows), temporary)
+            self.pq.write_table(self.pa.Table.from_pylist(self._rows), temporary)
         self._write_tasks()
         stats = lerobot_stats.aggregate([lerobot_stats.from_columns(row) for row in self._rows])
-        write_text_atomically(os.path.join(self.root, STATS), _json(lerobot_stats.to_json(stats)))
-        write_text_atomically(os.path.join(self.root, INFO), _json(self._info()))
+        write_text_atomically(os.path.join(self.root, STATS), json.dumps(lerobot_stats.to_json(stats), indent=4))
+        write_text_atomically(os.path.join(self.root, INFO), json.dumps(self._info(), indent=4))
         return self.root
 
     def _finish_segment(self) -> None:
@@ -361,19 +359,10 @@ def _file_number(row: dict[str, Any], camera: str) -> int:
 
 def _refuse_used_folder(root: str) -> list[dict[str, Any]]:
     """No episode rows, once ``root`` is known to be new or empty (a dataset is never written beside other files)."""
-    files = sorted(os.path.relpath(os.path.join(d, f), root) for d, _, fs in os.walk(root) for f in fs)
     if os.path.isfile(os.path.join(root, INFO)):
         raise FileExistsError(f"{root} already holds a LeRobot dataset ({INFO}); write to another folder")
-    if files:
-        raise FileExistsError(
-            f"{root} is not empty ({len(files)} files, e.g. {files[0]}): a LeRobot dataset is written into a new or "
-            "empty folder"
-        )
+    refuse_files_in(root, ": a LeRobot dataset is written into a new or empty folder")
     return []
-
-
-def _json(content: dict[str, Any]) -> str:
-    return json.dumps(content, indent=4)
 
 
 def write_lerobot(root: str | os.PathLike, episodes: list[Episode], **kwargs: Any) -> str:
