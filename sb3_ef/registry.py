@@ -13,7 +13,10 @@ from dataclasses import dataclass
 from typing import Any
 
 from sb3_ef.common.validation import did_you_mean
+from sb3_ef.envs.factory import SUITE_OPTIONS
 
+#: Name prefixes of the suites :func:`sb3_ef.make_env` builds (it repeats actions); other ids go through ``gym.make``.
+MAKE_ENV_SUITES = tuple(f"{suite}/" for suite in SUITE_OPTIONS)
 #: The grid run function of the algorithms SB3's ``learn`` trains.
 SB3_GRID_RUN = "sb3_ef.grid.run:execute_sb3_run"
 #: The grid check of the algorithms SB3's ``learn`` trains.

@@ -1,14 +1,6 @@
 """``sb3-ef analyze``: tables and plots from evaluation CSVs, or predictions and saliency of a saved model.
 
-sb3-ef analyze results DIR [--out DIR] [--return-scale 1000] [--reps 2000] [--at STEP ...] [--finished-only]
-                        [--reference drqv2|tdmpc2|dreamerv3|dreamerv3-2023|curl]
-sb3-ef analyze model PATH --env NAME [--algo drqv2_ef|tdmpc2_ef|sac_ef|td3_ef|tqc_ef] [--steps T]
-                                     [--actions policy|figure8] [--action-repeat 2] [--env-kwargs key:value ...]
-                                     [--seed 0] [--out DIR]
-
-``analyze results`` reads the evaluation CSVs under DIR and the ``evaluations.npz`` of rl-zoo3 run folders.
-``analyze model`` loads the model as the algorithm its file records, on the env it was trained on: its options
-(``fast_render`` changes the frames) from ``--env-kwargs`` or the rl-zoo3 run folder that holds the model.
+``analyze model`` builds the env the model trained on: its options from ``--env-kwargs`` or the model's run folder.
 """
 
 from __future__ import annotations
@@ -113,15 +105,14 @@ def make_analysis_env(
     action_repeat: int,
     env_kwargs: dict[str, Any] | None = None,
 ) -> gym.Env:
-    """The model's env at its frame size, with the training env's other ``env_kwargs`` (``size`` and
-    ``frame_stack`` must agree with the model's)."""
+    """The model's env at its frame size, with the training env's other ``env_kwargs`` (checked against the model)."""
     kwargs = dict(env_kwargs or {})
     size = frame_shape[-1]
     for key, expected in (("size", size), ("frame_stack", frame_stack)):
         value = kwargs.pop(key, expected)
         if value != expected:
             raise ValueError(f"env_kwargs {key}={value!r} does not match the model's {key} {expected}")
-    if name.startswith(("dmc/", "metaworld/", "dmc-distracting/")):
+    if name.startswith(registry.MAKE_ENV_SUITES):
         from sb3_ef.envs import make_env
 
         return make_env(name, size=size, frame_stack=frame_stack, **{"action_repeat": action_repeat, **kwargs})
@@ -129,8 +120,7 @@ def make_analysis_env(
 
 
 def saved_algorithm_classes(path: str, algo: str | None) -> list[type[BaseAlgorithm]]:
-    """The classes to load ``path`` with: the algorithm its file records, else ``algo``'s or every EF algorithm in
-    turn; a ``ValueError`` says what to do when that cannot give an Ego-Foresight model."""
+    """The classes to load ``path`` with: the one its file records, else ``algo``'s or every EF algorithm in turn."""
     from sb3_ef.common.saved_models import is_legacy, saved_algorithm, saved_data
     from sb3_ef.common.validation import check_model_path
 
@@ -187,8 +177,7 @@ def analyze_model(
     seed: int = 0,
     env_kwargs: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Write ``prediction.png``, ``prediction.gif``, ``saliency.png`` and ``scores.json`` for one rollout of a
-    saved model on ``env_name``, built with ``env_kwargs`` (default: :func:`run_env_kwargs`)."""
+    """Write the prediction image and GIF, ``saliency.png`` and ``scores.json`` of one rollout of a saved model."""
     from sb3_ef.analysis.plots import plot_prediction, plot_saliency
     from sb3_ef.analysis.prediction import figure_eight_actions, save_video
     from sb3_ef.analysis.report import foresight_report, record_rollout

@@ -1,11 +1,6 @@
-"""rl-zoo3's log folders read as evaluation records, so ``sb3-ef analyze results logs`` works after ``sb3-ef train``.
-
-A run folder ``<logs>/<algo>/<env>_<n>/`` holds ``evaluations.npz`` (rl-zoo3's ``EvalCallback``),
-``<env>/args.yml`` (env id, seed, ``env_kwargs``) and ``<env>/config.yml`` (the config entry). It becomes the rows
-:class:`~sb3_ef.analysis.records.EvalRecorderCallback` writes: the algorithm's class name, the env id and seed of
-``args.yml`` (else the env whose folder name matches and the run number), each evaluation's mean return and success
-rate, and ``frame = step * action_repeat`` (the run's recorded one, else the env's default).
-"""
+"""rl-zoo3's run folders (``<logs>/<algo>/<env>_<n>/``: ``evaluations.npz``, ``<env>/args.yml``, ``<env>/config.yml``)
+read as the evaluation records :class:`~sb3_ef.analysis.records.EvalRecorderCallback` writes, so ``sb3-ef analyze
+results logs`` works after ``sb3-ef train`` (``frame = step * action_repeat``)."""
 
 from __future__ import annotations
 
@@ -38,23 +33,26 @@ def _load_yaml(path: Path) -> Any:
         return yaml.load(file, Loader=yaml.UnsafeLoader)
 
 
+def _args_file(run_folder: str | os.PathLike) -> Path | None:
+    """The run's ``<env>/args.yml``, or ``None`` without exactly one."""
+    args_files = sorted(Path(run_folder).glob("*/args.yml"))
+    return args_files[0] if len(args_files) == 1 else None
+
+
 def recorded_args(run_folder: str | os.PathLike) -> dict[str, Any]:
     """The command line rl-zoo3 recorded for the run (``<env>/args.yml``), or ``{}`` without exactly one."""
-    args_files = sorted(Path(run_folder).glob("*/args.yml"))
-    return dict(_load_yaml(args_files[0]) or {}) if len(args_files) == 1 else {}
+    args_file = _args_file(run_folder)
+    return dict(_load_yaml(args_file) or {}) if args_file else {}
 
 
 def recorded_env_kwargs(run_folder: str | os.PathLike) -> dict[str, Any]:
-    """The env options of an rl-zoo3 run (``{}`` if none are recorded). As in rl-zoo3's train and enjoy, the command
-    line's ``--env-kwargs`` (``<env>/args.yml``) replace the config entry's (``<env>/config.yml``)."""
-    args_files = sorted(Path(run_folder).glob("*/args.yml"))
-    if len(args_files) != 1:
-        return {}
-    args = _load_yaml(args_files[0]) or {}
+    """The env options of an rl-zoo3 run: ``--env-kwargs`` of ``args.yml`` over the config entry's, as rl-zoo3 has."""
+    args = recorded_args(run_folder)
     if args.get("env_kwargs"):
         return dict(args["env_kwargs"])
-    config_path = args_files[0].with_name("config.yml")
-    if not config_path.is_file():
+    args_file = _args_file(run_folder)
+    config_path = args_file.with_name("config.yml") if args_file else None
+    if config_path is None or not config_path.is_file():
         return {}
     entry = dict(_load_yaml(config_path) or [])  # rl-zoo3 writes a list of pairs
     recorded = entry.get("env_kwargs") or {}
@@ -64,8 +62,7 @@ def recorded_env_kwargs(run_folder: str | os.PathLike) -> dict[str, Any]:
 
 
 def env_id_of_folder(env_name: str) -> str:
-    """The registered env id whose rl-zoo3 folder name is ``env_name`` (``dmc-cheetah-run-v0`` ->
-    ``dmc/cheetah-run-v0``), or ``env_name`` itself when none is."""
+    """The registered env id whose rl-zoo3 folder name is ``env_name`` (``dmc-cheetah-run-v0``), else ``env_name``."""
     import sb3_ef  # noqa: F401  (registers the pixel envs)
 
     matches = [env_id for env_id in gym.registry if env_id.replace("/", "-") == env_name]
@@ -73,8 +70,7 @@ def env_id_of_folder(env_name: str) -> str:
 
 
 def action_repeat_of(env_id: str, env_kwargs: dict[str, Any]) -> int:
-    """The action repeat a run's env had: its recorded ``action_repeat``, else the registered env's (``make_env``'s
-    default for sb3-ef's pixel envs), else 1."""
+    """A run's action repeat: its recorded ``action_repeat``, else the registered env's (``make_env``'s default)."""
     if "action_repeat" in env_kwargs:
         return int(env_kwargs["action_repeat"])
     spec = gym.registry.get(env_id)
@@ -86,8 +82,7 @@ def action_repeat_of(env_id: str, env_kwargs: dict[str, Any]) -> int:
 
 
 def algorithm_name(zoo_key: str) -> str:
-    """The class name an algorithm key stands for: sb3-ef's (``drqv2_ef`` -> ``DrQv2EF``, ``sb3_ef.registry``) or
-    rl-zoo3's own (``sac`` -> ``SAC``); the key itself when neither knows it (or rl-zoo3 is not installed)."""
+    """The class name of an sb3-ef or rl-zoo3 algorithm key (``drqv2_ef`` -> ``DrQv2EF``), else the key itself."""
     if zoo_key in registry.ALGORITHMS:
         return registry.ALGORITHMS[zoo_key].class_name
     try:
@@ -120,8 +115,7 @@ def _evaluations(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]
 
 
 def zoo_run_records(run_folder: str | os.PathLike, action_repeat: int | None = None) -> pd.DataFrame:
-    """The evaluation records of one rl-zoo3 run folder ``<logs>/<algo>/<env>_<n>/`` (see the module docstring);
-    ``action_repeat`` replaces the run's recorded one."""
+    """The evaluation records of one rl-zoo3 run folder; ``action_repeat`` replaces the run's recorded one."""
     pandas = require("pandas")
     from sb3_ef.analysis.records import RECORD_COLUMNS, record_row
 

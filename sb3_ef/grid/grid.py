@@ -1,21 +1,7 @@
 """A benchmark grid: algorithms x tasks x seeds, expanded into fully specified runs.
 
-Each run's hyperparameters are its task's zoo config entry, then the grid's overrides, then the algorithm's own,
-resolved and checked when the grid is read, so a bad key or task fails before any run starts.
-
-A grid file holds one or more blocks; settings shared between blocks can be YAML anchors under ``anchors``::
-
-    anchors:
-      small: &small {batch_size: 64, buffer_size: 100000}
-    grids:
-      - algorithms: [drqv2, drqv2_ef]                    # zoo keys, or label -> {algo, conf_file, hyperparams, ...}
-        tasks: [dmc/cartpole-balance-v0]
-        seeds: [0, 1, 2]                                 # or a count: 3 -> 0, 1, 2
-        n_timesteps: 20000                               # optional: overrides the entries' n_timesteps
-        eval_freq: 2000
-        eval_episodes: 5
-        env_kwargs: {size: 64}                           # merged over the entries' env_kwargs
-        hyperparams: *small                              # applied to every algorithm of the block
+A run's hyperparameters are its task's zoo entry, then the block's overrides, then the algorithm's own, all checked
+when the grid is read. The file format (blocks under ``grids``, YAML anchors under ``anchors``): docs/benchmark.md.
 """
 
 from __future__ import annotations
@@ -34,7 +20,7 @@ from sb3_ef import registry
 from sb3_ef.common.validation import did_you_mean
 from sb3_ef.zoo import config as zoo_config
 
-#: Top-level keys of a grid file: the blocks, and a free-form place for YAML anchors the blocks refer to.
+#: Top-level keys of a grid file.
 FILE_KEYS = frozenset({"grids", "anchors"})
 #: Keys of a grid block (those every block must give: REQUIRED_BLOCK_KEYS) and of an algorithm's mapping.
 BLOCK_KEYS = frozenset(
@@ -49,9 +35,6 @@ RUNNER_KEYS = frozenset({"n_timesteps", "env_kwargs", "n_envs"})
 
 #: Zoo-config values rl-zoo3 evaluates when they are strings (``policy_kwargs: dict(...)``).
 EVALUATED_KEYS = ("policy_kwargs", "replay_buffer_class", "replay_buffer_kwargs")
-
-#: Suites built with :func:`sb3_ef.make_env` (which repeats actions); other ids go through ``gym.make``.
-MAKE_ENV_SUITES = ("dmc/", "metaworld/", "dmc-distracting/")
 
 #: Where a grid's runs can execute: a local process pool or a Ray cluster.
 BACKENDS = ("local", "ray")
@@ -69,10 +52,10 @@ class GridError(ValueError):
 class Algorithm:
     """One algorithm column of a grid.
 
-    :param label: its name in the records, folders and tables (e.g. ``drqv2_ef`` or ``drqv2_ef_beta1e-3``).
-    :param algo: the zoo key of the class (``drqv2``, ``drqv2_ef``, ``tdmpc2``, ``tdmpc2_ef``); default ``label``.
+    :param label: its name in the records, folders and tables (``drqv2_ef_beta1e-3``).
+    :param algo: the registry key of the class; default ``label``.
     :param conf_file: zoo-format YAML the entries come from; default ``zoo_configs/<algo>.yml``.
-    :param hyperparams: overrides of the entries' values (zoo syntax: strings such as ``dict(...)`` are evaluated).
+    :param hyperparams: overrides of the entries' values, in zoo syntax.
     :param env_kwargs: env options merged over the entries' and the grid's ``env_kwargs``.
     :param steps_per_second: expected agent steps per second, for time estimates only.
     """
@@ -97,11 +80,7 @@ class Algorithm:
 
 @dataclass(frozen=True)
 class RunSpec:
-    """Everything one run needs; picklable, so it travels to a worker process or a Ray task.
-
-    ``hyperparams`` are the algorithm's constructor arguments in zoo syntax (strings evaluated by the worker);
-    ``env_kwargs`` go to ``make_env`` (or ``gym.make``); ``checkpoint_freq`` is a multiple of ``eval_freq``.
-    """
+    """Everything one run needs, picklable for a worker process or a Ray task (``hyperparams`` in zoo syntax)."""
 
     label: str
     algo: str
@@ -117,13 +96,13 @@ class RunSpec:
 
     @property
     def run_id(self) -> str:
-        """``<label>/<task with '/' as '-'>_s<seed>``: unique in a grid, and the run's path below the results."""
+        """``<label>/<task with '/' as '-'>_s<seed>``: unique in a grid, the run's path below the results."""
         return f"{self.label}/{self.task.replace('/', '-')}_s{self.seed}"
 
     @property
     def action_repeat(self) -> int:
         """Env frames per agent step (``make_env``'s default 2 unless ``env_kwargs`` says otherwise)."""
-        if self.task.startswith(MAKE_ENV_SUITES):
+        if self.task.startswith(registry.MAKE_ENV_SUITES):
             return int(self.env_kwargs.get("action_repeat", 2))
         return 1
 
@@ -209,8 +188,7 @@ def _entry(algorithm: Algorithm, task: str, overrides: Mapping[str, Any]) -> dic
 
 
 def constructor_kwargs(hyperparams: Mapping[str, Any]) -> dict[str, Any]:
-    """A zoo entry's values as constructor arguments: strings of :data:`EVALUATED_KEYS` evaluated as rl-zoo3 does,
-    runner keys left out."""
+    """A zoo entry's constructor arguments, strings of :data:`EVALUATED_KEYS` evaluated as rl-zoo3 does."""
     from rl_zoo3 import exp_manager
 
     from sb3_ef.zoo.registration import config_namespace
@@ -234,10 +212,10 @@ def grid_runs(
     env_kwargs: Mapping[str, Any] | None = None,
     hyperparams: Mapping[str, Any] | None = None,
 ) -> list[RunSpec]:
-    """Expand algorithms x tasks x seeds into runs, ordered by seed, then algorithm, then task.
+    """Expand algorithms x tasks x seeds into runs, seed-major (a grid stopped part-way has whole seeds).
 
     :param algorithms: zoo keys, :class:`Algorithm` objects, or a mapping label -> :class:`Algorithm` options.
-    :param tasks: gymnasium ids (``dmc/cartpole-swingup-v0``; the ``-v0`` may be left out).
+    :param tasks: gymnasium ids (the ``-v0`` may be left out).
     :param seeds: a count n (seeds 0..n-1) or the list of seeds.
     :param eval_freq: agent steps between evaluations.
     :param eval_episodes: episodes per evaluation.
@@ -288,7 +266,6 @@ def grid_runs(
             )
     if problems:
         raise GridError(list(problems))
-    # Seed-major order: a grid stopped part-way has whole seeds of every algorithm and task, comparable already.
     return [RunSpec(seed=seed, **arguments) for seed in _seeds(seeds) for arguments in runs_of_seed]
 
 
@@ -310,7 +287,7 @@ def select_runs(runs: Sequence[RunSpec], patterns: Sequence[str]) -> list[RunSpe
 
 
 def _yaml_error(error: yaml.MarkedYAMLError) -> str:
-    """``, line 3, column 10: not valid YAML: <problem> (while parsing ... at line 2, column 18)``."""
+    """``, line 3, column 10: not valid YAML: <problem> (<context> at line 2, column 18)``."""
 
     def at(mark: Any) -> str:
         return f"line {mark.line + 1}, column {mark.column + 1}"

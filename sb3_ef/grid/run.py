@@ -33,8 +33,8 @@ from sb3_ef.analysis.records import (
 )
 from sb3_ef.common.evaluation import EVAL_SEED_OFFSET, StepSeededEvalCallback
 from sb3_ef.common.files import write_text_atomically
-from sb3_ef.grid.grid import MAKE_ENV_SUITES, RunSpec, constructor_kwargs
-from sb3_ef.registry import import_target
+from sb3_ef.grid.grid import RunSpec, constructor_kwargs
+from sb3_ef.registry import MAKE_ENV_SUITES, import_target
 
 if TYPE_CHECKING:
     from stable_baselines3.common.noise import ActionNoise

@@ -1,12 +1,5 @@
-"""The command-line options of ``sb3-ef train``, ``optimize`` and ``enjoy``, checked before anything heavy is imported.
-
-rl-zoo3 builds its parsers inside ``train()`` and ``enjoy()``, seconds of imports later. The tables below list its
-options (a test compares them with rl-zoo3's parsers); :func:`check_zoo_argv` checks a command line against them:
-unknown options and ill-formed values, ``key:value`` values that are not Python expressions, counts that must be
-positive (:data:`POSITIVE`), the ``--algo`` key and the ``--env`` id, with the closest names.
-:func:`merge_train_argv` gives the command line of a resumed run. Imports only the standard library, gymnasium and
-the ``--gym-packages``.
-"""
+"""The command-line options of ``sb3-ef train``, ``optimize`` and ``enjoy``, checked before anything heavy is imported
+(rl-zoo3 builds its parsers seconds of imports later; a test compares these tables with them)."""
 
 from __future__ import annotations
 
@@ -171,7 +164,7 @@ def build_parser(options: Sequence[Option], prog: str) -> argparse.ArgumentParse
 
 
 def check_zoo_argv(argv: Sequence[str], options: Sequence[Option], prog: str) -> argparse.Namespace:
-    """Parse ``argv`` against ``options`` and check the counts (module docstring); raise :class:`UsageError`."""
+    """Parse ``argv`` against ``options`` and check the :data:`POSITIVE` counts; raise :class:`UsageError`."""
     parser = build_parser(options, prog)
     args, unknown = parser.parse_known_args(list(argv))
     if unknown:
@@ -189,8 +182,7 @@ def check_zoo_argv(argv: Sequence[str], options: Sequence[Option], prog: str) ->
 
 
 def check_algo_and_env(args: argparse.Namespace) -> None:
-    """Raise :class:`UsageError` for an ``--algo`` or ``--env`` that is not registered (``--gym-packages``
-    imported)."""
+    """Raise :class:`UsageError` for an ``--algo`` or ``--env`` that is not registered (after ``--gym-packages``)."""
     from sb3_ef import registry
 
     algorithms = (*registry.ALGORITHMS, *RL_ZOO3_ALGORITHMS)
@@ -218,16 +210,12 @@ def check_algo_and_env(args: argparse.Namespace) -> None:
 
 
 def check_train_argv(argv: Sequence[str]) -> argparse.Namespace:
-    """Check the arguments of ``sb3-ef train`` / ``optimize`` (with ``--resume``, algo and env are the run's,
-    checked later)."""
+    """Check the arguments of ``sb3-ef train`` / ``optimize`` (with ``--resume``, algo and env are checked later)."""
     args = check_zoo_argv(argv, (*TRAIN_OPTIONS, *SB3_EF_TRAIN_OPTIONS), "sb3-ef train")
     if args.resume is None:
         check_algo_and_env(args)
-        checkpoint_options = {
-            "--checkpoint-buffer": args.checkpoint_buffer,
-            "--keep-checkpoints": args.keep_checkpoints,
-        }
-        given = [flag for flag, value in checkpoint_options.items() if value is not None]
+        options = {"--checkpoint-buffer": args.checkpoint_buffer, "--keep-checkpoints": args.keep_checkpoints}
+        given = [flag for flag, value in options.items() if value is not None]
         if given and (args.save_freq is None or args.save_freq < 1):
             raise UsageError(f"{' and '.join(given)}: options of the --save-freq checkpoints, give --save-freq N too")
     return args
@@ -268,8 +256,7 @@ def _merged_pairs(recorded: list[str] | None, given: list[str]) -> list[str]:
 
 
 def merge_train_argv(recorded: Sequence[str], given: Sequence[str]) -> list[str]:
-    """The train arguments of a resumed run: ``recorded`` with ``given``'s options over it, ``key:value`` lists
-    merged key by key (``--hyperparams learning_rate:1e-4`` changes that key only). Flags cannot be unset."""
+    """``recorded`` train arguments with ``given``'s over them, ``key:value`` lists merged key by key."""
     options = (*TRAIN_OPTIONS, *SB3_EF_TRAIN_OPTIONS)
     parser = build_parser(options, "sb3-ef train --resume")
     merged, given_args = parser.parse_args(list(recorded)), parser.parse_args(list(given))
@@ -277,8 +264,7 @@ def merge_train_argv(recorded: Sequence[str], given: Sequence[str]) -> list[str]
         dest = _dest(option)
         value = getattr(given_args, dest)
         if value is not None:
-            pairs = option.kind == "pairs"
-            setattr(merged, dest, _merged_pairs(getattr(merged, dest), value) if pairs else value)
+            setattr(merged, dest, _merged_pairs(getattr(merged, dest), value) if option.kind == "pairs" else value)
     return _as_argv(merged, options)
 
 

@@ -1,19 +1,6 @@
-"""rl-zoo3 runs that continue: resumable checkpoints, ``-i`` that carries on, and no empty run folders.
-
-rl-zoo3's ``-i model.zip`` trains ``-n`` more steps from step 0 in a new run folder, and its checkpoints hold
-neither the replay buffer nor the random states. :class:`ResumingExperimentManager`, for every algorithm:
-
-- ``--save-freq`` writes resumable checkpoints (the replay buffer with ``--checkpoint-buffer``, the newest
-  ``--keep-checkpoints`` kept); Ctrl-C writes one of the step reached;
-- ``-i`` loads the buffer and random states beside the model and trains up to ``-n`` steps in all; a model in an
-  rl-zoo3 run folder continues that folder (evaluations, monitor files and records appended to);
-- evaluations are step-seeded (a continued run sees the uninterrupted one's episodes) and recorded in
-  ``<run>/<env>.csv``; ``<env>/result.json`` marks a finished run (:mod:`sb3_ef.zoo.records`);
-- a run started without ``--seed`` saves the seed rl-zoo3 drew, for ``--resume``;
-- a run that fails before training removes the folders it created; an error during training gets a note naming
-  the ``sb3-ef train --resume`` command that continues it;
-- progress is printed every 10 s; ``-P``'s bar only on a terminal.
-"""
+"""rl-zoo3 runs that continue: :class:`ResumingExperimentManager` writes resumable checkpoints, makes ``-i`` carry
+on up to ``-n`` steps in all (in the model's run folder), records step-seeded evaluations and removes the folders of
+a run that fails before training (docs/zoo.md)."""
 
 from __future__ import annotations
 
@@ -133,8 +120,7 @@ def noting_last_checkpoint(run_dir: str | os.PathLike, resume_command: str) -> I
 
 
 class _Watched:
-    """A model whose ``learn`` records a Ctrl-C (which rl-zoo3 swallows) and keeps its counters when
-    ``continuing``."""
+    """A model whose ``learn`` records a Ctrl-C (rl-zoo3 swallows it) and keeps its counters when ``continuing``."""
 
     def __init__(self, model: BaseAlgorithm, continuing: bool):
         self._model, self._continuing = model, continuing
@@ -154,8 +140,7 @@ class _Watched:
 
 
 class ResumingExperimentManager(ExperimentManager):
-    """rl-zoo3's ``ExperimentManager`` with resumable checkpoints and a ``-i`` that continues the run (module
-    docstring).
+    """rl-zoo3's ``ExperimentManager`` with resumable checkpoints and a ``-i`` that continues the run.
 
     :param args, kwargs: rl-zoo3's ``ExperimentManager`` arguments.
     :param checkpoint_options: what checkpoints hold.
@@ -207,8 +192,7 @@ class ResumingExperimentManager(ExperimentManager):
                 self.callbacks[index] = step_seeded
 
     def _recorder(self, eval_env: VecEnv) -> EvalRecorderCallback:
-        """The recorder of the run's evaluation CSV; a continued run drops its rows after the checkpoint and its
-        finished mark."""
+        """The recorder of the run's evaluation CSV (a continued run's rows after the checkpoint dropped)."""
         path = run_records_path(self.save_path, self.env_name)
         if self.continues_folder:
             assert self.checkpoint is not None
@@ -243,10 +227,9 @@ class ResumingExperimentManager(ExperimentManager):
         Path(self.params_path, ARGV_FILE).write_text(json.dumps(with_seed(self.argv, self.seed)))
 
     def learn(self, model: BaseAlgorithm) -> None:
-        """rl-zoo3's ``learn`` up to ``n_timesteps`` steps in all; marks the run finished, or checkpoints a stopped
-        one."""
+        """rl-zoo3's ``learn`` up to ``n_timesteps`` in all; marks the run finished, or checkpoints a stopped one."""
         total = self.n_timesteps
-        with noting_last_checkpoint(self.save_path, self.resume_command):  # a failure names where to continue from
+        with noting_last_checkpoint(self.save_path, self.resume_command):
             self._learn(model)
         if model.num_timesteps >= total:
             finish_run(self.save_path, self.env_name, model.num_timesteps)
@@ -270,25 +253,20 @@ class ResumingExperimentManager(ExperimentManager):
         return f"sb3-ef train --resume {self.save_path}"
 
     def _learn(self, model: BaseAlgorithm) -> None:
-        if self.checkpoint is None:
-            watched = _Watched(model, continuing=False)
-            super().learn(watched)  # type: ignore[arg-type]
-            self.interrupted = watched.interrupted
-            return
         total = self.n_timesteps
-        if model.num_timesteps >= total:
-            raise ValueError(
-                f"The run is already at step {model.num_timesteps}, which reaches its n_timesteps {total}: "
-                "pass a larger -n to train further"
-            )
-        env = model.get_env()
-        assert env is not None  # the manager built the model with its training envs
-        n_envs = env.num_envs
-        for callback in self.callbacks:
-            if isinstance(callback, EvalCallback):
-                callback.n_calls = model.num_timesteps // n_envs  # evaluate at the uninterrupted run's steps
-        self.n_timesteps = total - model.num_timesteps
-        watched = _Watched(model, continuing=True)
+        if self.checkpoint is not None:
+            if model.num_timesteps >= total:
+                raise ValueError(
+                    f"The run is already at step {model.num_timesteps}, which reaches its n_timesteps {total}: "
+                    "pass a larger -n to train further"
+                )
+            env = model.get_env()
+            assert env is not None  # the manager built the model with its training envs
+            for callback in self.callbacks:
+                if isinstance(callback, EvalCallback):
+                    callback.n_calls = model.num_timesteps // env.num_envs  # evaluate at the uninterrupted run's steps
+            self.n_timesteps = total - model.num_timesteps
+        watched = _Watched(model, continuing=self.checkpoint is not None)
         try:
             super().learn(watched)  # type: ignore[arg-type]
         finally:

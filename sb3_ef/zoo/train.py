@@ -1,11 +1,5 @@
-"""``python -m sb3_ef.zoo.train``: rl-zoo3's ``train`` with sb3-ef's algorithms, configs and environments.
-
-rl-zoo3's arguments, plus sb3-ef's (:data:`~sb3_ef.zoo.options.SB3_EF_TRAIN_OPTIONS`). The registry's keys read
-``zoo_configs/<algo>.yml`` unless ``--conf-file`` is given (``dreamerv3`` trains in sheeprl's loop); ``sb3_ef`` is
-added to ``--gym-packages`` (recorded in ``args.yml``, for subprocess envs and ``enjoy``); the config and
-``--hyperparams`` are checked before anything is built; ``-optimize`` uses :mod:`sb3_ef.zoo.hyperparams_opt`'s
-samplers; runs resume (:mod:`sb3_ef.zoo.resume`).
-"""
+"""``python -m sb3_ef.zoo.train``: rl-zoo3's ``train`` with sb3-ef's algorithms, configs (``zoo_configs/<algo>.yml``
+unless ``--conf-file``) and environments, checked before anything is built; runs resume (:mod:`sb3_ef.zoo.resume`)."""
 
 from __future__ import annotations
 
@@ -37,7 +31,7 @@ GYM_PACKAGE = "sb3_ef"
 
 
 def with_gym_package(argv: list[str]) -> list[str]:
-    """Return ``argv`` with ``sb3_ef`` among the ``--gym-packages`` values (added to the user's list, if any)."""
+    """``argv`` with ``sb3_ef`` among the ``--gym-packages`` (recorded in ``args.yml`` for subprocess envs, enjoy)."""
     if "--gym-packages" in argv:
         index = argv.index("--gym-packages") + 1
         return [*argv[:index], GYM_PACKAGE, *argv[index:]]
@@ -158,8 +152,7 @@ def _without_options(argv: list[str], options: dict[str, bool]) -> list[str]:
 
 
 def resume_point(run_dir: Path, env_folder: str) -> Checkpoint:
-    """Where a run folder continues from: its newest intact checkpoint or its final model, whichever is further
-    (on a tie the checkpoint, which holds the random states)."""
+    """The newest intact checkpoint or the final model of a run folder, whichever is further (a tie: the checkpoint)."""
     candidates = []
     checkpoint = latest_checkpoint(run_dir, intact=True)
     if checkpoint is not None:
@@ -197,8 +190,7 @@ def trained_agent(argv: list[str]) -> str | None:
 
 
 def own_loop_main(argv: list[str], command: str) -> Callable[[list[str]], None] | None:
-    """The registry's ``command`` (``train`` or ``enjoy``) function of ``argv``'s algorithm when it trains in its
-    own loop; ``None`` when rl-zoo3 trains it."""
+    """The ``train`` or ``enjoy`` function of ``argv``'s algorithm if it trains in its own loop, else ``None``."""
     options, _ = _sb3_ef_parser().parse_known_args(argv)
     if options.resume is not None:
         try:
