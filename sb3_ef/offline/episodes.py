@@ -6,7 +6,10 @@ from __future__ import annotations
 import os
 import zipfile
 import zlib
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -111,54 +114,39 @@ def read_episode_file(path: str | os.PathLike, source: str | None = None, min_fr
     ``.npz`` holding Python objects raise ``EpisodeError`` naming ``source`` (default: the path)."""
     path = os.fspath(path)
     source = source or path
-    if path.endswith(NPZ_SUFFIXES):
-        arrays = _read_npz(path, source)
-    else:
-        import h5py
-
-        try:
-            with h5py.File(path, "r") as file:
-                arrays = {key: file[key][()] for key in file}
-        except OSError as error:
-            raise EpisodeError(f"{source}: not a readable HDF5 file ({error})") from error
-    _check_keys(source, list(arrays))
+    with _open_episode_file(path, source) as file:
+        arrays = {key: file[key][()] for key in file}
     return make_episode(arrays["frames"], arrays["actions"], arrays.get("masks"), source, min_frames)
-
-
-def _read_npz(path: str, source: str) -> dict[str, np.ndarray]:
-    try:
-        with open(path, "rb") as handle:
-            archive = np.load(handle, allow_pickle=False)
-            if not isinstance(archive, np.lib.npyio.NpzFile):
-                raise EpisodeError(f"{source}: a single .npy array, not an .npz archive of 'frames' and 'actions'")
-            with archive:
-                return {key: archive[key] for key in archive.files}
-    except EpisodeError:
-        raise
-    except ValueError as error:  # numpy: object arrays, or not an npz at all
-        raise EpisodeError(f"{source}: not a readable .npz of numeric arrays (corrupt, or holds objects)") from error
-    except (OSError, EOFError, zipfile.BadZipFile, zlib.error) as error:
-        raise EpisodeError(f"{source}: corrupt or truncated .npz file ({error})") from error
 
 
 def episode_file_shapes(path: str, source: str) -> tuple[tuple[int, ...], tuple[int, ...]]:
     """The shapes of an episode file's ``frames`` and ``actions`` arrays, from their headers (nothing decompressed)."""
+    with _open_episode_file(path, source) as file:
+        if path.endswith(NPZ_SUFFIXES):
+            return _npy_shape(file.zip, "frames.npy"), _npy_shape(file.zip, "actions.npy")
+        return tuple(file["frames"].shape), tuple(file["actions"].shape)
+
+
+@contextmanager
+def _open_episode_file(path: str, source: str) -> Iterator[Any]:
+    """The open ``.npz`` (numpy's ``NpzFile``) or HDF5 file, holding ``frames`` and ``actions``; a damaged file,
+    or one holding Python objects, raises ``EpisodeError`` while it is read."""
     try:
         if path.endswith(NPZ_SUFFIXES):
-            with open(path, "rb") as file:
-                if file.read(6) == b"\x93NUMPY":
+            with open(path, "rb") as handle:
+                if handle.read(6) == b"\x93NUMPY":
                     raise EpisodeError(f"{source}: a single .npy array, not an .npz archive of 'frames' and 'actions'")
-            with zipfile.ZipFile(path) as archive:
-                _check_keys(source, [name.removesuffix(".npy") for name in archive.namelist()])
-                return _npy_shape(archive, "frames.npy"), _npy_shape(archive, "actions.npy")
-        import h5py
+            file = np.load(path, allow_pickle=False)
+        else:
+            import h5py
 
-        with h5py.File(path, "r") as file:
+            file = h5py.File(path, "r")
+        with file:
             _check_keys(source, list(file))
-            return tuple(file["frames"].shape), tuple(file["actions"].shape)
+            yield file
+    except EpisodeError:
+        raise
     except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as error:
-        if isinstance(error, EpisodeError):
-            raise
         raise EpisodeError(f"{source}: corrupt or truncated episode file ({error})") from error
 
 
