@@ -184,13 +184,9 @@ class ResumableCheckpointCallback(BaseCallback):
             raise ValueError(f"save_freq must be >= 1, got {save_freq}")
         if keep is not None and keep < 1:
             raise ValueError(f"keep must be >= 1 (the newest checkpoint) or None (all), got {keep}")
-        self.save_freq = save_freq
-        self.save_path = save_path
-        self.name_prefix = name_prefix
-        self.save_replay_buffer = save_replay_buffer
-        self.keep = keep
-        self._period = save_freq
-        self._next_save = save_freq
+        self.save_freq, self.save_path, self.name_prefix = save_freq, save_path, name_prefix
+        self.save_replay_buffer, self.keep = save_replay_buffer, keep
+        self._period = self._next_save = save_freq
         self._env_generators: dict[int, list[Any] | None] = {}
 
     def _init_callback(self) -> None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import glob
 import json
 import os
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -57,8 +58,7 @@ class LeRobotDataset(EpisodeDataset):
         if not os.path.isfile(info_path):
             raise FileNotFoundError(f"{self.root!r} is not a LeRobot dataset: no {INFO}")
         try:
-            with open(info_path) as file:
-                self.info = json.load(file)
+            self.info = json.loads(Path(info_path).read_text())
         except json.JSONDecodeError as error:
             raise EpisodeError(f"{info_path}: not valid JSON ({error})") from error
         self.version = str(self.info.get("codebase_version", ""))
@@ -100,11 +100,11 @@ class LeRobotDataset(EpisodeDataset):
             paths = sorted(glob.glob(os.path.join(self.root, "meta", "episodes", "*", "*.parquet")))
             if not paths:
                 raise EpisodeError(f"{self.root}: no meta/episodes/chunk-*/file-*.parquet episode tables")
+            # only the columns used here: real episode tables also hold per-episode statistics of every feature
+            wanted = ["episode_index", "length", "data/chunk_index", "data/file_index"]
+            wanted += [f"videos/{self.camera}/{key}" for key in VIDEO_COLUMNS] if self.is_video else []
             rows = []
             for path in paths:
-                # only the columns used here: real episode tables also hold per-episode statistics of every feature
-                wanted = ["episode_index", "length", "data/chunk_index", "data/file_index"]
-                wanted += [f"videos/{self.camera}/{key}" for key in VIDEO_COLUMNS] if self.is_video else []
                 try:
                     present = set(self._pq.read_schema(path).names)
                 except Exception as error:  # pyarrow raises ArrowInvalid / OSError subclasses for damaged files
