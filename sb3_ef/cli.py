@@ -1,10 +1,6 @@
-"""The ``sb3-ef`` console script: ``train``, ``enjoy``, ``optimize`` (rl-zoo3), ``analyze`` (sb3_ef.analysis),
-``benchmark`` (sb3_ef.grid), ``collect``, ``pretrain``, ``predict`` (sb3_ef.offline) and ``upgrade``
-(sb3_ef.upgrade).
-
-Each subcommand gets the rest of the command line, checked before its heavy imports. A user error is one line,
-``sb3-ef <command>: error: ...`` (with the error's notes), exit status 2 (``SB3_EF_TRACEBACK=1`` shows the
-traceback); Ctrl-C is one line too, ``sb3-ef <command>: interrupted[: what was kept]``, exit status 130.
+"""The ``sb3-ef`` console script: each subcommand gets the rest of the command line, checked before its heavy imports.
+A user error is one line ``sb3-ef <command>: error: ...``, exit status 2 (``SB3_EF_TRACEBACK=1`` shows the
+traceback); Ctrl-C is one line ``sb3-ef <command>: interrupted[: what was kept]``, exit status 130.
 """
 
 from __future__ import annotations

@@ -1,9 +1,7 @@
-"""The algorithm registry: each key the workbench knows (``sb3-ef train --algo``, zoo configs, grids, ``analyze``,
-``collect``, ``upgrade``) mapped to its class and to what the workbench does with it.
+"""The algorithm registry: each key the workbench knows mapped to its class and what the workbench does with it.
 
-Classes, samplers and run functions are named by ``"module:attribute"`` and imported on first use
-(:func:`import_target`), so a command line is checked before anything heavy is imported. A new algorithm is one
-entry here, a zoo config ``zoo_configs/<key>.yml`` and its own package.
+Targets are ``"module:attribute"`` strings imported on first use, so a command line is checked before anything heavy
+is imported. A new algorithm is one entry here, a zoo config ``zoo_configs/<key>.yml`` and its own package.
 """
 
 from __future__ import annotations
@@ -17,9 +15,8 @@ from sb3_ef.envs.factory import SUITE_OPTIONS
 
 #: Name prefixes of the suites :func:`sb3_ef.make_env` builds (it repeats actions); other ids go through ``gym.make``.
 MAKE_ENV_SUITES = tuple(f"{suite}/" for suite in SUITE_OPTIONS)
-#: The grid run function of the algorithms SB3's ``learn`` trains.
+#: The grid run function and row check of the algorithms SB3's ``learn`` trains.
 SB3_GRID_RUN = "sb3_ef.grid.run:execute_sb3_run"
-#: The grid check of the algorithms SB3's ``learn`` trains.
 SB3_GRID_CHECK = "sb3_ef.grid.checks:check_sb3_row"
 
 
@@ -39,15 +36,10 @@ class AlgorithmEntry:
     :param ef: trains Ego-Foresight: ``sb3-ef analyze model`` shows its predictions and saliency.
     :param own_exploration: explores with its own noise (rl-zoo3's SB3 action-noise keys are refused).
     :param sampler: its Optuna sampler for ``sb3-ef optimize`` (``"module:function"``), if it has one.
-    :param grid_run: the function that trains one ``sb3-ef benchmark`` row (``"module:function"``, called as
-        :func:`sb3_ef.grid.run.execute_run` is).
-    :param grid_check: the function that checks one row before anything trains (``"module:function"``, called as
-        :func:`sb3_ef.grid.checks.check_sb3_row` is: it builds what the row's start builds, short of networks and
-        buffers, and raises what that start would raise).
-    :param zoo_run: ``"module:function"`` pair that ``sb3-ef train`` / ``enjoy`` call with their arguments instead of
-        rl-zoo3's (for an algorithm rl-zoo3 cannot train); ``None``: rl-zoo3 trains and runs it.
-    :param warm_start: an offline-pretrained encoder and EF can be copied into it (``sb3_ef.offline``), and
-        ``sb3-ef collect --policy`` acts with it.
+    :param grid_run: the function that trains one ``sb3-ef benchmark`` row (as :func:`sb3_ef.grid.run.execute_run`).
+    :param grid_check: the function that checks one row before anything trains (as ``check_sb3_row``).
+    :param zoo_run: the ``train`` and ``enjoy`` functions of an algorithm rl-zoo3 cannot train; ``None``: rl-zoo3's.
+    :param warm_start: an offline-pretrained encoder and EF can be copied into it; ``sb3-ef collect`` acts with it.
     :param legacy_policy_module: the policy module of its sb3-ef 0.1.0 files (``sb3-ef upgrade``), if any.
     """
 
@@ -112,8 +104,7 @@ ALGORITHMS: dict[str, AlgorithmEntry] = _entries(
 
 
 def entry(key: str, argument: str = "algo") -> AlgorithmEntry:
-    """The entry of ``key``; a ``ValueError`` names ``argument`` (where the key came from), the key and the known
-    ones."""
+    """The entry of ``key``; a ``ValueError`` names ``argument`` (where the key came from) and the known keys."""
     if key not in ALGORITHMS:
         raise ValueError(
             f"{argument} {key!r}{did_you_mean(str(key), ALGORITHMS)} is not a known algorithm: expected one of "

@@ -1,9 +1,5 @@
-"""``sb3-ef upgrade OLD.zip NEW.zip``: a model file of sb3-ef 0.1.0 (told by its data's missing ``algorithm``
-entry) converted once into this version's format, nothing lost. 0.1.0 kept EF inside the host: the policy's ``ef.*``
-weights, trained in the host's optimiser groups or an ``ef_optimizer``, the plain host's policy class, algorithm
-arguments in ``policy_kwargs``, three attributes named otherwise. :func:`upgraded_file` rewrites the data in memory,
-:func:`upgraded_parameters` moves weights and optimiser states to the auxiliary module, then the model is saved.
-"""
+"""``sb3-ef upgrade OLD.zip NEW.zip``: a model file of sb3-ef 0.1.0 (no ``algorithm`` entry in its data, EF inside
+the host) converted once into this version's format, nothing lost."""
 
 from __future__ import annotations
 

@@ -18,16 +18,13 @@ _NOT_TEXT = ("stdout", "log", "json", "csv")
 
 
 class ForesightLoggerCallback(BaseCallback):
-    """Every ``log_freq`` calls, play a model with EF (DrQv2EF, TDMPC2EF) ``steps`` steps (default: EF's horizon) on
-    ``eval_env`` from its reset, and log EF's open-loop prediction of those frames: ``foresight/prediction`` (rows:
-    context, predicted, true frames), ``foresight/saliency`` (the last predicted frame, its h_a overlay in red and h_s
-    in blue), ``foresight/prediction_mse`` and, when the env gives agent masks, ``foresight/mask_precision``,
-    ``mask_recall`` and ``mask_iou`` of the thresholded h_a map (:func:`~sb3_ef.analysis.masks.threshold_saliency`).
+    """Every ``log_freq`` calls, play an EF model ``steps`` steps (default: EF's horizon) on ``eval_env`` and log EF's
+    open-loop prediction: ``foresight/prediction``, ``foresight/saliency``, ``foresight/prediction_mse`` and, with
+    agent masks, ``foresight/mask_precision``, ``mask_recall`` and ``mask_iou`` of the thresholded h_a map.
 
     :param eval_env: a single gymnasium env with the training env's observations (e.g. ``make_env(...)``).
     :param seed: reset seed, so every log starts from the same state (None: a fresh state each time).
-    :param probe_steps: latent EF decodes through its probe decoder, fitted this many more steps before each log
-        (:func:`~sb3_ef.ef.probe.fit_probe`, which leaves what training draws as it was).
+    :param probe_steps: steps latent EF's probe decoder is fitted before each log (:func:`~sb3_ef.ef.probe.fit_probe`).
     """
 
     def __init__(

@@ -14,8 +14,7 @@ from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 from sb3_ef.common.files import write_text_atomically
 
 RECORD_COLUMNS = ("algo", "task", "seed", "step", "frame", "return", "success")
-#: The file a finished run writes into the folder named like its CSV (``run.csv`` -> ``run/result.json``), as
-#: ``sb3-ef benchmark`` does; an unfinished run's CSV has none.
+#: The file a finished run writes into the folder named like its CSV (``run.csv`` -> ``run/result.json``).
 RUN_RESULT_FILE = "result.json"
 
 
@@ -97,15 +96,8 @@ def append_records(path: str | os.PathLike, rows: list[dict[str, object]]) -> No
 
 
 class EvalRecorderCallback(BaseCallback):
-    """Append each evaluation of an :class:`~stable_baselines3.common.callbacks.EvalCallback` to a CSV.
-
-    Use it as the EvalCallback's ``callback_after_eval``::
-
-        recorder = EvalRecorderCallback("results/drqv2_ef/reacher-easy_0.csv", task="dmc/reacher-easy", action_repeat=2)
-        model.learn(50_000, callback=EvalCallback(eval_env, eval_freq=5_000, callback_after_eval=recorder))
-
-    One row per evaluation: mean ``return``, ``success`` rate of the final ``info["is_success"]`` (empty when the
-    env reports none), agent ``step`` and ``frame = step * action_repeat``.
+    """Append each evaluation of an ``EvalCallback`` to a CSV (as its ``callback_after_eval``): mean ``return``,
+    ``success`` rate of the final ``info["is_success"]`` (empty when the env reports none), ``step`` and ``frame``.
 
     :param path: CSV file; created with a header, or appended to if it already holds records.
     :param algo: algorithm name; default the model's class name.
@@ -147,8 +139,7 @@ class EvalRecorderCallback(BaseCallback):
 
     def _on_step(self) -> bool:
         assert self.parent is not None and self.algo is not None and self.task is not None  # set by _init_callback
-        # EvalCallback keeps this buffer of final info["is_success"] values until its next evaluation.
-        successes = self.parent._is_success_buffer
+        successes = self.parent._is_success_buffer  # final info["is_success"] values, kept until the next evaluation
         row = record_row(
             self.algo,
             self.task,

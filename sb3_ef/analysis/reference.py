@@ -1,10 +1,6 @@
-"""Published learning curves, shipped with the package (``reference_data/``; sources, licences and units in its
-``SOURCES.md``), and a user's runs put beside them.
-
-Each reference is compared on its own axis (:data:`REFERENCES`: frames, read from the records' ``frame`` column, or
-agent steps), never on an assumed action repeat; seeds are put on one common grid (:func:`seed_band`), each
-interpolated linearly between its points, never extrapolated.
-"""
+"""Published learning curves, shipped in ``reference_data/`` (sources, licences and units in its ``SOURCES.md``), and
+a user's runs put beside them, each reference on its own axis (frames or agent steps), seeds interpolated, never
+extrapolated."""
 
 from __future__ import annotations
 

@@ -1,9 +1,5 @@
-"""Which pixels of a predicted frame each half of the representation controls (paper Section 4.2).
-
-A patch's score is the L2 norm of the gradient of its summed decoded values (in [0, 1], over the colours) with
-respect to the agent features h_a fed to the decoder, and separately to the scene features h_s; the patches are
-differentiated in chunks of batched backward passes (``is_grads_batched``).
-"""
+"""Which pixels of a predicted frame each half of the representation controls (paper Section 4.2): per patch, the L2
+norm of the gradient of its summed decoded values with respect to h_a, and separately to h_s."""
 
 from __future__ import annotations
 

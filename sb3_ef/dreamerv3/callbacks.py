@@ -1,9 +1,5 @@
-"""The Fabric callback sheeprl calls at its checkpoint steps: evaluate (appending the evaluation CSV's row), write
-sheeprl's checkpoint, then name it in ``latest.json``, in that order.
-
-A run resumes from the checkpoint ``latest.json`` names, dropping the rows past its step: a kill at any point leaves
-a row written again on resume, or a checkpoint not yet named, never a missing or repeated row.
-"""
+"""The Fabric callback sheeprl calls at its checkpoint steps: evaluate (a CSV row), write the checkpoint, then name
+it in ``latest.json``, in that order, so a run resumed after a kill never misses nor repeats a row."""
 
 from __future__ import annotations
 

@@ -1,11 +1,5 @@
-"""``DreamerV3``: sheeprl's Dreamer-v3 (its networks, replay buffer and training loop, run in this process) behind
-SB3's learn / predict / save / load.
-
-SB3 callbacks run after each env step; one returning ``False`` stops the run with the weights of the newest
-evaluation or checkpoint step (sheeprl keeps its networks to itself between them). ``learn(n,
-reset_num_timesteps=False)`` continues from the newest checkpoint as sheeprl's resume does; a trained model does not
-restart its step count.
-"""
+"""``DreamerV3``: sheeprl's Dreamer-v3 (networks, replay buffer and training loop, in this process) behind SB3's
+learn / predict / save / load. A callback returning ``False`` stops the run with the newest evaluation's weights."""
 
 from __future__ import annotations
 

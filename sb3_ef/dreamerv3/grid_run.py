@@ -1,7 +1,5 @@
-"""A ``dreamerv3`` row of ``sb3-ef benchmark``: its files and resume rule are every row's (:mod:`sb3_ef.grid.run`),
-its training sheeprl's; ``checkpoints/`` holds sheeprl's runs and ``latest.json``, the checkpoint it resumes from.
-``sb3-ef train --algo dreamerv3`` trains with :func:`train_dreamerv3` too.
-"""
+"""A ``dreamerv3`` row of ``sb3-ef benchmark`` (and ``sb3-ef train --algo dreamerv3``): every row's files and resume
+rule (:mod:`sb3_ef.grid.run`), sheeprl's training; ``checkpoints/`` holds sheeprl's runs and ``latest.json``."""
 
 from __future__ import annotations
 

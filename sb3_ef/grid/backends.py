@@ -1,10 +1,5 @@
-"""Where runs execute: a local process pool, or a Ray cluster (the optional ``ray`` extra).
-
-Both backends' :meth:`execute` takes the runs and yields ``("start", spec, None)`` (the run got its worker),
-``("retry", spec, error)`` and ``("finish", spec, result)``. A failed run is retried ``retries`` times (resuming),
-then finishes ``failed``. Leaving :meth:`execute` early (Ctrl-C, or the caller stops iterating) stops the runs in
-flight at once; their checkpoints stay for the next invocation.
-"""
+"""Where runs execute: a local process pool, or a Ray cluster (the optional ``ray`` extra). ``execute`` yields
+``("start" | "retry" | "finish", spec, None | error | result)``; leaving it early stops the runs in flight."""
 
 from __future__ import annotations
 

@@ -1,9 +1,5 @@
-"""The checks of a grid's rows before anything trains (``sb3-ef benchmark --dry-run``, and before a local run).
-
-A row (one algorithm on one task) is checked by building what its start builds, short of networks, buffers and
-rendered frames: its env, made as the run makes it, and its algorithm by the registry entry's ``grid_check``
-(:func:`check_sb3_row` for SB3's ``learn``). Every row is checked, each problem named with its row.
-"""
+"""The checks of a grid's rows before anything trains (``--dry-run``, and before a local run): each row's env and
+algorithm built as its start builds them, short of networks, buffers and frames, each problem named with its row."""
 
 from __future__ import annotations
 

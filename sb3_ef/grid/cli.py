@@ -1,8 +1,4 @@
-"""``sb3-ef benchmark``: train a grid of runs (algorithms x tasks x seeds) locally or on a Ray cluster.
-
-sb3-ef benchmark GRID.yml --out DIR [--runs GLOB ...] [--backend local|ray] [--workers N] [--threads T] [--address ADDR]
-                          [--gpus G] [--retries R] [--device auto] [--keep-checkpoints N|all] [--dry-run]
-"""
+"""``sb3-ef benchmark``: train a grid of runs (algorithms x tasks x seeds) locally or on a Ray cluster."""
 
 from __future__ import annotations
 

@@ -1,13 +1,7 @@
 """One benchmark run: build the env and the algorithm, train with periodic evaluation, record, checkpoint.
 
-Files of a run below the results folder ``out`` (``<run_id>`` is ``<label>/<task>_s<seed>``)::
-
-    out/<run_id>.csv                evaluation records (sb3_ef.analysis.records format), what `analyze results` reads
-    out/<run_id>/checkpoints/       model + replay buffer every checkpoint_freq steps (removed when the run finishes)
-    out/<run_id>/model.zip          the final model (no replay buffer)
-    out/<run_id>/result.json        written last: the run is finished (a rerun skips it)
-
-A run resumes from its newest checkpoint, dropping the evaluation rows after that checkpoint's step first.
+A run's files lie at ``out/<run_id>.csv`` and ``out/<run_id>/`` (docs/benchmark.md); it resumes from its newest
+checkpoint, dropping the evaluation rows after that checkpoint's step first.
 """
 
 from __future__ import annotations
@@ -162,11 +156,8 @@ def execute_run(
     keep_checkpoints: int | None = 2,
     node: str | None = None,
 ) -> RunResult:
-    """Train one run to ``spec.n_timesteps`` agent steps (resuming from its newest checkpoint) and record it, with the
-    registry's run function of ``spec.algo``; a finished run comes back ``skipped``. ``keep_checkpoints``: the
-    newest checkpoints kept while it trains, all deleted at its end (``None``: all kept for good); ``node``: the
-    cluster node, stored in the result.
-    """
+    """Train and record one run with the registry's run function of ``spec.algo`` (a finished run comes back
+    ``skipped``); ``keep_checkpoints`` newest are kept while it trains (``None``: all, for good)."""
     run = import_target(registry.entry(spec.algo, "RunSpec.algo").grid_run)
     return run(spec, out, threads, device, keep_checkpoints, node)
 

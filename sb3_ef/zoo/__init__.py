@@ -1,11 +1,5 @@
-"""rl-zoo3 plug-in: registers the algorithms of ``sb3_ef.registry`` that rl-zoo3 trains (``drqv2_ef``, ``drqv2``,
-``tdmpc2_ef``, ``tdmpc2``, ``sear``, ``curl``, ``sac_ef``, ``td3_ef``, ``tqc_ef``) with their Optuna samplers;
-``dreamerv3`` takes the same commands in sheeprl's loop (:mod:`sb3_ef.zoo.sheeprl_run`).
-
-Entry points: ``python -m sb3_ef.zoo.train`` and ``python -m sb3_ef.zoo.enjoy`` (rl-zoo3's arguments), or the
-``sb3-ef`` console script. See docs/zoo.md. The public names are imported on first use (rl-zoo3 imports torch), so
-that the command line can check its arguments first.
-"""
+"""rl-zoo3 plug-in: registers the registry's algorithms that rl-zoo3 trains, with their Optuna samplers (docs/zoo.md).
+Public names are imported on first use (rl-zoo3 imports torch), so that the command line is checked first."""
 
 from __future__ import annotations
 

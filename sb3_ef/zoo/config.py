@@ -1,8 +1,5 @@
-"""The zoo_configs YAML files: where they are, how an entry is chosen, and which keys an entry may hold.
-
-rl-zoo3 passes every key it does not consume to the algorithm constructor, so a typo shows up deep inside model
-construction, or never; checking the whole file up front names the entry and the key at once.
-"""
+"""The zoo_configs YAML files: where they are, how an entry is chosen, and which keys an entry may hold (checked up
+front: rl-zoo3 passes unknown keys to the constructor, where a typo shows late or never)."""
 
 from __future__ import annotations
 

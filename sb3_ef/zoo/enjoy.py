@@ -1,9 +1,5 @@
-"""``python -m sb3_ef.zoo.enjoy``: rl-zoo3's ``enjoy`` for sb3-ef models, without a full-size replay buffer.
-
-rl-zoo3's enjoy shrinks the replay buffer only for the algorithms it knows by name, so during ``enjoy`` our keys in
-``ALGOS`` are served by :class:`InferenceLoader`. Takes rl-zoo3's enjoy arguments; ``sb3_ef`` is added to
-``--gym-packages``.
-"""
+"""``python -m sb3_ef.zoo.enjoy``: rl-zoo3's ``enjoy`` for sb3-ef models, loaded without a full-size replay buffer
+(:class:`InferenceLoader`)."""
 
 from __future__ import annotations
 

@@ -1,9 +1,7 @@
 """Optuna samplers for rl-zoo3's ``-optimize``: Ego-Foresight's hyperparameters and each host's main ones.
 
-Each algorithm's *sampler* (``trial -> constructor kwargs``) suggests raw values and hands them to the one
-*converter* (``trial.params -> constructor kwargs``, also used for ``--trial-id``), so both agree. EF:
-``beta``, ``agent_dim``, ``ef_horizon``, ``babbling_steps`` (a trial whose ``agent_dim`` takes every feature is
-pruned); hosts: learning rate, batch size, DrQ-v2's n-step and exploration std, TD-MPC2's horizon.
+Each sampler suggests raw values and hands them to the one converter (``trial.params -> constructor kwargs``, also
+used for ``--trial-id``), so both agree.
 """
 
 from __future__ import annotations

@@ -1,10 +1,5 @@
-"""Progress lines for long training runs, readable in a terminal and in a log file.
-
-SB3's table comes minutes apart on pixel tasks and rl-zoo3's ``-P`` bar draws nothing into a file, so
-:class:`ProgressLogCallback` prints a line at most every ``interval_s`` seconds, e.g.::
-
-    step 12000/500000 (2.4%)  41 steps/s  elapsed 0:04:52  left ~3:18:20  return 312.4 (mean of the last 10 episodes)
-"""
+"""Progress lines for long training runs, readable in a terminal and in a log file (SB3's table comes minutes apart
+on pixel tasks and rl-zoo3's ``-P`` bar draws nothing into a file)."""
 
 from __future__ import annotations
 

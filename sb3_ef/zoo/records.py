@@ -1,12 +1,5 @@
-"""Evaluation CSVs of rl-zoo3 runs, in the format ``sb3-ef analyze results`` reads (:mod:`sb3_ef.analysis.records`).
-
-``sb3-ef train`` records each evaluation in ``<run>/<env>.csv`` and marks a run that reached its steps with
-``<env>/result.json``, as ``sb3-ef benchmark`` does. Runs of rl-zoo3's own ``train`` are exported from their
-``evaluations.npz``, one CSV ``<out>/<Algo>/<env>_<run>.csv`` each under the algorithm's class name:
-
-    python -m sb3_ef.zoo.records logs results     # results/DrQv2EF/dmc-cheetah-run-v0_1.csv, ...
-    sb3-ef analyze results results
-"""
+"""Evaluation CSVs of rl-zoo3 runs, in the format ``sb3-ef analyze results`` reads: ``sb3-ef train`` records them,
+and ``python -m sb3_ef.zoo.records logs results`` exports the ``evaluations.npz`` of rl-zoo3's own runs."""
 
 from __future__ import annotations
 

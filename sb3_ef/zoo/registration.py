@@ -1,8 +1,5 @@
-"""Register sb3-ef's algorithms with rl-zoo3 without forking it.
-
-Our keys are added in place to ``rl_zoo3.utils.ALGOS`` and ``rl_zoo3.hyperparams_opt``'s dictionaries (shared by all
-of rl-zoo3's modules), and the names a config string may use to ``rl_zoo3.exp_manager`` and ``rl_zoo3.utils``.
-"""
+"""Register sb3-ef's algorithms with rl-zoo3 in place (``rl_zoo3.utils.ALGOS``, ``rl_zoo3.hyperparams_opt``'s
+dictionaries and the names config strings may use), without forking it."""
 
 from __future__ import annotations
 

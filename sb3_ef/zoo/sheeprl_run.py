@@ -1,8 +1,5 @@
-"""``sb3-ef train`` and ``sb3-ef enjoy`` with ``--algo dreamerv3``: sheeprl's loop (a grid row's training,
-:func:`sb3_ef.dreamerv3.grid_run.train_dreamerv3`) with rl-zoo3's arguments and run folders: ``<env>.zip``,
-``<env>.csv``, ``<env>/args.yml``, ``config.yml``, ``train_argv.json``, ``checkpoints/`` and ``result.json``.
-``--resume RUN_DIR`` continues a run in its own folder from its latest checkpoint.
-"""
+"""``sb3-ef train`` and ``enjoy`` with ``--algo dreamerv3``: sheeprl's loop (a grid row's training) with rl-zoo3's
+arguments and run folders; ``--resume RUN_DIR`` continues a run in its own folder from its latest checkpoint."""
 
 from __future__ import annotations
 
