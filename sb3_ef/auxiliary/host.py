@@ -5,8 +5,9 @@
 representation loss on the host's encoder (an :class:`~sb3_ef.auxiliary.loss.AuxiliaryLoss` that a subclass returns
 from ``_build_auxiliary``, kept where ``_keep_auxiliary`` puts it and trained by the optimiser the host names in
 ``_optimise_auxiliary``); the ``action_override`` hook (motor babbling takes the actions over through it); the
-accessors ``encode`` / ``frame_shape`` read by ``sb3_ef.analysis``; the finite-loss check; logging; and a ``load``
-that reads the file's record once and refuses a file this class cannot load, saying what to do instead.
+accessors ``encode`` / ``frame_shape`` read by ``sb3_ef.analysis``; the finite-loss check; logging, with
+``train/aux_grad_ratio`` (how hard the auxiliary loss pulls on the encoder next to the host's loss, on one update in
+:data:`AUX_GRAD_RATIO_EVERY`); and a ``load`` that refuses a file this class cannot load, saying what to do instead.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
 from stable_baselines3.common.vec_env import VecEnv
+from torch import nn
 
 from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.common.augmentation import random_shift
@@ -35,6 +37,43 @@ from sb3_ef.common.saved_models import check_saved_model, save_model_atomically,
 from sb3_ef.common.validation import check_learn, check_model_path, check_observation
 
 SelfHost = TypeVar("SelfHost", bound="AuxiliaryHostMixin")
+#: One update in this many computes ``train/aux_grad_ratio`` (the logger keeps the mean of those since the last dump).
+AUX_GRAD_RATIO_EVERY = 100
+
+
+def aux_grad_ratio_due(n_updates: int, every: int = AUX_GRAD_RATIO_EVERY) -> bool:
+    """Whether update number ``n_updates`` (counted from 1) computes the ratio: the first, then one in ``every``."""
+    return n_updates % every == 1 or every == 1
+
+
+def encoder_gradient_ratio(
+    auxiliary_loss: th.Tensor, host_loss: th.Tensor, parameters: Iterable[nn.Parameter]
+) -> th.Tensor:
+    """``||d aux / d encoder|| / ||d host / d encoder||`` for a host that adds the auxiliary loss to its own (two
+    extra backward passes, graphs kept for the host's); a detached scalar tensor (no device sync)."""
+    params = [param for param in parameters if param.requires_grad]
+    norms = [
+        _norm(th.autograd.grad(loss, params, retain_graph=True, allow_unused=True), loss.device)
+        for loss in (auxiliary_loss, host_loss)
+    ]
+    return norms[0] / norms[1].clamp_min(1e-12)
+
+
+def gradient_norm(parameters: Iterable[nn.Parameter]) -> th.Tensor:
+    """The 2-norm of the ``.grad`` the last backward pass left on ``parameters`` (none counts as 0), detached."""
+    params = list(parameters)
+    return _norm([param.grad for param in params], params[0].device if params else th.device("cpu"))
+
+
+def gradient_norm_ratio(parameters: Iterable[nn.Parameter], host_norm: th.Tensor) -> th.Tensor:
+    """:func:`gradient_norm` of ``parameters`` over ``host_norm``: the ratio of an auxiliary step of its own, the
+    host's encoder-gradient norm read at the host's step (no extra pass)."""
+    return gradient_norm(parameters) / host_norm.clamp_min(1e-12)
+
+
+def _norm(grads: Iterable[th.Tensor | None], device: th.device) -> th.Tensor:
+    squares = [grad.detach().pow(2).sum() for grad in grads if grad is not None]
+    return th.stack(squares).sum().sqrt() if squares else th.zeros((), device=device)
 
 
 class AuxiliaryHostMixin(ActionOverrideMixin):
@@ -140,6 +179,22 @@ class AuxiliaryHostMixin(ActionOverrideMixin):
         for name, loss in losses.items():
             if not bool(th.isfinite(loss).all()):
                 raise ValueError(f"{name} is {loss.item()} at update {self._n_updates}")
+
+    def _train_round(self, gradient_steps: int, batch_size: int, optimizers: Iterable[th.optim.Optimizer]) -> None:
+        """A ``train`` round: training mode, the learning rate on ``optimizers`` (times each group's ``lr_scale``),
+        ``gradient_steps`` of the host's ``_update`` on replay samples, then their logs."""
+        self.policy.set_training_mode(True)
+        learning_rate = self.lr_schedule(self._current_progress_remaining)  # type: ignore[attr-defined]
+        self.logger.record("train/learning_rate", learning_rate)
+        for optimizer in optimizers:
+            for group in optimizer.param_groups:
+                group["lr"] = learning_rate * group.get("lr_scale", 1.0)
+        updates = []
+        for _ in range(gradient_steps):
+            self._n_updates += 1
+            batch = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[attr-defined]
+            updates.append(self._update(batch))  # type: ignore[attr-defined]
+        self._record_updates(updates)
 
     def _record_updates(self, updates: list[dict[str, th.Tensor]]) -> None:
         """Log each scalar of the updates (``train/<key>``), averaged over the updates that computed it (a loss

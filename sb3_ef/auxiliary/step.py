@@ -15,8 +15,7 @@ import torch as th
 from stable_baselines3.common.base_class import maybe_make_env
 from stable_baselines3.common.type_aliases import GymEnv
 
-from sb3_ef.auxiliary.diagnostics import aux_grad_ratio_due, gradient_norm, gradient_norm_ratio
-from sb3_ef.auxiliary.host import AuxiliaryHostMixin
+from sb3_ef.auxiliary.host import AuxiliaryHostMixin, aux_grad_ratio_due, gradient_norm, gradient_norm_ratio
 from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.common.batch_norm import running_stats_kept
 from sb3_ef.common.buffers import SequenceReplayBufferSamples, ShiftedSequenceReplayBuffer

@@ -13,7 +13,7 @@ from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import polyak_update
 from torch.nn import functional as F
 
-from sb3_ef.auxiliary.diagnostics import aux_grad_ratio_due, gradient_norm, gradient_norm_ratio
+from sb3_ef.auxiliary.host import aux_grad_ratio_due, gradient_norm, gradient_norm_ratio
 from sb3_ef.auxiliary.momentum import momentum_update
 from sb3_ef.auxiliary.step import AuxiliaryStepMixin
 from sb3_ef.common.buffers import SequenceReplayBufferSamples

@@ -13,10 +13,10 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import polyak_update
+from torch import nn
 from torch.nn import functional as F
 
-from sb3_ef.auxiliary.diagnostics import aux_grad_ratio_due, encoder_gradient_ratio
-from sb3_ef.auxiliary.host import AuxiliaryHostMixin
+from sb3_ef.auxiliary.host import AuxiliaryHostMixin, aux_grad_ratio_due, encoder_gradient_ratio
 from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
@@ -28,7 +28,6 @@ from sb3_ef.common.layers import frozen
 from sb3_ef.common.schedules import StepSchedule, get_step_schedule
 from sb3_ef.common.validation import check_algorithm_arguments
 from sb3_ef.drqv2.policies import DrQv2Actor, DrQv2Critic, DrQv2EFPolicy, DrQv2Policy
-from sb3_ef.ef.foresight import ForesightLoss
 from sb3_ef.ef.host import EFMixin
 
 SHIFT_PAD = 4
@@ -151,13 +150,7 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         self.critic_target = self.policy.critic_target
 
     def train(self, gradient_steps: int, batch_size: int = 256) -> None:
-        self.policy.set_training_mode(True)
-        self._update_learning_rate([self.actor.optimizer, self.critic.optimizer])
-        updates = []
-        for _ in range(gradient_steps):
-            self._n_updates += 1
-            updates.append(self._update(self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)))  # type: ignore[union-attr]
-        self._record_updates(updates)
+        self._train_round(gradient_steps, batch_size, [self.actor.optimizer, self.critic.optimizer])
         self.logger.record("train/exploration_std", self.exploration_schedule(self.num_timesteps))
 
     def _update(self, batch: SequenceReplayBufferSamples) -> dict[str, th.Tensor]:
@@ -322,11 +315,6 @@ class DrQv2EF(EFMixin, DrQv2):
         if _init_setup_model:
             self._setup_model()
 
-    def _build_auxiliary(self) -> ForesightLoss:
-        policy = self.policy
-        if not isinstance(policy, DrQv2EFPolicy):
-            raise TypeError(f"DrQv2EF needs a DrQv2EFPolicy (EF's sizes), got {type(policy).__name__}")
-        encoder = policy.encoder  # scales the uint8 frames itself
-        return self._foresight(
-            encoder.features_dim, policy.agent_dim, policy.ef_kwargs, policy.channels_last, encoder, (1.0, 0.0)
-        )
+    def _ef_encoder(self) -> tuple[nn.Module, int, tuple[float, float]]:
+        encoder = self.policy.encoder  # scales the uint8 frames itself
+        return encoder, encoder.features_dim, (1.0, 0.0)

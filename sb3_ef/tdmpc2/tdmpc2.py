@@ -15,8 +15,7 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 
-from sb3_ef.auxiliary.diagnostics import aux_grad_ratio_due, encoder_gradient_ratio
-from sb3_ef.auxiliary.host import AuxiliaryHostMixin
+from sb3_ef.auxiliary.host import AuxiliaryHostMixin, aux_grad_ratio_due, encoder_gradient_ratio
 from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
 from sb3_ef.common.compile import CompileOption, compile_kwargs, maybe_compile
@@ -169,14 +168,8 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         return self.policy.world_model
 
     def train(self, gradient_steps: int, batch_size: int = 256) -> None:
-        self.policy.set_training_mode(True)
-        self._update_learning_rates()
-        updates = []
-        for _ in range(self._with_seed_burst(gradient_steps)):
-            self._n_updates += 1
-            batch = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
-            updates.append(self._update(batch))
-        self._record_updates(updates)
+        optimizers = [self.policy.optimizer, self.policy.pi_optimizer]
+        self._train_round(self._with_seed_burst(gradient_steps), batch_size, optimizers)
 
     def _with_seed_burst(self, gradient_steps: int) -> int:
         """The first round runs ``learning_starts`` updates (TD-MPC2's pretraining on the seed data)."""
@@ -295,14 +288,6 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         objective = masked_mean(self.entropy_coef * sample.scaled_entropy + q_values / self.policy.q_scale, valid)
         weights = self.rho ** th.arange(latents.shape[0], device=latents.device, dtype=th.float32)
         return -(weights * objective).mean()
-
-    def _update_learning_rates(self) -> None:
-        """The current learning rate on both optimisers, times each group's ``lr_scale``."""
-        learning_rate = self.lr_schedule(self._current_progress_remaining)
-        self.logger.record("train/learning_rate", learning_rate)
-        for optimizer in (self.policy.optimizer, self.policy.pi_optimizer):
-            for group in optimizer.param_groups:
-                group["lr"] = learning_rate * group.get("lr_scale", 1.0)
 
     def _sample_action(
         self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1

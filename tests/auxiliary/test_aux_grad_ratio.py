@@ -10,7 +10,7 @@ import pytest
 import torch as th
 
 from sb3_ef import SACEF, TD3EF, TQCEF
-from sb3_ef.auxiliary.diagnostics import gradient_norm, gradient_norm_ratio
+from sb3_ef.auxiliary.host import gradient_norm, gradient_norm_ratio
 from tests.curl.test_curl_algorithm import make as make_curl
 from tests.sb3_hosts.test_ef_hosts import LEARNING_STARTS, make
 

@@ -19,7 +19,7 @@ from tests.helpers.tdmpc2 import TINY_EF_POLICY
 PACKAGE = os.path.dirname(sb3_ef.__file__)
 ARCHITECTURE = Path(__file__).parents[2] / "docs" / "architecture.md"
 BUFFER_SAMPLE = {f"common/buffers/{name}.py" for name in ("sequence", "sampling", "storage", "episodes")}
-EF = {"auxiliary/host.py", "auxiliary/diagnostics.py", "common/augmentation.py", "ef/foresight.py", "ef/decoder.py"}
+EF = {"auxiliary/host.py", "common/augmentation.py", "ef/foresight.py", "ef/decoder.py"}
 UPDATES = {
     "DrQv2-EF": {"drqv2/drqv2.py", "drqv2/policies.py", "common/schedules.py", "common/layers.py"} | EF | BUFFER_SAMPLE,
     "TDMPC2-EF": {
