@@ -16,6 +16,7 @@ from sb3_ef.auxiliary.loss import AuxiliaryLoss, CarriesAuxiliary
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_stacked_frames
 from sb3_ef.common.forwarding import base_arguments
 from sb3_ef.common.layers import orthogonal_init
+from sb3_ef.ef.host import EFPolicyMixin
 
 # Conv stack of DrQ-v2: (kernel, stride) per layer, 32 filters each.
 _CONV_LAYERS = ((3, 2), (3, 1), (3, 1), (3, 1))
@@ -235,7 +236,7 @@ class DrQv2Policy(CarriesAuxiliary, BasePolicy):
         self.training = mode
 
 
-class DrQv2EFPolicy(DrQv2Policy):
+class DrQv2EFPolicy(EFPolicyMixin, DrQv2Policy):
     """:class:`DrQv2Policy` of DrQv2-EF, with the sizes its Ego-Foresight module is built from.
 
     :param agent_dim: number of leading feature dimensions that are agent features.
@@ -254,9 +255,7 @@ class DrQv2EFPolicy(DrQv2Policy):
         features_dim: int | None = 2048,
         **kwargs: Any,
     ):
-        super().__init__(observation_space, action_space, lr_schedule, features_dim=features_dim, **kwargs)
-        self.agent_dim = agent_dim
-        self.ef_kwargs = ef_kwargs or {}
-
-    def _get_constructor_parameters(self) -> dict[str, Any]:
-        return {**super()._get_constructor_parameters(), "agent_dim": self.agent_dim, "ef_kwargs": self.ef_kwargs}
+        super().__init__(
+            observation_space, action_space, lr_schedule, agent_dim=agent_dim, ef_kwargs=ef_kwargs,
+            features_dim=features_dim, **kwargs,
+        )  # fmt: skip

@@ -47,6 +47,20 @@ def check_horizon_fits_episodes(ef_horizon: int | None, steps: int | None) -> No
         )
 
 
+class EFPolicyMixin:
+    """Mixed in before a host's policy to make its EF policy: keeps the sizes EF's module is built from (keyword
+    arguments ``agent_dim``, ``ef_kwargs``) and saves them with the constructor's parameters."""
+
+    def __init__(self, *args: Any, agent_dim: int = 32, ef_kwargs: dict[str, Any] | None = None, **kwargs: Any):
+        super().__init__(*args, **kwargs)
+        self.agent_dim = agent_dim
+        self.ef_kwargs = ef_kwargs or {}
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()  # type: ignore[misc]
+        return {**data, "agent_dim": self.agent_dim, "ef_kwargs": self.ef_kwargs}
+
+
 class EFMixin(AuxiliaryHostMixin):
     """Mixed in before a plain host to make its Ego-Foresight variant (``class DrQv2EF(EFMixin, DrQv2)``): EF's
     algorithm-level arguments (:meth:`_init_ef`), the EF window in the replay buffer, the horizon check against the
@@ -106,6 +120,21 @@ class EFMixin(AuxiliaryHostMixin):
         if self.env is not None:
             check_horizon_fits_episodes(self.ef_horizon, episode_steps(self.env))
         super()._setup_model()
+
+    def _build_auxiliary(self) -> ForesightLoss:
+        """EF's loss on the encoder :meth:`_ef_encoder` names, sized by the host's EF policy (its ``"CnnPolicy"``)."""
+        policy, expected = self.policy, self.policy_aliases["CnnPolicy"]  # type: ignore[attr-defined]
+        if not isinstance(policy, expected):
+            name = type(self).__name__
+            raise TypeError(f"{name} needs a {expected.__name__} (EF's sizes), got {type(policy).__name__}")
+        encoder, feature_dim, encoder_input = self._ef_encoder()
+        return self._foresight(
+            feature_dim, policy.agent_dim, policy.ef_kwargs, policy.channels_last, encoder, encoder_input
+        )
+
+    def _ef_encoder(self) -> tuple[nn.Module, int, tuple[float, float]]:
+        """The encoder EF trains, its feature size and its input ``(divisor, offset)`` (see :meth:`_foresight`)."""
+        raise NotImplementedError
 
     def _foresight(
         self,

@@ -15,6 +15,7 @@ from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from sb3_ef.auxiliary.loss import AuxiliaryLoss, CarriesAuxiliary
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_stacked_frames
 from sb3_ef.common.forwarding import base_arguments
+from sb3_ef.ef.host import EFPolicyMixin
 from sb3_ef.tdmpc2.math import TwoHot, planning_iterations
 from sb3_ef.tdmpc2.planner import MPPIPlanner
 from sb3_ef.tdmpc2.world_model import FRAME_SIZE, WorldModel
@@ -231,7 +232,7 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
         return self._plan_actions(observation, None, deterministic)[0]
 
 
-class TDMPC2EFPolicy(TDMPC2Policy):
+class TDMPC2EFPolicy(EFPolicyMixin, TDMPC2Policy):
     """:class:`TDMPC2Policy` of TDMPC2-EF, with the sizes its Ego-Foresight module is built from.
 
     :param agent_dim: size of the agent part of the latent (a multiple of ``simnorm_dim``, whole SimNorm groups).
@@ -248,14 +249,11 @@ class TDMPC2EFPolicy(TDMPC2Policy):
         ef_kwargs: dict[str, Any] | None = None,
         **kwargs: Any,
     ):
-        super().__init__(observation_space, action_space, lr_schedule, **kwargs)
+        super().__init__(
+            observation_space, action_space, lr_schedule, agent_dim=agent_dim, ef_kwargs=ef_kwargs, **kwargs
+        )
         simnorm_dim = self._constructor_kwargs["simnorm_dim"]
         if agent_dim % simnorm_dim != 0:
             raise ValueError(
                 f"agent_dim must cover whole SimNorm groups: expected a multiple of {simnorm_dim}, got {agent_dim}"
             )
-        self.agent_dim = agent_dim
-        self.ef_kwargs = ef_kwargs or {}
-
-    def _get_constructor_parameters(self) -> dict[str, Any]:
-        return {**super()._get_constructor_parameters(), "agent_dim": self.agent_dim, "ef_kwargs": self.ef_kwargs}

@@ -8,10 +8,10 @@ import torch as th
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
+from torch import nn
 
 from sb3_ef.common.compile import CompileOption
 from sb3_ef.common.forwarding import base_arguments
-from sb3_ef.ef.foresight import ForesightLoss
 from sb3_ef.ef.host import EFMixin
 from sb3_ef.tdmpc2.policies import TDMPC2EFPolicy
 from sb3_ef.tdmpc2.tdmpc2 import TDMPC2
@@ -74,11 +74,6 @@ class TDMPC2EF(EFMixin, TDMPC2):
         if _init_setup_model:
             self._setup_model()
 
-    def _build_auxiliary(self) -> ForesightLoss:
-        policy = self.policy
-        if not isinstance(policy, TDMPC2EFPolicy):
-            raise TypeError(f"TDMPC2EF needs a TDMPC2EFPolicy (EF's sizes), got {type(policy).__name__}")
-        model, scaling = policy.world_model, (255.0, 0.5)  # WorldModel.encode feeds its encoder obs / 255 - 0.5
-        return self._foresight(
-            model.latent_dim, policy.agent_dim, policy.ef_kwargs, policy.channels_last, model.encoder, scaling
-        )
+    def _ef_encoder(self) -> tuple[nn.Module, int, tuple[float, float]]:
+        model = self.policy.world_model  # WorldModel.encode feeds its encoder obs / 255 - 0.5
+        return model.encoder, model.latent_dim, (255.0, 0.5)

@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Callable
+from functools import partial
 from typing import Any, cast
 
 import gymnasium as gym
@@ -23,14 +24,20 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, ConvertCallback
-from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.preprocessing import maybe_transpose
 from stable_baselines3.common.type_aliases import MaybeCallback
 from stable_baselines3.common.utils import is_vectorized_observation
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_ef.common.exploration import ActionOverrideMixin
+from sb3_ef.common.exploration import (
+    ActionOverrideMixin,
+    Observation,
+    Prediction,
+    PredictState,
+    overridden_predict,
+    overridden_sample_action,
+)
 from sb3_ef.ef.babbling.actions import BABBLING_MODES, babble
 from sb3_ef.ef.babbling.held_out import HeldOutWindows, foresight_error_ratio, record_held_out_windows
 from sb3_ef.ef.babbling.state import STATE_ATTRIBUTE, BabblingState, Plateau
@@ -304,9 +311,7 @@ class MotorBabblingCallback(BaseCallback):
             return None
         return babble(self.state.rng, (n_envs, *self.model.action_space.shape), self.mode)  # type: ignore[misc]
 
-    def evaluation_action(
-        self, observation: np.ndarray | dict[str, np.ndarray], state: tuple[np.ndarray, ...] | None
-    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None] | None:
+    def evaluation_action(self, observation: Observation, state: PredictState) -> Prediction | None:
         """With ``in_eval``, babbling env actions for ``predict`` while active, else ``None``."""
         if not (self.in_eval and self.active):
             return None
@@ -329,7 +334,8 @@ class MotorBabblingCallback(BaseCallback):
         if isinstance(model, ActionOverrideMixin):
             owner = model.action_override
         else:
-            owner = getattr(vars(model).get("_sample_action"), "__self__", None)
+            shadow = vars(model).get("_sample_action")
+            owner = shadow.args[0] if isinstance(shadow, partial) else None
         if isinstance(owner, MotorBabblingCallback):
             if owner._learn_start == model.start_time:
                 raise ValueError(
@@ -341,9 +347,12 @@ class MotorBabblingCallback(BaseCallback):
         if isinstance(model, ActionOverrideMixin):
             model.action_override = self
             return
-        methods = {"_sample_action": self._shadow_sample_action, "_excluded_save_params": self._excluded_save_params}
+        methods: dict[str, Any] = {
+            "_sample_action": partial(overridden_sample_action, self, model.policy, model._sample_action),
+            "_excluded_save_params": self._excluded_save_params,
+        }
         if self.in_eval:
-            methods["predict"] = self._shadow_predict
+            methods["predict"] = partial(overridden_predict, self, model.predict)
         self._shadowed = {name: getattr(model, name) for name in methods}
         self._instance_attributes = {name: vars(model)[name] for name in methods if name in vars(model)}
         vars(model).update(methods)
@@ -358,27 +367,6 @@ class MotorBabblingCallback(BaseCallback):
                 vars(model).pop(name, None)
             vars(model).update(self._instance_attributes)
         self._shadowed, self._instance_attributes, self._learn_start = {}, {}, None
-
-    # ------------------------------------------- shadows (SB3's own algorithms)
-    def _shadow_sample_action(
-        self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
-    ) -> tuple[np.ndarray, np.ndarray]:
-        buffer_action = self.rollout_action(n_envs)
-        if buffer_action is None:
-            return self._shadowed["_sample_action"](learning_starts, action_noise, n_envs)
-        return self.model.policy.unscale_action(buffer_action), buffer_action
-
-    def _shadow_predict(
-        self,
-        observation: np.ndarray | dict[str, np.ndarray],
-        state: tuple[np.ndarray, ...] | None = None,
-        episode_start: np.ndarray | None = None,
-        deterministic: bool = False,
-    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
-        answer = self.evaluation_action(observation, state)
-        if answer is None:
-            return self._shadowed["predict"](observation, state, episode_start, deterministic)
-        return answer
 
     def _excluded_save_params(self) -> list[str]:
         """The model's, plus the shadows (a save during training stores the model, not this callback)."""
