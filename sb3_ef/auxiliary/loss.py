@@ -1,20 +1,6 @@
-"""The one interface through which an auxiliary representation loss (Ego-Foresight, SEAR, CURL) joins a host.
-
-An auxiliary loss is an ``nn.Module`` trained together with a host algorithm's encoder. Per gradient update the
-host calls, in this order:
-
-1. ``observations, targets = aux.prepare(batch, pad, generator)``: the augmented observations the host encodes
-   (its random shift or crop), and what the loss compares against, augmented consistently with them;
-2. ``features = encoder(observations)`` (the host's own forward, shared with its critic or world model where the
-   paper shares it);
-3. ``loss, logs = aux(features, targets)``: the loss already weighted by its coefficients, and its detached,
-   unweighted parts for logging (``train/<name>``); the host adds ``loss`` to the loss that trains its encoder,
-   or steps it on its own optimiser;
-4. ``aux.after_update(encoder)`` once the optimisers have stepped (CURL's momentum key encoder follows the
-   online encoder here).
-
-The module is saved with the model: DrQ-v2 and TD-MPC2 keep it on their policy (``policy.auxiliary``), SB3's
-algorithms on the algorithm (``auxiliary_module``), so that their policy stays SB3's own.
+"""The one interface through which an auxiliary representation loss (Ego-Foresight, SEAR, CURL) joins a host:
+per update ``prepare`` (augmented observations and targets), the host's encoder, ``forward`` (weighted loss and logs),
+then ``after_update``; saved on the policy (DrQ-v2, TD-MPC2) or on the algorithm (SB3's hosts).
 """
 
 from __future__ import annotations

@@ -25,17 +25,12 @@ from sb3_ef.common.validation import check_algorithm_arguments
 
 class AuxiliaryStepMixin(AuxiliaryHostMixin):
     """Trains the auxiliary loss a subclass builds (``_build_auxiliary``) on the critic's ``features_extractor`` of an
-    SB3 off-policy algorithm (a CNN on stacked RGB frames), mixed in before it: ``class SACEF(..., SAC)``.
+    SB3 off-policy algorithm (a CNN on stacked RGB frames), mixed in before it: ``class SACEF(..., SAC)``. Its
+    arguments are keyword-only; the others are the host's.
 
-    The mixin's arguments are keyword-only; every other argument is the host's own and goes to it unchanged.
-
-    :param shift_pad: random shift (pixels) ``prepare`` applies to the observations of the auxiliary step and its
-        targets; 0 for none. With a :class:`ShiftedSequenceReplayBuffer` (``replay_buffer_class``), which shifts every
-        batch of the host and of the auxiliary step, the step adds no shift of its own.
-    :param auxiliary_learning_rate: learning rate of the auxiliary step's Adam; ``None`` uses the host's
-        ``learning_rate`` (schedule).
-    :param check_finite_losses: raise a ``ValueError`` when the auxiliary loss is NaN or infinite, before its
-        optimiser step (the host's own losses are computed inside SB3's ``train()`` and are not checked).
+    :param shift_pad: random shift (pixels) of the auxiliary step's batch (none with a ShiftedSequenceReplayBuffer).
+    :param auxiliary_learning_rate: learning rate of the auxiliary step's Adam (``None``: the host's).
+    :param check_finite_losses: raise a ``ValueError`` when the auxiliary loss is NaN or infinite, before its step.
     """
 
     policy: Any

@@ -115,17 +115,12 @@ class EgoForesight(nn.Module):
     :param decoder_channels: width of the decoder's hidden layers.
     :param skip_channels: channels of the encoder feature map passed as U-Net skip, 0 for none.
     :param step_sampling: ``"batch"`` (one k per batch) or ``"sample"`` (one k per sample), see ``draw_steps``.
-    :param decode_batch_size: decode only the first this-many samples of each batch in :meth:`loss` (a random subset,
-        since replay batches are drawn at random); ``None`` decodes all, as the paper does. **Changes the method**:
-        fewer reconstructions per update, so a noisier EF gradient at a lower cost (the decoder dominates it).
-    :param target: ``"pixel"`` (the paper: :meth:`loss` on frame t+k) or ``"latent"`` (:meth:`latent_loss` on target
-        features of the observation at t+k, through :attr:`head`; :attr:`decoder` is then a probe, trained only on
-        detached features by :meth:`probe_loss`, for analysis).
+    :param decode_batch_size: decode only this many samples per batch (``None``: all, the paper); changes the method.
+    :param target: ``"pixel"`` (the paper, frame t+k) or ``"latent"`` (target features of t+k; the decoder a probe).
     :param projection_dim: latent EF's projection size (256); only with ``target="latent"``.
     :param head_hidden_dim: width of latent EF's projection and prediction MLPs (512); only with ``target="latent"``.
     :param temperature: latent EF's InfoNCE temperature (0.1), finite and positive; only with ``target="latent"``.
-    :param loss_scale: weight of latent EF's InfoNCE in the host's loss, times ``beta`` (3); only with
-        ``target="latent"`` (docs/ef.md, "Loss scale"). Pixel EF's is 1.
+    :param loss_scale: weight of latent EF's InfoNCE, times ``beta`` (3); only with ``target="latent"``.
     """
 
     head: LatentHead  # latent EF only
@@ -385,14 +380,10 @@ class ForesightLoss(AuxiliaryLoss):
     :param agent_dim: size of h_agent, the first features of h (scene features must remain).
     :param horizon: H, the largest rollout length k.
     :param beta: weight of the loss.
-    :param ef_kwargs: extra arguments of :class:`EgoForesight` (``target``, decoder / rollout / head options), and
-        with ``target="latent"`` the target encoder's ``target_tau`` (0.01).
-    :param channels_last: keep the decoder's conv weights in channels-last memory format (same maths, faster
-        convolutions).
-    :param encoder: the host's online encoder (the module its ``after_update`` receives); latent EF's target encoder
-        is a momentum copy of it. Not stored: the host owns it.
-    :param encoder_input: ``(divisor, offset)``: the host feeds ``encoder`` with ``obs.float() / divisor - offset``
-        (see :class:`~sb3_ef.ef.latent.MomentumTarget`).
+    :param ef_kwargs: extra arguments of :class:`EgoForesight`, and with ``target="latent"`` ``target_tau`` (0.01).
+    :param channels_last: keep the decoder's conv weights channels-last (same maths, faster convolutions).
+    :param encoder: the host's online encoder (not stored); latent EF's target encoder is a momentum copy of it.
+    :param encoder_input: ``(divisor, offset)``: the host feeds ``encoder`` with ``obs.float() / divisor - offset``.
     """
 
     def __init__(

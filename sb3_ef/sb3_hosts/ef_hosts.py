@@ -25,13 +25,9 @@ def with_use_sde(policy_kwargs: dict[str, Any], data: dict[str, Any]) -> dict[st
 
 class EFStepMixin(EFMixin, AuxiliaryStepMixin):
     """Adds Ego-Foresight to an SB3 off-policy algorithm whose critic has a ``features_extractor`` (a CNN on stacked
-    RGB frames): ``class SACEF(EFStepMixin, SAC)``.
+    RGB frames): ``class SACEF(EFStepMixin, SAC)``. Its arguments are keyword-only, as :class:`AuxiliaryStepMixin`'s.
 
-    EF's arguments are keyword-only, as :class:`AuxiliaryStepMixin`'s (``shift_pad``, ``auxiliary_learning_rate``,
-    ``check_finite_losses``); every other argument is the host's own and goes to it unchanged.
-
-    :param beta: weight of the EF loss in its step. EF's optimiser is its own Adam, which normalises the gradient's
-        scale, so ``beta`` barely changes the step: ``auxiliary_learning_rate`` sets how strongly EF moves the encoder.
+    :param beta: weight of the EF loss in its own Adam step (``auxiliary_learning_rate`` sets how hard EF pulls).
     :param ef_horizon: EF's prediction horizon H (the rollout length k is drawn in [1, H]).
     :param agent_dim: size of the agent features, the first ``agent_dim`` features of the critic's encoder.
     :param ef_kwargs: extra arguments of :class:`sb3_ef.ef.EgoForesight` (decoder / rollout options).

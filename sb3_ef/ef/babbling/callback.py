@@ -1,14 +1,6 @@
-"""Motor babbling: random actions at the start of training, so that Ego-Foresight sees varied movements.
-
-:class:`MotorBabblingCallback` babbles for a fixed number of steps or, with ``steps="adaptive"``, until EF's
-prediction of held-out babbling episodes stops improving. It works on any SB3 off-policy algorithm with a ``Box``
-action space. sb3-ef's hosts take its actions through their ``action_override`` hook
-(:class:`~sb3_ef.common.exploration.ActionOverrideMixin`). SB3 gives its own algorithms no hook before an action is
-chosen, so there, while training runs, the callback shadows the model's ``_sample_action`` (and, with ``in_eval``,
-``predict``) on the instance: every off-policy algorithm chooses its rollout actions in ``_sample_action``, which
-returns the action the env executes and the ``[-1, 1]`` action stored in the replay buffer; the shadow returns a
-babbling action as both (the stored one, and its unscaled form for the env). The callback's state (generators, end,
-plateau) lives on the model and is saved with it (docs/ef.md, "Motor babbling").
+"""Motor babbling: random actions at the start of training, so that Ego-Foresight sees varied movements. sb3-ef's
+hosts take them through their ``action_override`` hook; on SB3's own algorithms the callback shadows ``_sample_action``
+(and ``predict``) on the instance. Its state lives on the model and is saved with it (docs/ef.md, "Motor babbling").
 """
 
 from __future__ import annotations
@@ -44,38 +36,23 @@ from sb3_ef.ef.babbling.state import STATE_ATTRIBUTE, BabblingState, Plateau
 
 
 class MotorBabblingCallback(BaseCallback):
-    """Motor babbling at the start of training: the rollout actions are random while babbling is active.
-
-    ``model.learn(n, callback=MotorBabblingCallback(...))``, alone or in a ``CallbackList``, on any SB3
-    off-policy algorithm with a ``Box`` action space (SAC, TD3, DDPG, sb3-contrib's TQC, every sb3-ef host). The
-    babbled actions are what the env executes and what the replay buffer stores. Logged: ``rollout/babbling``
-    (1 for a babbling step, 0 after) at every rollout step, ``babbling/end_step`` and ``babbling/end_reason``
-    when it ends and, adaptive, ``babbling/score`` at each evaluation.
-
-    Fixed: active while ``num_timesteps < steps``. Adaptive (``steps="adaptive"``): every ``eval_freq`` steps
-    once updates have begun (``num_timesteps >= learning_starts``), a score is computed (lower is better) and fed
-    to the :class:`Plateau` rule; babbling ends at the first step at or after ``min_steps`` at which the scores
-    have plateaued, and at ``max_steps`` at the latest. The default score is EF's prediction error on held-out
-    babbling episodes of ``eval_env`` relative to copying the last frame (:func:`foresight_error_ratio`), which
-    needs a model with Ego-Foresight; ``criterion(model) -> float`` replaces it (any model).
+    """Motor babbling at the start of training on any SB3 off-policy algorithm with a ``Box`` action space: the env
+    executes and the buffer stores random actions. Logs ``rollout/babbling``, ``babbling/end_step``,
+    ``babbling/end_reason`` and, adaptive, ``babbling/score``. Adaptive babbling scores the model every ``eval_freq``
+    steps once updates begin (EF's held-out prediction error, :func:`foresight_error_ratio`, or ``criterion``) and
+    ends at the :class:`Plateau` of the scores after ``min_steps``, at ``max_steps`` at the latest.
 
     :param steps: steps (``num_timesteps``) of babbling, or ``"adaptive"``.
-    :param mode: ``"sign"`` (each component -1 or +1, the paper) or ``"clamped_uniform"`` (uniform(-4, 4) clamped
-        to [-1, 1], the EF authors' code).
-    :param in_eval: while babbling is active, the model's ``predict`` (e.g. an ``EvalCallback``'s evaluation
-        during training) babbles too, from a separate generator (the EF authors' Meta-World protocol).
-    :param seed: seed of the babbling generators; ``None`` takes the model's ``seed``. A model that already holds
-        a babbling state (a loaded checkpoint, an earlier ``learn``) continues it instead.
+    :param mode: ``"sign"`` (each component +-1, the paper) or ``"clamped_uniform"`` (the EF authors' code).
+    :param in_eval: ``predict`` babbles too while active, from its own generator (the EF authors' Meta-World protocol).
+    :param seed: seed of the babbling generators (``None``: the model's); a model's saved babbling state continues.
     :param min_steps: adaptive: babbling never ends before this step (default 0).
     :param max_steps: adaptive: babbling always ends at this step.
     :param patience: adaptive: evaluations in a row without improvement that make a plateau (default 3).
     :param min_delta: adaptive: relative improvement of the best score that counts (default 0.01: 1% lower).
     :param eval_freq: adaptive: steps between two evaluations (default 1000).
-    :param eval_env: adaptive: a single env like the training one (same observations), in which
-        ``holdout_steps`` babbling steps are recorded at the start of training; EF is scored on
-        ``holdout_windows`` windows of them (never stored in the replay buffer).
-    :param criterion: adaptive: ``criterion(model) -> float``, a non-negative score, lower is better; instead of
-        ``eval_env``.
+    :param eval_env: adaptive: a single env like the training one, where held-out babbling episodes are recorded.
+    :param criterion: adaptive: ``criterion(model) -> float``, non-negative, lower is better; instead of ``eval_env``.
     :param holdout_steps: adaptive with ``eval_env``: babbling steps recorded in it (default 200).
     :param holdout_windows: adaptive with ``eval_env``: windows scored at each evaluation (default 64).
     :param verbose: 1 to print when babbling ends.
