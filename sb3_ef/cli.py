@@ -20,8 +20,7 @@ USER_ERRORS = (ValueError, OSError, ImportError, RenderingBackendError)
 
 
 class Command(NamedTuple):
-    """A subcommand: the ``main(argv)`` it runs (``module:function``, imported only when used), its help line,
-    arguments put in front of the user's, and a light ``check(argv)`` run first (not for ``--help``)."""
+    """A subcommand: its ``module:function`` main, help line, arguments put first, and a light ``check(argv)``."""
 
     target: str
     help: str

@@ -160,8 +160,7 @@ def _regrouped(state: dict[str, Any], optimizer: th.optim.Optimizer, name: str) 
 
 
 def legacy_algorithm(data: dict[str, Any]) -> type:
-    """The registry's algorithm whose 0.1.0 files hold ``data``'s policy class (``legacy_policy_module``), the EF
-    variant or not as ``data`` trained Ego-Foresight."""
+    """The registry's algorithm whose 0.1.0 files hold ``data``'s policy class, with EF or not as ``data``."""
     with_ef = data.get("ef_horizon") is not None
     module = (data.get("policy_class") or {}).get("__module__")
     candidates = [item for item in registry.ALGORITHMS.values() if item.legacy_policy_module == module]
@@ -173,8 +172,7 @@ def legacy_algorithm(data: dict[str, Any]) -> type:
 
 
 def upgrade(source: str | os.PathLike, destination: str | os.PathLike, device: str = "cpu") -> type:
-    """Convert ``source``, saved by sb3-ef 0.1.0 (else ``ValueError``), into the new file ``destination``, written
-    atomically; returns the class that loads it."""
+    """Convert ``source``, saved by sb3-ef 0.1.0, into ``destination`` (atomically); return the loading class."""
     data = saved_data(source)
     if data is None:
         raise ValueError(f"{source} is not a saved model: expected a zip archive written by save()")

@@ -46,8 +46,7 @@ def _ratio(numerator: int, denominator: int) -> float:
 
 
 def mask_scores(predicted: np.ndarray, target: np.ndarray) -> MaskScores:
-    """Precision TP/(TP+FP), recall TP/(TP+FN) and IoU TP/(TP+FP+FN) of two boolean masks of the same shape; a
-    ratio with a zero denominator is NaN (not a made-up 0 or 1: ``np.nanmean`` skips it)."""
+    """Precision, recall and IoU of two boolean masks of one shape (NaN for a zero denominator)."""
     predicted = np.asarray(predicted)
     target = np.asarray(target)
     if predicted.shape != target.shape:

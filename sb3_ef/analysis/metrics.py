@@ -172,8 +172,7 @@ def returns_at(records: pd.DataFrame, steps: tuple[int, ...]) -> pd.DataFrame:
 
 
 def ens_table(scores: pd.DataFrame, thresholds: tuple[float, ...] = ENS_THRESHOLDS) -> pd.DataFrame:
-    """Per task and threshold, the threshold step and each algorithm's normalised score there: columns ``task,
-    threshold, step, algo, normalized_score``."""
+    """Per task and threshold, the threshold step and each algorithm's normalised score there."""
     pandas = require("pandas")
     curves = performance_curves(scores)
     algos = sorted(curves["algo"].unique())
@@ -231,8 +230,7 @@ def uneven_seed_counts(scores: pd.DataFrame) -> dict[str, dict[str, int]]:
 
 
 def best_scores(scores: pd.DataFrame) -> dict[str, np.ndarray]:
-    """Best evaluation score of every run as rliable wants it: ``{algo: (runs, tasks) array}``, tasks sorted by
-    name and runs by seed. Every algorithm needs the same number of seeds on every task."""
+    """Each run's best score as rliable wants it: ``{algo: (runs, tasks) array}``, tasks and seeds sorted."""
     check_columns(scores, SCORE_COLUMNS)
     best = scores.groupby(["algo", "task", "seed"], as_index=False)["score"].max()
     tasks = sorted(best["task"].unique())
@@ -253,8 +251,7 @@ def stratified_bootstrap(
     confidence: float = 0.95,
     rng: np.random.Generator | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Percentile confidence intervals ``(lower, upper)`` of ``aggregate`` over a (runs, tasks) matrix, resampling
-    runs with replacement within each task (rliable's stratified bootstrap)."""
+    """Percentile CIs of ``aggregate`` over a (runs, tasks) matrix, runs resampled within each task."""
     rng = np.random.default_rng() if rng is None else rng
     runs, tasks = matrix.shape
     samples = matrix[rng.integers(0, runs, size=(reps, runs, tasks)), np.arange(tasks)]
@@ -265,9 +262,7 @@ def stratified_bootstrap(
 
 
 def rliable_metrics(scores: pd.DataFrame, reps: int = 2000, seed: int = 0) -> pd.DataFrame:
-    """Median, IQM, mean and optimality gap (rliable's) of the best normalised score per run, with 95% stratified
-    bootstrap intervals over ``reps`` resamples: columns ``algo, metric, estimate, lower, upper``. The bootstrap is
-    :func:`stratified_bootstrap`: rliable's own needs ``arch``, which breaks with pandas 3 (7.x) or rliable (8.x)."""
+    """rliable's four aggregates of each run's best score, with stratified-bootstrap CIs (rliable's needs ``arch``)."""
     pandas = require("pandas")
     metrics = require("rliable.metrics")
     names = ("median", "iqm", "mean", "optimality_gap")

@@ -101,8 +101,7 @@ def plot_ens(ens: pd.Series, path: str | os.PathLike) -> str:
 
 
 def plot_intervals(table: pd.DataFrame, path: str | os.PathLike) -> str:
-    """One panel per metric of :func:`~sb3_ef.analysis.metrics.rliable_metrics`: per algorithm, a bar over the CI and
-    a tick at the estimate."""
+    """One panel per rliable metric: per algorithm, a bar over the CI and a tick at the estimate."""
     check_columns(table, ("algo", "metric", "estimate", "lower", "upper"))
     plt = pyplot()
     metrics = list(dict.fromkeys(table["metric"]))

@@ -238,8 +238,7 @@ def missing_tasks(records: pd.DataFrame, name: str) -> list[str]:
 
 
 def unit_warnings(records: pd.DataFrame, name: str) -> list[str]:
-    """Doubts about the units of ``records`` next to the reference, one sentence each: returns all in [0, 1]
-    (success rates or normalised scores?) and ``frame == step`` (action repeat 1, or agent steps as frames)."""
+    """Doubts about the units of ``records`` next to the reference: returns all in [0, 1], or ``frame == step``."""
     reference = get_reference(name)
     compared = records[~records["task"].astype(str).isin(missing_tasks(records, name))]
     warnings = []

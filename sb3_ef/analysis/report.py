@@ -86,8 +86,7 @@ def foresight_report(
     num_std: float = 1.0,
     fraction: float = 0.1,
 ) -> ForesightReport:
-    """``rollout`` predicted open loop, the saliency of its last predicted frame, and the thresholded h_a map's
-    scores against the agent mask."""
+    """``rollout`` predicted open loop, with saliency and mask scores of its last predicted frame."""
     predicted = predict_open_loop(rollout.first_observation, rollout.actions, model=model)
     saliency = compute_saliency(rollout.first_observation, rollout.actions, model=model, patch_size=patch_size)
     mse = float(np.mean((predicted / 255.0 - rollout.true_frames / 255.0) ** 2))

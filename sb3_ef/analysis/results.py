@@ -199,11 +199,7 @@ def analyze_results(
     finished_only: bool = False,
     reference: str | None = None,
 ) -> dict[str, Any]:
-    """Write ``scores.csv``, ``ens.csv``, ``ens_details.csv``, ``rliable.csv``, the plots and, for the steps ``at``,
-    ``returns_at.csv`` to ``out``; ``finished_only`` reads only finished runs; ``reference`` (a key of
-    :data:`sb3_ef.analysis.reference.REFERENCES`) adds ``reference_<name>.csv`` and its plots. Every table is
-    computed before ``out`` is created, so bad input writes nothing; what a partial grid leaves out is printed.
-    """
+    """Compute every table of ``directory``, then write them and the plots to ``out`` (bad input writes nothing)."""
     from sb3_ef.analysis.metrics import load_records
     from sb3_ef.analysis.plots import plot_ens, plot_intervals, plot_learning_curves, plot_reference_curves
 

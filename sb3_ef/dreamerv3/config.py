@@ -95,8 +95,7 @@ def _dotted_keys(cfg: Any, prefix: str = "") -> Iterator[str]:
 
 
 def _type_mismatch(current: Any, value: Any) -> str | None:
-    """What ``value`` should be to replace ``current`` (a configuration value of the same kind; ``None`` on either
-    side fits), or ``None`` when it fits."""
+    """What ``value`` should be to replace ``current`` (``None`` on either side fits), or ``None`` when it fits."""
     from omegaconf import OmegaConf
 
     if current is None or value is None:
@@ -116,8 +115,7 @@ def _type_mismatch(current: Any, value: Any) -> str | None:
 
 
 def _set(cfg: Any, key: str, value: Any, typed: bool = True) -> None:
-    """Set an existing key of sheeprl's configuration (to a value of its type when ``typed``): a typo sheeprl would
-    ignore, or a type its loop would fail on, is refused here."""
+    """Set an existing key of sheeprl's configuration, refusing a typo or a value of another type (``typed``)."""
     from omegaconf import OmegaConf
 
     parent_key, _, leaf = key.rpartition(".")

@@ -134,9 +134,7 @@ class DreamerV3:
         keep_checkpoints: int | None = None,
         log_prefix: str | None = None,
     ) -> DreamerV3:
-        """Train ``total_timesteps`` agent steps (from the newest checkpoint with ``reset_num_timesteps=False``),
-        evaluating every ``evaluation.freq`` steps and checkpointing every ``checkpoint_freq`` (a multiple of it;
-        default: at the end) keeping ``keep_checkpoints``; a line per evaluation after ``log_prefix``."""
+        """Train ``total_timesteps`` steps, evaluating and checkpointing (resume: ``reset_num_timesteps=False``)."""
         if isinstance(total_timesteps, bool) or not isinstance(total_timesteps, int) or total_timesteps < 1:
             raise ValueError(f"total_timesteps must be a positive integer, got {total_timesteps!r}")
         if self.env is None:
@@ -215,8 +213,7 @@ class DreamerV3:
 
     @classmethod
     def resume(cls, work_dir: str | os.PathLike, env: gym.Env, device: str = "auto") -> DreamerV3 | None:
-        """The run in ``work_dir`` at its latest complete checkpoint (to ``learn(n, reset_num_timesteps=False)``), or
-        ``None`` before its first."""
+        """The run in ``work_dir`` at its latest complete checkpoint, or ``None`` before its first."""
         latest = read_latest(work_dir)
         if latest is None:
             return None
@@ -260,8 +257,7 @@ class DreamerV3:
         episode_start: np.ndarray | None = None,
         deterministic: bool = False,
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
-        """The action(s) for stacked uint8 frames ``(3 * k, h, w)`` or ``(n, 3 * k, h, w)`` and the player's memory,
-        to pass back as ``state`` (as SB3's recurrent policies do; ``None`` starts every episode)."""
+        """The action(s) for stacked uint8 frames and the player's memory, to pass back as ``state``."""
         batch = np.asarray(observation)
         single = batch.ndim == 3
         batch = batch[np.newaxis] if single else batch
@@ -302,8 +298,7 @@ class DreamerV3:
         return player
 
     def save(self, path: PathOrFile) -> None:
-        """Write settings, sheeprl's configuration, weights and optimiser states (no replay buffer) to one zip, whole
-        or not at all (``.zip`` added to a path without a suffix), or into an open binary file."""
+        """Write settings, configuration, weights and optimiser states (no replay buffer) to one zip, atomically."""
         config = self._config()
         space = self.action_space
         info = {
@@ -327,8 +322,7 @@ class DreamerV3:
         device: str = "auto",
         work_dir: str | os.PathLike | None = None,
     ) -> DreamerV3:
-        """A model :meth:`save` wrote. With ``env``, ``learn(n, reset_num_timesteps=False)`` continues it with a new
-        replay buffer, filled for ``learning_starts`` steps by the loaded policy."""
+        """A model :meth:`save` wrote; with ``env``, ``learn(n, reset_num_timesteps=False)`` continues it."""
         from omegaconf import OmegaConf
         from sheeprl.utils.utils import dotdict
 

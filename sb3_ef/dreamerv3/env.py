@@ -46,8 +46,7 @@ class NewestFrame(gym.ObservationWrapper):
 
 
 class StopTraining(BaseException):
-    """Raised from ``step`` when an SB3 callback returns ``False``; a ``BaseException`` so that sheeprl's
-    ``RestartOnException`` lets it through."""
+    """An SB3 callback returned ``False`` (a ``BaseException``: sheeprl's ``RestartOnException`` passes it)."""
 
 
 class StepCallbacks(gym.Wrapper):

@@ -49,8 +49,7 @@ def execute_dreamerv3_run(
 
 
 def new_dreamerv3(spec: RunSpec, env: gym.Env, device: str, work_dir: Path) -> DreamerV3:
-    """The model of a ``dreamerv3`` run that starts anew, on ``env``, writing into ``work_dir`` (checks its
-    arguments)."""
+    """The model of a ``dreamerv3`` run that starts anew, on ``env``, writing into ``work_dir``."""
     from sb3_ef.dreamerv3 import DreamerV3
 
     given = sorted(set(RUNNER_SET) & set(spec.hyperparams))
@@ -68,8 +67,7 @@ def check_dreamerv3_row(spec: RunSpec, env: gym.Env, device: str) -> None:
 def train_dreamerv3(
     spec: RunSpec, paths: RunPaths, threads: int, device: str, keep_checkpoints: int | None
 ) -> tuple[int, int | None]:
-    """Train (or resume) the run of ``spec`` into ``paths`` and save its final model; return the steps trained and
-    the step it resumed from (``None``: started anew)."""
+    """Train (or resume) the run of ``spec``; return the steps trained and the step it resumed from, if any."""
     import torch as th
 
     from sb3_ef.dreamerv3 import DreamerV3, Evaluation

@@ -140,8 +140,7 @@ class Player:
 def run_episodes(
     player: Player, env: gym.Env, n_episodes: int, seed: int, greedy: bool = False
 ) -> tuple[float, float | None]:
-    """Mean return over ``n_episodes`` episodes and the success rate (``None`` without ``info["is_success"]``); the
-    env and torch seeded with ``seed``, torch's random state restored afterwards."""
+    """Mean return over ``n_episodes`` seeded episodes and the success rate (``None`` without one)."""
     returns, successes = [], []
     with forked_rng(player.device):
         th.manual_seed(seed)

@@ -31,8 +31,7 @@ def _failure(spec: RunSpec, error: BaseException) -> RunResult:
 
 
 class LocalBackend:
-    """Runs in a pool of ``workers`` spawned processes (a fresh one per run), ``threads`` torch threads each; a
-    worker that dies counts a failed attempt for the runs in flight and the pool is rebuilt."""
+    """Runs in a pool of spawned processes, one per run; a worker that dies fails its runs and the pool is rebuilt."""
 
     def __init__(
         self,

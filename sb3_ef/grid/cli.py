@@ -69,8 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``sb3-ef benchmark``; returns 1 when a run failed, 2 when the grid has problems (one line
-    each, nothing trained), else 0."""
+    """Entry point of ``sb3-ef benchmark``: 1 when a run failed, 2 when the grid has problems, else 0."""
     args = build_parser().parse_args(argv)
     from sb3_ef.grid.grid import GridError, load_grid, read_grid_file
 
@@ -94,8 +93,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _run(args: argparse.Namespace, runs: list[RunSpec]) -> int:
-    """Select, plan or train the runs as ``args`` say; rows are checked here for a dry run and a local run (a Ray
-    cluster's nodes may hold data this machine lacks)."""
+    """Select, plan or train the runs (rows checked here unless on Ray, whose nodes may hold other data)."""
     from sb3_ef.grid.checks import check_rows
     from sb3_ef.grid.grid import GridError, select_runs
     from sb3_ef.grid.runner import plan_table

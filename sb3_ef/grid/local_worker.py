@@ -20,8 +20,7 @@ Result = TypeVar("Result")
 
 
 class Stopped(SystemExit):
-    """Raised in a worker by SIGTERM: unwinds the run (a file being written atomically is removed), then the
-    worker exits without a traceback."""
+    """Raised in a worker by SIGTERM: unwinds the run, then the worker exits without a traceback."""
 
 
 def _stop(signum: int, frame: Any) -> None:

@@ -37,8 +37,7 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class RunResult:
-    """How a run ended: ``status`` ``done`` (trained now), ``skipped`` (finished before) or ``failed``; its
-    evaluation ``records`` (for a driver on another machine) and the Ray ``node`` that ran it."""
+    """How a run ended (``done``, ``skipped`` or ``failed``), its evaluation records and its Ray node."""
 
     run_id: str
     status: str
@@ -156,8 +155,7 @@ def execute_run(
     keep_checkpoints: int | None = 2,
     node: str | None = None,
 ) -> RunResult:
-    """Train and record one run with the registry's run function of ``spec.algo`` (a finished run comes back
-    ``skipped``); ``keep_checkpoints`` newest are kept while it trains (``None``: all, for good)."""
+    """Train and record one run with the registry's run function of ``spec.algo`` (finished: ``skipped``)."""
     run = import_target(registry.entry(spec.algo, "RunSpec.algo").grid_run)
     return run(spec, out, threads, device, keep_checkpoints, node)
 

@@ -26,8 +26,7 @@ def _score(result: RunResult) -> str:
 
 
 def progress_line(event: str, spec: RunSpec, detail: RunResult | BaseException | None, index: int, total: int) -> str:
-    """One line per event (start, retry, skip, done, failed), e.g.
-    ``[ 3/12] done   drqv2/dmc-cartpole-balance-v0_s0  812.3 s  return 803.1 at step 20000``."""
+    """One line per event: ``[ 3/12] done   <run id>  812.3 s  return 803.1 at step 20000``."""
     word = detail.status if isinstance(detail, RunResult) else event  # a finish reads "done" or "failed"
     head = f"[{index:>{len(str(total))}}/{total}] {word:<7} {spec.run_id}"
     if isinstance(detail, BaseException):
@@ -80,8 +79,7 @@ def run_status(out: str | os.PathLike, spec: RunSpec) -> str:
 
 
 def plan_table(runs: Sequence[RunSpec], out: str | os.PathLike) -> str:
-    """Per algorithm and task: runs by status, steps per run and expected hours (from ``steps_per_second``), with a
-    total line and a note on the hours unknown."""
+    """Per algorithm and task: runs by status, steps per run and expected hours, with a total line."""
     groups: dict[tuple[str, str], list[RunSpec]] = {}
     for spec in runs:
         groups.setdefault((spec.label, spec.task), []).append(spec)
@@ -125,12 +123,7 @@ def run_benchmark(
     keep_checkpoints: int | None = 2,
     log: Callable[[str], None] = print,
 ) -> list[RunResult]:
-    """Execute ``runs`` into the results folder ``out`` and return their results in the order of ``runs``.
-
-    Finished runs are skipped; interrupted ones resume. The options are those of :class:`~sb3_ef.grid.backends.
-    LocalBackend` (``workers``) and :class:`~sb3_ef.grid.backends.RayBackend` (``address``, ``gpus``), and of
-    :func:`~sb3_ef.grid.run.execute_run` (``keep_checkpoints``).
-    """
+    """Execute ``runs`` into ``out`` (finished ones skipped, interrupted ones resumed); results in order."""
     if backend not in BACKENDS:
         raise ValueError(f"Unknown backend {backend!r}: expected one of {BACKENDS}")
     if keep_checkpoints is not None and keep_checkpoints < 1:

@@ -74,8 +74,7 @@ def select_entry(config: dict[str, dict[str, Any]], env_id: str) -> dict[str, An
 
 
 def allowed_keys(algo_class: type) -> frozenset[str]:
-    """Keys an entry may hold for ``algo_class``: its constructor arguments (through ``**kwargs`` to its bases)
-    plus rl-zoo3's own keys."""
+    """Keys an entry may hold for ``algo_class``: its constructor arguments (bases' included) and rl-zoo3's."""
     parameters: set[str] = set()
     for cls in algo_class.__mro__:
         init = vars(cls).get("__init__")
@@ -111,8 +110,7 @@ REFUSED_CALLBACKS = {
 
 
 def check_values(values: dict[str, Any], where: str) -> None:
-    """Raise ``ValueError`` for a string where rl-zoo3 expects a number or ``lin_<initial>``, and for a ``callback``
-    of :data:`REFUSED_CALLBACKS`."""
+    """Refuse a string where rl-zoo3 expects a number or ``lin_<initial>``, and a refused ``callback``."""
     for name, reason in REFUSED_CALLBACKS.items():
         if name in repr(values.get("callback", "")):
             raise ValueError(f"{where}: callback {name} is not supported with sb3-ef's algorithms: {reason}")
@@ -126,8 +124,7 @@ def check_values(values: dict[str, Any], where: str) -> None:
 
 
 def validate_config(algo: str, algo_class: type, config: dict[str, dict[str, Any]], source: str = "config") -> None:
-    """Check every entry of a zoo config (env id, keys, values, ``policy`` and ``n_timesteps`` present); a
-    ``ValueError`` names the entry and the key or id."""
+    """Check every entry of a zoo config; a ``ValueError`` names the entry and the key or id."""
     registry = gym.envs.registry
     for name, entry in config.items():
         where = f"{source}, entry {name!r}"

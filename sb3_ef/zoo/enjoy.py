@@ -34,8 +34,7 @@ class InferenceLoader:
 
 
 def check_run_folder(folder: str, algo: str, env: str, exp_id: int) -> None:
-    """Raise ``ValueError`` naming the runs there are when ``--exp-id`` (0: the latest) names none; ``-1`` and
-    ``rl-trained-agents`` (filled from the Hugging Face hub) are left to rl-zoo3."""
+    """Refuse an ``--exp-id`` (0: the latest) that names no run, naming the runs there are."""
     if exp_id < 0 or "rl-trained-agents" in folder:
         return
     env_name = utils.EnvironmentName(env)

@@ -13,8 +13,7 @@ from sb3_ef.common.validation import did_you_mean
 
 
 class Option(NamedTuple):
-    """One option: its spellings, ``kind`` (``flag``, ``int``, ``str``, ``list``, ``pairs`` of ``key:value``),
-    choices and help text (sb3-ef's own options)."""
+    """One option: its spellings, ``kind`` (``flag``, ``int``, ``str``, ``list``, ``pairs``), choices, help."""
 
     names: tuple[str, ...]
     kind: str = "str"

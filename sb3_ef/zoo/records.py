@@ -33,8 +33,7 @@ def finish_run(save_path: str | os.PathLike, env_name: str, steps: int) -> None:
 
 
 def export_records(log_folder: str, out: str, action_repeat: int | None = None) -> list[str]:
-    """Write (or replace) one evaluation CSV per rl-zoo3 run under ``log_folder`` that has evaluations; return their
-    paths. ``action_repeat`` defaults to the run's recorded one."""
+    """Write one evaluation CSV per rl-zoo3 run under ``log_folder`` that has evaluations; return their paths."""
     written = []
     for npz in sorted(glob.glob(os.path.join(log_folder, "*", "*", EVALUATIONS_FILE))):
         run_folder = os.path.dirname(npz)
