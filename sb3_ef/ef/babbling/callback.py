@@ -325,7 +325,7 @@ class MotorBabblingCallback(BaseCallback):
             model.action_override = self
             return
         methods: dict[str, Any] = {
-            "_sample_action": partial(overridden_sample_action, self, model.policy, model._sample_action),
+            "_sample_action": partial(overridden_sample_action, self, model.policy, model._sample_action),  # type: ignore[attr-defined]
             "_excluded_save_params": self._excluded_save_params,
         }
         if self.in_eval:
