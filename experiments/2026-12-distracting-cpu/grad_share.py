@@ -3,7 +3,7 @@
 For each EF target, a DrQv2EF at the zoo's DMC defaults (``zoo_configs/drqv2_ef.yml``: batch 256, features 2048,
 agent features 32, beta 1, horizon 10; 84x84 frames, 3 stacked, action repeat 2) fills its buffer with ``--fill``
 agent steps, then the encoder-gradient norms of the critic loss and of the weighted EF loss are read on
-``--batches`` replay batches (:func:`sb3_ef.auxiliary.diagnostics.encoder_gradient_ratio`), at initialisation and
+``--batches`` replay batches (:func:`sb3_ef.auxiliary.host.encoder_gradient_ratio`), at initialisation and
 again after each of ``--updates`` (cumulative counts of DrQ-v2 updates). Both models see the same environment steps
 and the same batches (one seed). One line per (target, updates): the mean and range over the batches.
 
@@ -22,7 +22,7 @@ import numpy as np
 import torch as th
 
 from sb3_ef import DrQv2EF, make_env
-from sb3_ef.auxiliary.diagnostics import encoder_gradient_ratio
+from sb3_ef.auxiliary.host import encoder_gradient_ratio
 
 
 def gradient_share(model: DrQv2EF, batches: int, seed: int) -> tuple[list[float], list[float], list[float]]:

@@ -18,7 +18,7 @@ from unittest import mock
 import torch as th
 
 from sb3_ef import DrQv2EF, make_env
-from sb3_ef.auxiliary.diagnostics import AUX_GRAD_RATIO_EVERY
+from sb3_ef.auxiliary.host import AUX_GRAD_RATIO_EVERY
 
 
 def main() -> None:
