@@ -71,10 +71,6 @@ class AlgorithmEntry:
         return self.zoo_run is None
 
 
-def _entries(*entries: AlgorithmEntry) -> dict[str, AlgorithmEntry]:
-    return {entry.key: entry for entry in entries}
-
-
 def _paper_host(key: str, target: str, ef: bool) -> AlgorithmEntry:
     """A host of the paper (DrQ-v2, TD-MPC2), with or without EF: Optuna sampler ``sample_<key>_params``."""
     package = target.partition(":")[0]
@@ -84,7 +80,7 @@ def _paper_host(key: str, target: str, ef: bool) -> AlgorithmEntry:
     )  # fmt: skip
 
 
-ALGORITHMS: dict[str, AlgorithmEntry] = _entries(
+ALGORITHMS: dict[str, AlgorithmEntry] = {entry.key: entry for entry in (
     _paper_host("drqv2_ef", "sb3_ef.drqv2:DrQv2EF", ef=True),
     _paper_host("drqv2", "sb3_ef.drqv2:DrQv2", ef=False),
     _paper_host("tdmpc2_ef", "sb3_ef.tdmpc2:TDMPC2EF", ef=True),
@@ -100,7 +96,7 @@ ALGORITHMS: dict[str, AlgorithmEntry] = _entries(
         grid_check="sb3_ef.dreamerv3.grid_run:check_dreamerv3_row",
         zoo_run=("sb3_ef.zoo.sheeprl_run:train_main", "sb3_ef.zoo.sheeprl_run:enjoy_main"),
     ),
-)  # fmt: skip
+)}  # fmt: skip
 
 
 def entry(key: str, argument: str = "algo") -> AlgorithmEntry:

@@ -80,7 +80,8 @@ def _upgraded_data(
     if not with_ef:
         data = {key: value for key, value in data.items() if key not in EF_ATTRIBUTES}
     data = {RENAMED_ATTRIBUTES.get(key, key): value for key, value in data.items()}
-    values = _deserialised(data, ("policy_class", "policy_kwargs"), custom_objects)
+    saved = {key: data[key] for key in ("policy_class", "policy_kwargs") if key in data}
+    values = json_to_data(json.dumps(saved), custom_objects)  # SB3 deserialises them: classes are pickled
     policy_class = values.get("policy_class")
     if isinstance(policy_class, type):  # the EF variant's policy, a subclass of the plain one 0.1.0 saved
         aliases = getattr(algorithm, "policy_aliases", {}).values()
@@ -92,11 +93,6 @@ def _upgraded_data(
     data.update(json.loads(data_to_json(values)))
     data["algorithm"] = algorithm.__name__
     return data
-
-
-def _deserialised(data: dict[str, Any], keys: tuple[str, ...], custom_objects: dict[str, Any]) -> dict[str, Any]:
-    """The values of the JSON data's ``keys`` (SB3 deserialises them: classes and closures are pickled)."""
-    return json_to_data(json.dumps({key: data[key] for key in keys if key in data}), custom_objects)
 
 
 def upgraded_parameters(

@@ -37,12 +37,8 @@ def check_columns(df: pd.DataFrame, columns: tuple[str, ...]) -> None:
 
 
 def load_records(directory: str | os.PathLike, finished_only: bool = False) -> pd.DataFrame:
-    """Every evaluation CSV (``RECORD_COLUMNS`` header) under ``directory`` and the ``evaluations.npz`` of every
-    rl-zoo3 run folder without one, checked (:func:`check_record_values`); other files are skipped.
-
-    :param finished_only: only finished runs: CSVs with a ``<name>/result.json`` beside them and rl-zoo3 runs that
-        saved their final model (a grid part-way through is read without its runs in progress).
-    """
+    """Every evaluation CSV under ``directory`` and the ``evaluations.npz`` of each rl-zoo3 run folder without one,
+    checked; ``finished_only``: only runs with a ``result.json`` or a final model."""
     from sb3_ef.analysis.zoo_logs import EVALUATIONS_FILE, is_zoo_run_folder, zoo_run_finished, zoo_run_records
 
     pandas = require("pandas")

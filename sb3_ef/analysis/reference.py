@@ -154,13 +154,8 @@ def _seed_values(curves: pd.DataFrame, xs: np.ndarray, x: str = "x", y: str = "r
 def seed_band(
     curves: pd.DataFrame, x: str = "x", y: str = "return", end: float = np.inf, points: int | None = None
 ) -> pd.DataFrame:
-    """Seeds (``seed``, ``x``, ``y``) interpolated onto one grid where every seed has points (up to ``end``): the
-    union of their points, or ``points`` evenly spaced x's (for curves of one point per training episode), so seeds
-    logged at other steps average at the same x and the band does not jump where a seed starts or stops.
-
-    :return: columns ``x``, ``mean``, ``std`` (over seeds, ``ddof=1``; NaN for one seed), ``min``, ``max``,
-        ``seeds``.
-    """
+    """Seeds (``seed``, ``x``, ``y``) interpolated onto one grid (the union of their x's, or ``points`` evenly spaced
+    ones) up to ``end``: columns ``x``, ``mean``, ``std`` (``ddof=1``), ``min``, ``max``, ``seeds``."""
     pandas = require("pandas")
     spans = curves.groupby("seed")[x].agg(["min", "max"])
     low, high = float(spans["min"].max()), min(float(spans["max"].min()), end)
@@ -187,12 +182,8 @@ def _frames_per_step(group: pd.DataFrame) -> float:
 
 
 def reference_table(records: pd.DataFrame, name: str, at: tuple[int, ...] = ()) -> pd.DataFrame:
-    """Your mean at each agent step of ``at`` (default: the last step all seeds reached) vs the official mean and
-    min-max at the same point of the reference's axis, per algorithm and task the reference has.
-
-    :return: columns ``reference`` (its label), ``algo, task, step, x, unit, seeds, mean, std, official_seeds,
-        official_mean, official_min, official_max`` (``official_*`` NaN where no official seed reached ``x``).
-    """
+    """Your mean at each agent step of ``at`` (default: the last step all seeds reached) beside the official mean and
+    min-max at the same point of the reference's axis (``official_*`` NaN where no official seed reached it)."""
     pandas = require("pandas")
     check_columns(records, RECORD_COLUMNS)
     if any(step < 0 for step in at):

@@ -42,8 +42,7 @@ class DreamerV3:
     """Dreamer-v3 (Hafner et al., 2023), trained by sheeprl on an sb3-ef pixel env.
 
     :param policy: ``"CnnPolicy"`` (the networks are sheeprl's).
-    :param env: one gymnasium env of stacked uint8 RGB frames, channels-first, square, of a power-of-2 size, Box
-        actions; ``None`` only when loading a model to act with.
+    :param env: an env of stacked uint8 RGB frames (square, power-of-2 size), Box actions; ``None`` to act only.
     :param model_size: sheeprl's preset ``XS``, ``S`` (the authors' DMC-vision model), ``M``, ``L`` or ``XL``.
     :param replay_ratio: gradient steps per agent step (the authors' ``train_ratio / (batch_size * sequence_length)``).
     :param batch_size: sequences per gradient step.

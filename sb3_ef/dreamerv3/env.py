@@ -51,10 +51,7 @@ class StopTraining(BaseException):
 
 class StepCallbacks(gym.Wrapper):
     """Counts sheeprl's env steps on ``model.num_timesteps`` and calls ``callback.on_step()`` after each, as SB3
-    does; ``False`` raises :class:`StopTraining`.
-
-    :param locals_: the dict the callback reads as ``callback.locals`` (updated with each step's values).
-    """
+    does (``locals_``: the callback's ``locals``); ``False`` raises :class:`StopTraining`."""
 
     def __init__(self, env: gym.Env, model: Any, callback: Any, locals_: dict[str, Any]):
         super().__init__(env)

@@ -11,11 +11,8 @@ from sb3_ef.dreamerv3.config import Session, set_session
 
 
 def resolved_config(cfg: Any, session: Session, buffer_in_checkpoint: bool = True) -> Any:
-    """``cfg`` with the session set, merged into the resumed run's own configuration as sheeprl's resume does,
-    resolved into sheeprl's ``dotdict`` and checked by sheeprl.
-
-    :param buffer_in_checkpoint: whether the resumed checkpoint holds its replay buffer (a saved model does not).
-    """
+    """``cfg`` with the session set, merged into a resumed run's configuration as sheeprl's resume does, resolved
+    and checked by sheeprl (``buffer_in_checkpoint``: the resumed checkpoint holds its replay buffer)."""
     from omegaconf import OmegaConf, open_dict
     from sheeprl.cli import check_configs, resume_from_checkpoint
     from sheeprl.utils.utils import dotdict

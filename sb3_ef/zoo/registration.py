@@ -28,8 +28,7 @@ def config_namespace() -> dict[str, Any]:
 def register_algorithms(base_policy_kwargs: dict[str, Any] | None = None) -> None:
     """Add the algorithms of :func:`algorithm_classes` to rl-zoo3, with their Optuna samplers and converters.
 
-    :param base_policy_kwargs: ``policy_kwargs`` of the config entry in use, which the samplers merge ``agent_dim``
-        into (rl-zoo3 would replace them).
+    :param base_policy_kwargs: the entry's ``policy_kwargs``, which the samplers merge ``agent_dim`` into.
     """
     utils.ALGOS.update(algorithm_classes())
     for key, sampler in SAMPLERS.items():

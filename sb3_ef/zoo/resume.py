@@ -60,11 +60,6 @@ def recorded_argv(run_dir: str | os.PathLike) -> tuple[Path, list[str]]:
     return saved[0].parent, json.loads(saved[0].read_text())
 
 
-def is_run_folder(folder: Path, env_name: str) -> bool:
-    """Whether ``folder`` is an rl-zoo3 run folder of ``env_name`` (it holds ``<env_name>/args.yml``)."""
-    return (folder / env_name / "args.yml").is_file()
-
-
 def with_seed(argv: list[str], seed: int) -> list[str]:
     """``argv`` ending with ``--seed seed`` unless it already gives that seed (rl-zoo3 draws one for ``-1``)."""
     parser = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
@@ -154,8 +149,9 @@ class ResumingExperimentManager(ExperimentManager):
         self.checkpoint: Checkpoint | None = checkpoint_for(self.trained_agent) if self.continue_training else None
         self.continues_folder = False
         self.interrupted = False
-        if self.checkpoint is not None and is_run_folder(self.checkpoint.model_path.parent, self.env_name):
-            self.save_path = str(self.checkpoint.model_path.parent)
+        folder = self.checkpoint.model_path.parent if self.checkpoint is not None else None
+        if folder is not None and (folder / self.env_name / "args.yml").is_file():  # a model in an rl-zoo3 run folder
+            self.save_path = str(folder)
             self.params_path = os.path.join(self.save_path, self.env_name)
             self.continues_folder = True
 
