@@ -40,8 +40,7 @@ def upgraded_file(
     with_ef: bool,
     custom_objects: dict[str, Any] | None = None,
 ) -> str | pathlib.Path | io.BufferedIOBase:
-    """``path`` itself, or for a file of sb3-ef 0.1.0 an in-memory copy with the data ``algorithm`` saves (an EF
-    variant when ``with_ef``; ``ValueError`` when the file says otherwise)."""
+    """``path`` itself, or for a 0.1.0 file an in-memory copy with the data ``algorithm`` saves."""
     file = open_path(path, "r", verbose=0, suffix="zip")
     position = file.tell()
     try:
@@ -98,8 +97,7 @@ def _upgraded_data(
 def upgraded_parameters(
     load_path_or_dict: str | pathlib.Path | io.BufferedIOBase | dict[str, Any], model: Any, device: th.device | str
 ) -> dict[str, Any]:
-    """The state dicts for SB3's ``set_parameters``, those of a 0.1.0 EF model moved to where ``model`` keeps them:
-    ``ef.*`` to the auxiliary module, ``ef_optimizer`` to ``auxiliary_optimizer``, optimiser groups regrouped."""
+    """The state dicts for SB3's ``set_parameters``, a 0.1.0 EF model's moved to where ``model`` keeps them."""
     if isinstance(load_path_or_dict, dict):
         params = load_path_or_dict
     else:
@@ -132,8 +130,7 @@ def _attribute(model: Any, dotted_name: str) -> Any:
 
 
 def _regrouped(state: dict[str, Any], optimizer: th.optim.Optimizer, name: str) -> dict[str, Any]:
-    """A 0.1.0 optimiser state with ``optimizer``'s parameter groups: one group the model splits is cut at the same
-    places; groups of the same sizes take the model's group names (``ef`` was renamed)."""
+    """A 0.1.0 optimiser state split or renamed into ``optimizer``'s parameter groups."""
     saved_groups, groups = state["param_groups"], optimizer.param_groups
     saved_sizes = [len(group["params"]) for group in saved_groups]
     sizes = [len(group["params"]) for group in groups]

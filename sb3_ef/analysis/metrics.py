@@ -93,8 +93,7 @@ RECORD_VALUE_RULES: dict[str, tuple[str, Callable[[pd.Series], pd.Series]]] = {
 
 
 def check_record_values(records: pd.DataFrame, source: str | os.PathLike) -> pd.DataFrame:
-    """``records`` with numeric ``step``, ``frame``, ``return`` and ``success`` (empty: NaN), or a ``ValueError``
-    naming the file, line, column and value of the first bad entry of each wrong column."""
+    """``records`` with numeric columns, or a ``ValueError`` naming the line and value of each bad column."""
     pandas = require("pandas")
     check_columns(records, RECORD_COLUMNS)
     problems = []
@@ -135,8 +134,7 @@ def _seed_column(seeds: pd.Series) -> pd.Series:
 
 
 def records_to_scores(records: pd.DataFrame, return_scale: float = 1000.0) -> pd.DataFrame:
-    """Score table from evaluation records: per task, the success rate when every record of that task has one
-    (Meta-World), otherwise ``return / return_scale`` (DMC returns lie in [0, 1000])."""
+    """Scores: per task, the success rate where every record has one, else ``return / return_scale``."""
     check_columns(records, RECORD_COLUMNS)
     if return_scale <= 0:
         raise ValueError(f"return_scale must be positive, got {return_scale}")
@@ -155,8 +153,7 @@ def performance_curves(scores: pd.DataFrame) -> pd.DataFrame:
 
 
 def returns_at(records: pd.DataFrame, steps: tuple[int, ...]) -> pd.DataFrame:
-    """Evaluation return at given steps over seeds: columns ``algo, task, step, mean, std`` (sample; NaN for one seed),
-    ``seeds`` (the runs evaluated at that step) and ``returns`` (in seed order); a step no run reached has no row."""
+    """Evaluation return at ``steps`` over seeds: ``mean``, ``std``, ``seeds`` and the ``returns`` themselves."""
     check_columns(records, RECORD_COLUMNS)
     if not steps or any(step < 0 for step in steps):
         raise ValueError(f"Expected one or more non-negative steps, got {steps}")

@@ -41,9 +41,7 @@ def _save(figure, path: str | os.PathLike) -> str:
 
 
 def plot_learning_curves(scores: pd.DataFrame, out_dir: str | os.PathLike, xlabel: str = "step") -> list[str]:
-    """``<out_dir>/curve_<task>.png`` (the paths returned): each algorithm's mean score over seeds (on one grid,
-    :func:`~sb3_ef.analysis.reference.seed_band`) against step, with a 95% band (1.96 standard errors; none for one
-    seed)."""
+    """``<out_dir>/curve_<task>.png``: each algorithm's mean score over seeds with a 95% band; the paths."""
     from sb3_ef.analysis.reference import seed_band
 
     check_columns(scores, SCORE_COLUMNS)
@@ -63,8 +61,7 @@ def plot_learning_curves(scores: pd.DataFrame, out_dir: str | os.PathLike, xlabe
 
 
 def plot_reference_curves(records: pd.DataFrame, name: str, out_dir: str | os.PathLike) -> list[str]:
-    """``<out_dir>/reference_<name>_<task>.png`` per task the reference has (the paths returned): each algorithm's
-    mean and min-max return over seeds beside the official ones, up to 10% past the end of your runs."""
+    """``<out_dir>/reference_<name>_<task>.png``: your mean and min-max returns beside the official ones; the paths."""
     from sb3_ef.analysis.reference import get_reference, load_reference, reference_task, seed_band
 
     check_columns(records, RECORD_COLUMNS)

@@ -107,9 +107,7 @@ def to_uint8_frames(frames: th.Tensor) -> np.ndarray:
 
 
 def figure_eight_actions(steps: int, action_dim: int, period: int = 40) -> np.ndarray:
-    """A hand-made probe, float32 (steps, action_dim) in [-1, 1]: ``cos(w t)`` and ``cos(2 w t)`` on the first two
-    components (zero on the others), the velocity of a figure eight (1:2 Lissajous) in a delta-position action space
-    like Meta-World's; on a 1-D action space (cartpole) component 0 alone swings back and forth."""
+    """A probe, float32 (steps, action_dim): a figure-eight velocity ``cos(w t), cos(2 w t)`` on two components."""
     if action_dim < 1:
         raise ValueError(f"figure_eight_actions needs an action space with at least 1 dimension, got {action_dim}")
     if steps < 1 or period < 2:
@@ -130,8 +128,7 @@ def predict_open_loop(
     encoder: Encoder | None = None,
     ef: EgoForesight | None = None,
 ) -> np.ndarray:
-    """The T frames, uint8 (T, h, w, 3), EF predicts open loop (``EgoForesight.predict``) after ``actions`` (T,
-    action_dim) from one stacked uint8 ``observation`` (3 * C, h, w), oldest frame first; T may exceed the horizon."""
+    """The T uint8 (T, h, w, 3) frames EF predicts open loop after ``actions`` from one stacked observation."""
     encode, foresight = resolve_foresight(model, encoder, ef)
     device = module_device(foresight)
     with eval_mode(foresight, encoder):

@@ -100,8 +100,7 @@ def check_reference_data(name: str) -> None:
 
 
 def authors_scores(path: str | os.PathLike, method: str = "dreamerv3") -> pd.DataFrame:
-    """The runs of ``method`` in a danijar/dreamerv3 scores file (gzipped JSON runs of ``task``, ``method``, ``seed``,
-    ``xs``, ``ys``), one row per point: ``task`` (``walker-walk``), ``seed``, ``x`` and ``return`` (to 0.01)."""
+    """The runs of ``method`` in a danijar/dreamerv3 scores file, one row per point (``task, seed, x, return``)."""
     pandas = require("pandas")
     with gzip.open(path, "rt") as file:
         runs = json.load(file)

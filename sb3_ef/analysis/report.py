@@ -16,8 +16,7 @@ from sb3_ef.analysis.saliency import Saliency, compute_saliency, saliency_overla
 
 @dataclass(frozen=True)
 class Rollout:
-    """The first stacked observation, the T actions taken, the T newest frames after them (uint8 (T, h, w, 3)) and
-    the agent mask after the last step (None without masks)."""
+    """The first stacked observation, the T actions, the T newest frames after them and the final agent mask."""
 
     first_observation: np.ndarray
     actions: np.ndarray

@@ -47,8 +47,7 @@ def decoder_saliency(
     skip: th.Tensor | None = None,
     chunk_size: int = 128,
 ) -> Saliency:
-    """Saliency of ``ef.decode(h_scene, h_agent)`` for (1, scene_dim) and (1, agent_dim) features (h_a of the
-    context or rolled out); ``chunk_size`` patches are differentiated per batched backward call."""
+    """Saliency of ``ef.decode(h_scene, h_agent)`` for one frame, ``chunk_size`` patches per backward call."""
     if h_scene.dim() != 2 or h_agent.dim() != 2 or h_scene.shape[0] != 1 or h_agent.shape[0] != 1:
         raise ValueError(
             f"Expected h_scene (1, scene_dim) and h_agent (1, agent_dim), got {tuple(h_scene.shape)} "
@@ -94,8 +93,7 @@ def compute_saliency(
     ef: EgoForesight | None = None,
     patch_size: int = 4,
 ) -> Saliency:
-    """Saliency of the frame EF predicts after ``actions`` (T, action_dim) from one stacked observation, or of its
-    reconstruction of the newest context frame when ``actions`` is None."""
+    """Saliency of EF's prediction after ``actions`` (``None``: its reconstruction of the newest frame)."""
     encode, foresight = resolve_foresight(model, encoder, ef)
     device = module_device(foresight)
     with th.no_grad(), eval_mode(foresight, encoder):

@@ -11,8 +11,7 @@ from sb3_ef.sear import SEAR, SEARLoss
 
 
 def decoded_agent_masks(model: SEAR, observation: np.ndarray) -> np.ndarray:
-    """SEAR's mask decoder on one stacked uint8 observation ``(3 * frame_stack, h, w)``: the probability that
-    each pixel of each stacked frame shows the agent, ``(frame_stack, h, w)`` float32 in [0, 1], oldest first."""
+    """SEAR's agent-pixel probabilities, ``(frame_stack, h, w)`` in [0, 1], of one stacked uint8 observation."""
     auxiliary = getattr(model, "auxiliary", None)
     if not isinstance(auxiliary, SEARLoss):
         raise TypeError(f"Expected a SEAR model (its auxiliary loss a SEARLoss), got {type(model).__name__}")

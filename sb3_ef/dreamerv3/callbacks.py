@@ -25,8 +25,7 @@ LATEST_FILE = "latest.json"
 
 @dataclass(frozen=True)
 class Evaluation:
-    """``n_episodes`` episodes on ``env`` every ``freq`` agent steps (seeded by ``seed`` and the step), a row each
-    appended to ``records``; actions sampled, as the authors' evaluation does (``deterministic``: the mode)."""
+    """``n_episodes`` seeded episodes on ``env`` every ``freq`` agent steps, a CSV row each (actions sampled)."""
 
     env: gym.Env
     freq: int

@@ -116,9 +116,7 @@ def _execute_on_node(spec: RunSpec, out: str, **run_kwargs: Any) -> RunResult:
 
 
 class RayBackend:
-    """One Ray task per run with ``threads`` CPUs (its torch threads) and ``gpus`` GPUs, on the cluster at
-    ``address`` (default: Ray started here; a caller's Ray session is used as is). The driver writes each finished
-    run's records too, so ``out`` need not be a shared filesystem."""
+    """One Ray task per run on the cluster at ``address``; the driver writes each run's records too (no shared disk)."""
 
     def __init__(
         self,

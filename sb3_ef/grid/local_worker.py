@@ -28,12 +28,10 @@ def _stop(signum: int, frame: Any) -> None:
 
 
 def set_up_worker(parent_pid: int) -> None:
-    """Pool-worker initializer: Ctrl-C is left to the driver (which ends workers with SIGTERM), and the worker ends
-    when the driver is gone, so no orphan trains a run the next invocation trains too. A Ctrl-C pending from
-    :func:`sigint_held_for_workers` is discarded here."""
+    """Pool-worker initializer: Ctrl-C left to the driver, and the worker ends with it (no orphan runs)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if hasattr(signal, "pthread_sigmask"):
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # pending from sigint_held_for_workers: dropped
     signal.signal(signal.SIGTERM, _stop)
 
     def watch() -> None:
@@ -46,15 +44,13 @@ def set_up_worker(parent_pid: int) -> None:
 
 @contextlib.contextmanager
 def sigint_held_for_workers() -> Iterator[None]:
-    """Block SIGINT in the calling thread for the block, so workers (and a pool's manager thread) started meanwhile
-    inherit the mask and a Ctrl-C during their start-up gives no traceback; the caller gets it when the block ends.
-    No-op where signal masks do not exist. The resource tracker is started first: starting it unblocks SIGINT."""
+    """Block SIGINT while workers start, so they inherit the mask; the caller gets a Ctrl-C when the block ends."""
     if not hasattr(signal, "pthread_sigmask"):
         yield
         return
     from multiprocessing import resource_tracker
 
-    resource_tracker.ensure_running()
+    resource_tracker.ensure_running()  # before the mask: starting it unblocks SIGINT
     previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield
