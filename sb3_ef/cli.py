@@ -34,38 +34,25 @@ class Command(NamedTuple):
         return import_target(self.target)(argv)
 
 
+_TRAIN_CHECK = "sb3_ef.zoo.options:check_train_argv"
 COMMANDS: dict[str, Command] = {
-    "train": Command(
-        "sb3_ef.zoo.train:main",
-        "train an agent from a zoo config (rl-zoo3 train arguments)",
-        check="sb3_ef.zoo.options:check_train_argv",
-    ),
-    "enjoy": Command(
-        "sb3_ef.zoo.enjoy:main",
-        "run a trained agent (rl-zoo3 enjoy arguments)",
-        check="sb3_ef.zoo.options:check_enjoy_argv",
-    ),
-    "optimize": Command(
-        "sb3_ef.zoo.train:main",
-        "tune hyperparameters with Optuna (rl-zoo3 train arguments, -optimize implied)",
-        prefix=("-optimize",),
-        check="sb3_ef.zoo.options:check_train_argv",
-    ),
+    "train": Command("sb3_ef.zoo.train:main", "train an agent from a zoo config (rl-zoo3 train arguments)",
+                     check=_TRAIN_CHECK),
+    "enjoy": Command("sb3_ef.zoo.enjoy:main", "run a trained agent (rl-zoo3 enjoy arguments)",
+                     check="sb3_ef.zoo.options:check_enjoy_argv"),
+    "optimize": Command("sb3_ef.zoo.train:main",
+                        "tune hyperparameters with Optuna (rl-zoo3 train arguments, -optimize implied)",
+                        prefix=("-optimize",), check=_TRAIN_CHECK),
     "analyze": Command("sb3_ef.analysis.cli:main", "predictions, saliency, ENS and rliable plots (sb3_ef.analysis)"),
     "benchmark": Command("sb3_ef.grid.cli:main", "train a grid of runs locally or on a Ray cluster (sb3_ef.grid)"),
-    "collect": Command(
-        "sb3_ef.offline.cli:collect_main",
-        "record babbling or policy episodes (frames, actions, agent masks) (sb3_ef.offline)",
-    ),
-    "pretrain": Command(
-        "sb3_ef.offline.cli:pretrain_main", "train an encoder + Ego-Foresight offline on episodes (sb3_ef.offline)"
-    ),
-    "predict": Command(
-        "sb3_ef.offline.cli:predict_main",
-        "open-loop predictions of a pretrained model as PNG and GIF/MP4 (sb3_ef.offline)",
-    ),
+    "collect": Command("sb3_ef.offline.cli:collect_main",
+                       "record babbling or policy episodes (frames, actions, agent masks) (sb3_ef.offline)"),
+    "pretrain": Command("sb3_ef.offline.cli:pretrain_main",
+                        "train an encoder + Ego-Foresight offline on episodes (sb3_ef.offline)"),
+    "predict": Command("sb3_ef.offline.cli:predict_main",
+                       "open-loop predictions of a pretrained model as PNG and GIF/MP4 (sb3_ef.offline)"),
     "upgrade": Command("sb3_ef.upgrade:main", "convert a model file saved by sb3-ef 0.1.0 to this version's format"),
-}
+}  # fmt: skip
 
 
 def _parser() -> argparse.ArgumentParser:

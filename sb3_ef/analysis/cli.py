@@ -39,39 +39,28 @@ def build_parser() -> argparse.ArgumentParser:
     results.add_argument("--out", help="output directory (default: DIR/analysis)")
     results.add_argument("--return-scale", type=float, default=1000.0, help="returns are divided by this (DMC: 1000)")
     results.add_argument("--reps", type=int, default=2000, help="bootstrap resamples for the confidence intervals")
+    results.add_argument("--at", type=int, nargs="+", metavar="STEP", help="also tabulate mean +- std return there")
     results.add_argument(
-        "--at", type=int, nargs="+", metavar="STEP", help="also tabulate mean +- std return at these steps"
-    )
-    results.add_argument(
-        "--finished-only",
-        action="store_true",
+        "--finished-only", action="store_true",
         help="only finished runs of an `sb3-ef benchmark` folder (those with a result.json), not runs in progress",
-    )
+    )  # fmt: skip
     results.add_argument(
-        "--reference",
-        choices=REFERENCE_NAMES,
+        "--reference", choices=REFERENCE_NAMES,
         help="put the runs beside published DMC curves: DrQ-v2's (frames), TD-MPC2's pixel results (agent steps), "
         "Dreamer-v3's (2024 release: dreamerv3; 2023 paper: dreamerv3-2023) or CURL's from danijar/dreamerv3 (frames)",
-    )
+    )  # fmt: skip
 
     model = commands.add_parser("model", help="open-loop prediction, saliency and mask scores of a saved model")
     model.add_argument("path", help="saved model (.zip)")
     model.add_argument("--env", required=True, help="env name, e.g. dmc/reacher-easy, metaworld/hammer, toy/agent-v0")
-    model.add_argument(
-        "--algo",
-        choices=sorted(EF_ALGORITHMS),
-        help="algorithm (default: the one the file records, else each tried in turn)",
-    )
+    model.add_argument("--algo", choices=sorted(EF_ALGORITHMS), help="default: the file's, else each tried in turn")
     model.add_argument("--steps", type=int, help="prediction length T (default: the EF horizon)")
     model.add_argument("--actions", choices=("policy", "figure8"), default="policy", help="actions played")
     model.add_argument("--action-repeat", type=int, default=2, help="action repeat of dmc/ and metaworld/ envs")
     model.add_argument(
-        "--env-kwargs",
-        nargs="+",
-        default=None,
-        metavar="KEY:VALUE",
+        "--env-kwargs", nargs="+", default=None, metavar="KEY:VALUE",
         help="make_env options of the training env, e.g. fast_render:True (default: the run's, if recorded)",
-    )
+    )  # fmt: skip
     model.add_argument("--seed", type=int, default=0, help="env reset seed")
     model.add_argument("--out", help="output directory (default: next to the model, <name>_analysis)")
     return parser
@@ -228,15 +217,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "results":
         from sb3_ef.analysis.results import analyze_results
 
-        analyze_results(
-            args.directory,
-            args.out or os.path.join(args.directory, "analysis"),
-            args.return_scale,
-            args.reps,
-            tuple(args.at or ()),
-            args.finished_only,
-            args.reference,
-        )
+        out = args.out or os.path.join(args.directory, "analysis")
+        at = tuple(args.at or ())
+        analyze_results(args.directory, out, args.return_scale, args.reps, at, args.finished_only, args.reference)
     else:
         out = args.out or os.path.splitext(args.path)[0] + "_analysis"
         env_kwargs = None if args.env_kwargs is None else parse_env_kwargs(args.env_kwargs)

@@ -65,10 +65,7 @@ def plot_reference_curves(records: pd.DataFrame, name: str, out_dir: str | os.Pa
     from sb3_ef.analysis.reference import get_reference, load_reference, reference_task, seed_band
 
     check_columns(records, RECORD_COLUMNS)
-    plt = pyplot()
-    reference = get_reference(name)
-    official = load_reference(name)
-    paths = []
+    plt, reference, official, paths = pyplot(), get_reference(name), load_reference(name), []
     for task, group in records.groupby("task"):
         curves = official[official["task"] == reference_task(str(task))]
         if curves.empty:
@@ -101,8 +98,7 @@ def plot_intervals(table: pd.DataFrame, path: str | os.PathLike) -> str:
     """One panel per rliable metric: per algorithm, a bar over the CI and a tick at the estimate."""
     check_columns(table, ("algo", "metric", "estimate", "lower", "upper"))
     plt = pyplot()
-    metrics = list(dict.fromkeys(table["metric"]))
-    algos = list(dict.fromkeys(table["algo"]))
+    metrics, algos = list(dict.fromkeys(table["metric"])), list(dict.fromkeys(table["algo"]))
     figure, axes = plt.subplots(1, len(metrics), figsize=(3 * len(metrics), 0.6 * len(algos) + 1.2), squeeze=False)
     for axis, metric in zip(axes[0], metrics, strict=True):
         rows = table[table["metric"] == metric].set_index("algo").reindex(algos)
@@ -110,8 +106,7 @@ def plot_intervals(table: pd.DataFrame, path: str | os.PathLike) -> str:
         axis.barh(positions, rows["upper"] - rows["lower"], left=rows["lower"], height=0.6, alpha=0.5)
         axis.vlines(rows["estimate"], positions - 0.3, positions + 0.3, color="black")
         axis.set_yticks(positions, algos if axis is axes[0][0] else [""] * len(algos))
-        axis.set_title(metric)
-        axis.set_xlabel("normalised score")
+        axis.set(title=metric, xlabel="normalised score")
     return _save(figure, path)
 
 

@@ -189,20 +189,12 @@ def set_session(cfg: Any, session: Session) -> None:
         cfg.update(seed=session.seed, dry_run=False, log_root=session.work_dir, root_dir="sheeprl")
         cfg.run_name = session.run_name
         cfg.algo.total_steps = session.total_steps
-        cfg.env = OmegaConf.merge(
-            cfg.env,
-            {
-                "id": session.task,
-                "num_envs": 1,
-                "sync_env": True,
-                "screen_size": session.frame_size,
-                "action_repeat": 1,  # the env repeats its actions itself
-                "grayscale": False,
-                "capture_video": False,
-                "max_episode_steps": None,  # the env reports its time limits
-                "wrapper": {"_target_": "sb3_ef.dreamerv3.env.live_env", "token": session.env_token},
-            },
-        )
+        # The env repeats its actions and reports its time limits itself.
+        cfg.env = OmegaConf.merge(cfg.env, {
+            "id": session.task, "num_envs": 1, "sync_env": True, "screen_size": session.frame_size,
+            "action_repeat": 1, "grayscale": False, "capture_video": False, "max_episode_steps": None,
+            "wrapper": {"_target_": "sb3_ef.dreamerv3.env.live_env", "token": session.env_token},
+        })  # fmt: skip
         cfg.checkpoint.update(
             every=session.checkpoint_every, keep_last=session.keep_last, save_last=True,
             resume_from=session.resume_from,

@@ -89,9 +89,7 @@ class DreamerV3:
         self.env = None if env is None else self._checked_env(env)
         self.work_dir = Path(work_dir) if work_dir is not None else Path(tempfile.mkdtemp(prefix="sb3_ef_dreamerv3_"))
         self.seed = int(np.random.randint(2**31 - 1)) if seed is None else int(seed)
-        self.device = device
-        self.verbose = verbose
-        self.num_timesteps = 0
+        self.device, self.verbose, self.num_timesteps = device, verbose, 0
         self.resolved: Any = None  # the last run's resolved sheeprl configuration
         self._state: dict[str, Any] | None = None  # the newest weights (a checkpoint's state, no replay buffer)
         self._checkpoint: str | None = None  # the newest checkpoint on disk, with its replay buffer

@@ -62,20 +62,9 @@ class Player:
         from sheeprl.algos.dreamer_v3.agent import build_agent
 
         observation_space = gym.spaces.Dict({FRAME_KEY: gym.spaces.Box(0, 255, frame_shape, np.uint8)})
-        *_, self.player = build_agent(
-            fabric,
-            tuple(action_space.shape),
-            True,
-            cfg,
-            observation_space,
-            state["world_model"],
-            state["actor"],
-            state["critic"],
-            state["target_critic"],
-        )
-        self.device = fabric.device
-        self.frame_shape = frame_shape
-        self.action_space = action_space
+        weights = (state[key] for key in ("world_model", "actor", "critic", "target_critic"))
+        *_, self.player = build_agent(fabric, tuple(action_space.shape), True, cfg, observation_space, *weights)
+        self.device, self.frame_shape, self.action_space = fabric.device, frame_shape, action_space
         self.normalize = bool(cfg.algo.get("normalize_actions", False))
         self.action_clip = float(cfg.algo.actor.get("action_clip", 0.0))
         self.player.num_envs = n_envs

@@ -54,17 +54,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--retries", type=at_least(0), default=1, help="attempts after a failure (each resumes)")
     parser.add_argument("--device", default="auto", help="torch device of each run")
     parser.add_argument(
-        "--keep-checkpoints",
-        type=keep_count,
-        default=2,
-        metavar="N|all",
+        "--keep-checkpoints", type=keep_count, default=2, metavar="N|all",
         help="newest checkpoints kept per run while it trains, deleted when it ends; all: every one, kept for good",
-    )
+    )  # fmt: skip
     parser.add_argument(
-        "--dry-run",
-        action="store_true",
+        "--dry-run", action="store_true",
         help="list the runs, their status and expected hours, and check each row's start (env, data, arguments)",
-    )
+    )  # fmt: skip
     return parser
 
 

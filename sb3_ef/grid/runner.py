@@ -58,11 +58,8 @@ def summary_table(runs: Sequence[RunSpec], results: Sequence[RunResult]) -> str:
     for (label, task), group in groups.items():
         finished = [result for result in group if result.status != "failed"]
         returns = [result.final_return for result in finished if result.final_return is not None]
-        score = "-"
-        if len(returns) == 1:
-            score = f"{returns[0]:.1f}"
-        elif returns:
-            score = f"{statistics.mean(returns):.1f} +- {statistics.stdev(returns):.1f}"
+        spread = f" +- {statistics.stdev(returns):.1f}" if len(returns) > 1 else ""
+        score = f"{statistics.mean(returns):.1f}{spread}" if returns else "-"
         hours = sum(result.duration_s for result in finished) / 3600
         rows.append(
             [label, task, f"{len(finished)}/{len(group)}", str(len(group) - len(finished)), score, f"{hours:.2f}"]

@@ -1,5 +1,7 @@
-"""Evaluation CSVs of rl-zoo3 runs, in the format ``sb3-ef analyze results`` reads: ``sb3-ef train`` records them,
-and ``python -m sb3_ef.zoo.records logs results`` exports the ``evaluations.npz`` of rl-zoo3's own runs."""
+"""Evaluation CSVs of rl-zoo3 runs, in the format ``sb3-ef analyze results`` reads.
+
+``sb3-ef train`` records them; ``python -m sb3_ef.zoo.records logs results`` exports rl-zoo3's ``evaluations.npz``.
+"""
 
 from __future__ import annotations
 
@@ -50,9 +52,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m sb3_ef.zoo.records", description=__doc__.split("\n")[0])
     parser.add_argument("log_folder", help="rl-zoo3 log folder (train's -f, default 'logs')")
     parser.add_argument("out", help="folder for the evaluation CSVs")
-    parser.add_argument(
-        "--action-repeat", type=int, default=None, help="env frames per agent step (default: the run's recorded one)"
-    )
+    parser.add_argument("--action-repeat", type=int, help="env frames per agent step (default: the run's recorded one)")
     args = parser.parse_args(argv)
     paths = export_records(args.log_folder, args.out, args.action_repeat)
     print(f"{len(paths)} run(s) -> {args.out}")
