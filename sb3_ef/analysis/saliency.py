@@ -23,8 +23,7 @@ from sb3_ef.ef import EgoForesight
 
 @dataclass(frozen=True)
 class Saliency:
-    """Saliency of one decoded frame: ``agent`` / ``scene`` (h, w) maps in [0, 1] (each divided by its maximum), and
-    the raw gradient norms per patch, ``agent_patches`` / ``scene_patches``, to compare magnitudes."""
+    """Saliency of one decoded frame: ``agent`` / ``scene`` maps in [0, 1] and the raw gradient norms per patch."""
 
     frame: np.ndarray
     agent: np.ndarray
@@ -65,24 +64,16 @@ def decoder_saliency(
         basis = th.eye(patch_sums.numel(), device=patch_sums.device, dtype=patch_sums.dtype)
         agent_norms, scene_norms = [], []
         for start in range(0, patch_sums.numel(), chunk_size):
+            chunk = basis[start : start + chunk_size]
             grad_agent, grad_scene = th.autograd.grad(
-                patch_sums,
-                (h_agent, h_scene),
-                grad_outputs=basis[start : start + chunk_size],
-                retain_graph=True,
-                is_grads_batched=True,
+                patch_sums, (h_agent, h_scene), grad_outputs=chunk, retain_graph=True, is_grads_batched=True
             )
             agent_norms.append(grad_agent.flatten(1).norm(dim=1))
             scene_norms.append(grad_scene.flatten(1).norm(dim=1))
     agent_patches = th.cat(agent_norms).reshape(rows, columns).cpu().numpy()
     scene_patches = th.cat(scene_norms).reshape(rows, columns).cpu().numpy()
-    return Saliency(
-        frame=to_uint8_frames(frame[0]),
-        agent=_normalise(agent_patches, patch_size),
-        scene=_normalise(scene_patches, patch_size),
-        agent_patches=agent_patches,
-        scene_patches=scene_patches,
-    )
+    agent, scene = _normalise(agent_patches, patch_size), _normalise(scene_patches, patch_size)
+    return Saliency(to_uint8_frames(frame[0]), agent, scene, agent_patches, scene_patches)
 
 
 def compute_saliency(

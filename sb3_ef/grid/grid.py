@@ -250,20 +250,13 @@ def grid_runs(
             except ValueError as error:
                 problems[str(error)] = None
                 continue
-            runs_of_seed.append(
-                {
-                    "label": algorithm.label,
-                    "algo": algorithm.algo,
-                    "task": task,
-                    "n_timesteps": steps,
-                    "eval_freq": eval_freq,
-                    "eval_episodes": eval_episodes,
-                    "checkpoint_freq": checkpoint_freq,
-                    "hyperparams": {key: value for key, value in entry.items() if key not in RUNNER_KEYS},
-                    "env_kwargs": {**(entry.get("env_kwargs") or {}), **(env_kwargs or {}), **algorithm.env_kwargs},
-                    "steps_per_second": algorithm.steps_per_second,
-                }
-            )
+            runs_of_seed.append({
+                "label": algorithm.label, "algo": algorithm.algo, "task": task, "n_timesteps": steps,
+                "eval_freq": eval_freq, "eval_episodes": eval_episodes, "checkpoint_freq": checkpoint_freq,
+                "hyperparams": {key: value for key, value in entry.items() if key not in RUNNER_KEYS},
+                "env_kwargs": {**(entry.get("env_kwargs") or {}), **(env_kwargs or {}), **algorithm.env_kwargs},
+                "steps_per_second": algorithm.steps_per_second,
+            })  # fmt: skip
     if problems:
         raise GridError(list(problems))
     return [RunSpec(seed=seed, **arguments) for seed in _seeds(seeds) for arguments in runs_of_seed]

@@ -197,16 +197,13 @@ def execute_sb3_run(
     recorder = EvalRecorderCallback(
         paths.records, algo=record_name, task=spec.task, seed=spec.seed, action_repeat=spec.action_repeat
     )
+    evaluation = StepSeededEvalCallback(
+        eval_env, spec.seed, eval_freq=spec.eval_freq, n_eval_episodes=spec.eval_episodes,
+        callback_after_eval=recorder, verbose=0,
+    )  # fmt: skip
     # Checkpoints are written at the start of the rollout after their step, so after that step's evaluation.
     callbacks = [
-        StepSeededEvalCallback(
-            eval_env,
-            spec.seed,
-            eval_freq=spec.eval_freq,
-            n_eval_episodes=spec.eval_episodes,
-            callback_after_eval=recorder,
-            verbose=0,
-        ),
+        evaluation,
         ResumableCheckpointCallback(spec.checkpoint_freq, str(paths.checkpoints), keep=keep_checkpoints),
         ProgressLogCallback(spec.n_timesteps, prefix=f"[{spec.run_id}] "),
     ]

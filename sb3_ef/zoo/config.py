@@ -125,10 +125,9 @@ def check_values(values: dict[str, Any], where: str) -> None:
 
 def validate_config(algo: str, algo_class: type, config: dict[str, dict[str, Any]], source: str = "config") -> None:
     """Check every entry of a zoo config; a ``ValueError`` names the entry and the key or id."""
-    registry = gym.envs.registry
     for name, entry in config.items():
         where = f"{source}, entry {name!r}"
-        if name != "default" and name not in registry:
+        if name != "default" and name not in gym.envs.registry:
             raise ValueError(f"{where}: env id {name!r} is not registered with gymnasium (did `import sb3_ef` run?)")
         check_keys(algo, algo_class, entry, where)
         check_values(entry, where)

@@ -17,8 +17,7 @@ from sb3_ef.zoo.options import check_enjoy_argv
 from sb3_ef.zoo.registration import algorithm_classes, register_algorithms
 from sb3_ef.zoo.train import own_loop_main, run_with_argv, with_gym_package
 
-#: Replay-buffer capacity (frames) of a model loaded to act: more than any sampling window needs
-#: (horizon + frame stack), a few MB at 84x84 instead of the training capacity.
+#: Replay-buffer capacity (frames) of a model loaded to act: more than any sampling window, a few MB at 84x84.
 INFERENCE_BUFFER_SIZE = 256
 
 
@@ -38,14 +37,9 @@ def check_run_folder(folder: str, algo: str, env: str, exp_id: int) -> None:
     if exp_id < 0 or "rl-trained-agents" in folder:
         return
     env_name = utils.EnvironmentName(env)
-    runs = sorted(
-        (
-            os.path.basename(path)
-            for path in glob.glob(os.path.join(folder, algo, f"{env_name}_*"))
-            if os.path.isdir(path)
-        ),
-        key=lambda name: int(name.rsplit("_", 1)[1]) if name.rsplit("_", 1)[1].isdigit() else -1,
-    )
+    paths = glob.glob(os.path.join(folder, algo, f"{env_name}_*"))
+    runs = [os.path.basename(path) for path in paths if os.path.isdir(path)]
+    runs.sort(key=lambda name: int(name.rsplit("_", 1)[1]) if name.rsplit("_", 1)[1].isdigit() else -1)
     if (exp_id > 0 and f"{env_name}_{exp_id}" in runs) or (exp_id == 0 and runs):
         return
     wanted = "any run" if exp_id == 0 else f"run {env_name}_{exp_id}"

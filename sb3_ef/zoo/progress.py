@@ -24,12 +24,8 @@ class ProgressLogCallback(BaseCallback):
 
     def __init__(self, total_timesteps: int, interval_s: float = 10.0, prefix: str = ""):
         super().__init__()
-        self.total_timesteps = total_timesteps
-        self.interval_s = interval_s
-        self.prefix = prefix
-        self._start_time = 0.0
-        self._start_step = 0
-        self._last_line = 0.0
+        self.total_timesteps, self.interval_s, self.prefix = total_timesteps, interval_s, prefix
+        self._start_time, self._start_step, self._last_line = 0.0, 0, 0.0
 
     def _on_training_start(self) -> None:
         self._start_time = self._last_line = time.monotonic()

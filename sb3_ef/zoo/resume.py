@@ -208,15 +208,9 @@ class ResumingExperimentManager(ExperimentManager):
         print(f"Continuing from {self.checkpoint.model_path} (step {self.checkpoint.step})")
         kwargs = {key: value for key, value in hyperparams.items() if key not in ("policy", "policy_kwargs")}
         return load_checkpoint(
-            ALGOS[self.algo],
-            self.checkpoint,
-            env,
-            seed=self.seed,
-            tensorboard_log=self.tensorboard_log,
-            verbose=self.verbose,
-            device=self.device,
-            **kwargs,
-        )
+            ALGOS[self.algo], self.checkpoint, env, seed=self.seed, tensorboard_log=self.tensorboard_log,
+            verbose=self.verbose, device=self.device, **kwargs,
+        )  # fmt: skip
 
     def _save_config(self, saved_hyperparams: dict[str, Any]) -> None:
         super()._save_config(saved_hyperparams)
