@@ -12,9 +12,7 @@ THRESHOLD_RULES = ("mean_std", "top_fraction")
 def threshold_saliency(
     saliency: np.ndarray, rule: str = "mean_std", num_std: float = 1.0, fraction: float = 0.1
 ) -> np.ndarray:
-    """A (h, w) saliency map as a boolean "agent" mask: by ``"mean_std"``, the pixels above ``mean + num_std * std``
-    (scale-free); by ``"top_fraction"``, the ``fraction`` of highest pixels, ties included (the true mask's fraction
-    gives the "matched size" rule, where precision equals recall)."""
+    """A (h, w) saliency map as a boolean mask: pixels above ``mean + num_std * std``, or the top ``fraction``."""
     saliency = np.asarray(saliency, dtype=np.float64)
     if saliency.ndim != 2:
         raise ValueError(f"Expected a (height, width) saliency map, got shape {saliency.shape}")
@@ -47,8 +45,7 @@ def _ratio(numerator: int, denominator: int) -> float:
 
 def mask_scores(predicted: np.ndarray, target: np.ndarray) -> MaskScores:
     """Precision, recall and IoU of two boolean masks of one shape (NaN for a zero denominator)."""
-    predicted = np.asarray(predicted)
-    target = np.asarray(target)
+    predicted, target = np.asarray(predicted), np.asarray(target)
     if predicted.shape != target.shape:
         raise ValueError(f"Mask shapes differ: predicted {predicted.shape}, target {target.shape}")
     if predicted.dtype != bool or target.dtype != bool:
