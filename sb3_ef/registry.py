@@ -1,8 +1,5 @@
-"""The algorithm registry: each key the workbench knows mapped to its class and what the workbench does with it.
-
-Targets are ``"module:attribute"`` strings imported on first use, so a command line is checked before anything heavy
-is imported. A new algorithm is one entry here, a zoo config ``zoo_configs/<key>.yml`` and its own package.
-"""
+"""The algorithm registry: each key the workbench knows mapped to its class and what the workbench does with it, named
+by ``"module:attribute"`` and imported on first use. A new algorithm is one entry here, a zoo config and its package."""
 
 from __future__ import annotations
 

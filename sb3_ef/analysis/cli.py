@@ -1,7 +1,5 @@
 """``sb3-ef analyze``: tables and plots from evaluation CSVs, or predictions and saliency of a saved model.
-
-``analyze model`` builds the env the model trained on: its options from ``--env-kwargs`` or the model's run folder.
-"""
+``analyze model`` builds the env the model trained on: its options from ``--env-kwargs`` or the model's run folder."""
 
 from __future__ import annotations
 

@@ -1,11 +1,5 @@
-"""Aggregate scores over algorithms, tasks and seeds: the Efficiency Normalised Score and rliable metrics.
-
-A score table has columns ``algo, task, seed, step, score`` (one step unit for every algorithm). An algorithm's
-performance curve on a task is its mean score over seeds, linearly interpolated between its evaluation steps and held
-flat outside them. M(task) is the greatest value of all curves (> 0); for q in (0.95, 0.90, 0.85) the threshold step
-is the first evaluation step (of any algorithm) where some curve reaches ``q * M``. ENS(algo) is the mean over
-thresholds and tasks of its curve there divided by M. docs/analysis.md gives the reasoning.
-"""
+"""Aggregate scores (``algo, task, seed, step, score``) over algorithms, tasks and seeds: the Efficiency Normalised
+Score (defined step by step in docs/analysis.md) and rliable metrics."""
 
 from __future__ import annotations
 
@@ -197,7 +191,7 @@ def ens_table(scores: pd.DataFrame, thresholds: tuple[float, ...] = ENS_THRESHOL
 
 
 def efficiency_normalized_score(scores: pd.DataFrame, thresholds: tuple[float, ...] = ENS_THRESHOLDS) -> pd.Series:
-    """ENS per algorithm (a Series named ``ens`` indexed by ``algo``), as defined in this module's docstring."""
+    """ENS per algorithm (a Series named ``ens`` indexed by ``algo``), as docs/analysis.md defines it."""
     return ens_table(scores, thresholds).groupby("algo")["normalized_score"].mean().rename("ens")
 
 

@@ -1,8 +1,5 @@
-"""A benchmark grid: algorithms x tasks x seeds, expanded into fully specified runs.
-
-A run's hyperparameters are its task's zoo entry, then the block's overrides, then the algorithm's own, all checked
-when the grid is read. The file format (blocks under ``grids``, YAML anchors under ``anchors``): docs/benchmark.md.
-"""
+"""A benchmark grid: algorithms x tasks x seeds, expanded into fully specified runs whose hyperparameters (the task's
+zoo entry, the block's overrides, the algorithm's own) are checked when the grid is read (format: docs/benchmark.md)."""
 
 from __future__ import annotations
 

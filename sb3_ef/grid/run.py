@@ -1,8 +1,5 @@
-"""One benchmark run: build the env and the algorithm, train with periodic evaluation, record, checkpoint.
-
-A run's files lie at ``out/<run_id>.csv`` and ``out/<run_id>/`` (docs/benchmark.md); it resumes from its newest
-checkpoint, dropping the evaluation rows after that checkpoint's step first.
-"""
+"""One benchmark run: build the env and the algorithm, train with periodic evaluation, record, checkpoint; it resumes
+from its newest checkpoint, dropping the evaluation rows after that step (files: docs/benchmark.md)."""
 
 from __future__ import annotations
 

@@ -1,8 +1,5 @@
-"""Optuna samplers for rl-zoo3's ``-optimize``: Ego-Foresight's hyperparameters and each host's main ones.
-
-Each sampler suggests raw values and hands them to the one converter (``trial.params -> constructor kwargs``, also
-used for ``--trial-id``), so both agree.
-"""
+"""Optuna samplers for rl-zoo3's ``-optimize``: EF's hyperparameters and each host's main ones, suggested raw and
+mapped by the one converter (also used for ``--trial-id``), so both agree."""
 
 from __future__ import annotations
 

@@ -1,7 +1,5 @@
 """Evaluation CSVs of rl-zoo3 runs, in the format ``sb3-ef analyze results`` reads.
-
-``sb3-ef train`` records them; ``python -m sb3_ef.zoo.records logs results`` exports rl-zoo3's ``evaluations.npz``.
-"""
+``sb3-ef train`` records them; ``python -m sb3_ef.zoo.records logs results`` exports rl-zoo3's ``evaluations.npz``."""
 
 from __future__ import annotations
 
