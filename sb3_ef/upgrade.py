@@ -4,6 +4,7 @@ the host) converted once into this version's format, nothing lost."""
 from __future__ import annotations
 
 import argparse
+import functools
 import io
 import json
 import os
@@ -116,17 +117,10 @@ def upgraded_parameters(
     if "ef_optimizer" in params:
         upgraded["auxiliary_optimizer"] = params["ef_optimizer"]
     for name in state_dicts:
-        optimizer = _attribute(model, name)
+        optimizer = functools.reduce(lambda value, part: getattr(value, part, None), name.split("."), model)
         if isinstance(optimizer, th.optim.Optimizer) and name in upgraded:
             upgraded[name] = _regrouped(upgraded[name], optimizer, name)
     return upgraded
-
-
-def _attribute(model: Any, dotted_name: str) -> Any:
-    value = model
-    for part in dotted_name.split("."):
-        value = getattr(value, part, None)
-    return value
 
 
 def _regrouped(state: dict[str, Any], optimizer: th.optim.Optimizer, name: str) -> dict[str, Any]:
