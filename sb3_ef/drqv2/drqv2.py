@@ -36,11 +36,8 @@ _ACTION_EPS = 1e-6
 
 
 class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
-    """DrQ-v2 (Yarats et al., "Mastering Visual Continuous Control", 2021) with the Stable-Baselines3 interface.
-
-    Random shifts, a conv encoder trained by the critic only, a deterministic actor on detached features with a
-    scheduled exploration std, clipped double Q with n-step returns. A subclass's auxiliary loss
-    (``_build_auxiliary``, e.g. :class:`DrQv2EF`'s) is added to the critic's loss and optimiser.
+    """DrQ-v2 (Yarats et al., 2021) with SB3's interface; a subclass's auxiliary loss (``_build_auxiliary``) is
+    added to the critic's loss and optimiser. See docs/drqv2.md.
 
     :param policy: the policy (``"CnnPolicy"``) or its class.
     :param env: the environment (uint8 stacked RGB frames, Box actions) or its registered id.
@@ -154,8 +151,7 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         self.logger.record("train/exploration_std", self.exploration_schedule(self.num_timesteps))
 
     def _update(self, batch: SequenceReplayBufferSamples) -> dict[str, th.Tensor]:
-        """Critic (+ auxiliary) step, actor step on detached features, critic target; returns the scalars to log.
-        The std is a tensor so that its schedule does not recompile; ``aux_grad_ratio`` is skipped when compiled."""
+        """Critic (+ auxiliary), actor and target steps; the std is a tensor so that its schedule does not recompile."""
         compiled = self.compile is not False
         if compiled:
             th.compiler.cudagraph_mark_step_begin()
@@ -261,9 +257,8 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
 
 
 class DrQv2EF(EFMixin, DrQv2):
-    """DrQv2-EF: :class:`DrQv2` whose encoder is also trained by ``beta * ef_loss`` (Ego-Foresight, Nunes et al.,
-    ICLR 2026): the agent part of the projected features is rolled forward under the next actions and decoded to
-    the frame ``k`` steps ahead; motor babbling fills the first ``babbling_steps`` agent steps.
+    """:class:`DrQv2` whose encoder is also trained by ``beta * ef_loss`` (Ego-Foresight, see docs/ef.md); the
+    other arguments are :class:`DrQv2`'s.
 
     :param beta: weight of the Ego-Foresight loss (to train without EF, use :class:`DrQv2`).
     :param ef_horizon: Ego-Foresight prediction horizon H (the rollout length k is drawn in [1, H]).
@@ -271,8 +266,6 @@ class DrQv2EF(EFMixin, DrQv2):
     :param babbling_mode: ``"sign"`` (random +-1) or ``"clamped_uniform"`` (the authors' code).
     :param babbling_in_eval: ``predict`` also babbles during the babbling steps (the EF authors' Meta-World protocol).
     :param policy_kwargs: see :class:`DrQv2EFPolicy`.
-
-    The other arguments are :class:`DrQv2`'s.
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"CnnPolicy": DrQv2EFPolicy}

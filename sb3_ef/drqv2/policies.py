@@ -30,12 +30,10 @@ def _conv_output_size(size: int) -> int:
 
 
 class DrQv2Encoder(BaseFeaturesExtractor):
-    """DrQ-v2's conv stack on ``obs / 255 - 0.5``, then, with ``features_dim``, DrQv2-EF's ``AvgPool2d(4, 4)`` and a
-    linear projection to ``features_dim``.
+    """DrQ-v2's conv stack on ``obs / 255 - 0.5``; with ``features_dim``, DrQv2-EF's 4x4 average pool and projection.
 
     :param observation_space: uint8 Box of shape (3 * frame_stack, height, width).
-    :param features_dim: size of the projected features; ``None`` keeps DrQ-v2's flattened conv output (39200 at
-        84x84). Frames from 21x21 (15x15 without the projection) work.
+    :param features_dim: projected feature size; ``None`` keeps DrQ-v2's flattened conv output (39200 at 84x84).
     :param n_filters: channels of every conv layer.
     """
 
@@ -125,9 +123,7 @@ def actor_critic_arch(net_arch: list[int] | dict[str, list[int]]) -> tuple[list[
 
 
 class DrQv2Policy(CarriesAuxiliary, BasePolicy):
-    """Encoder, actor, critic, critic target and the algorithm's ``auxiliary`` module, if any.
-
-    ``critic.optimizer`` trains the encoder, the critic and the auxiliary module; ``actor.optimizer`` the actor.
+    """Encoder, actor, critic, critic target and ``auxiliary``; ``critic.optimizer`` trains all but the actor.
 
     :param observation_space: uint8 Box of shape (3 * frame_stack, height, width).
     :param action_space: Box action space.
@@ -237,7 +233,7 @@ class DrQv2Policy(CarriesAuxiliary, BasePolicy):
 
 
 class DrQv2EFPolicy(EFPolicyMixin, DrQv2Policy):
-    """:class:`DrQv2Policy` of DrQv2-EF, with the sizes its Ego-Foresight module is built from.
+    """:class:`DrQv2Policy` with the sizes DrQv2-EF's Ego-Foresight module is built from.
 
     :param agent_dim: number of leading feature dimensions that are agent features.
     :param ef_kwargs: extra arguments of :class:`sb3_ef.ef.EgoForesight`.
