@@ -18,13 +18,8 @@ def check_crop_size(crop_size: object, height: int, width: int, who: str) -> int
 
 
 def random_crops(images: th.Tensor, size: int, generator: th.Generator | None = None) -> th.Tensor:
-    """A random ``size`` x ``size`` window of each of the (batch, channels, height, width) ``images``.
-
-    The corner is drawn as the authors' ``random_crop`` draws it (``np.random.randint(0, height - size)``): rows and
-    columns in ``0 .. height - size - 1``, so 0..15 for 84 of 100, never the last offset that would fit; frames as
-    large as the crop are returned whole (the authors' draw is undefined there). The windows are
-    :func:`~sb3_ef.common.augmentation.random_crop`'s without its last offset.
-    """
+    """A random ``size`` x ``size`` window of each (batch, channels, height, width) image, the corner in
+    ``0 .. frame - size - 1`` as the authors' ``np.random.randint`` draws it; frames of the crop's size come whole."""
     if images.dim() != 4:
         raise ValueError(f"CURL crops (batch, channels, height, width) frames, got shape {tuple(images.shape)}")
     _, _, height, width = images.shape

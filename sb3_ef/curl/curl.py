@@ -1,5 +1,4 @@
-"""CURL (Laskin, Srinivas and Abbeel, ICML 2020): the authors' SAC from pixels with CURL's contrastive loss on the
-critic's encoder, as MishaLaskin/curl's ``curl_sac.py`` updates it, with SB3's interface."""
+"""CURL (Laskin et al., ICML 2020): the authors' pixel SAC with CURL's contrastive loss, with SB3's interface."""
 
 from __future__ import annotations
 
@@ -36,8 +35,7 @@ class CURLBatch(NamedTuple):
 
 
 def _curl_policy_kwargs(policy_kwargs: dict[str, Any] | None, crop_size: int, features_dim: int) -> dict[str, Any]:
-    """``policy_kwargs`` with CURL's encoder sizes in ``features_extractor_kwargs`` (``features_dim`` unless given
-    there, and ``crop_size``): what the constructor passes on and what the saved model records."""
+    """``policy_kwargs`` with CURL's encoder sizes, as the constructor passes them and the saved model records."""
     policy_kwargs = dict(policy_kwargs or {})
     policy_kwargs["features_extractor_kwargs"] = {
         "features_dim": features_dim,
@@ -48,31 +46,15 @@ def _curl_policy_kwargs(policy_kwargs: dict[str, Any] | None, crop_size: int, fe
 
 
 class CURL(AuxiliaryStepMixin, SAC):
-    """CURL (Laskin, Srinivas and Abbeel, "CURL: Contrastive Unsupervised Representations for Reinforcement
-    Learning", ICML 2020), updated as the authors' ``CurlSacAgent.update`` (MishaLaskin/curl) on each batch:
+    """CURL (Laskin et al., ICML 2020), updated as the authors' ``CurlSacAgent.update`` with their defaults; the
+    update, optimisers and defaults are in docs/curl.md. Other keyword arguments are SAC's.
 
-    1. the critic, on the random crop of obs t (the anchor) and a crop of obs t + n: ``MSE(Q1, y) + MSE(Q2, y)``
-       with ``y = r + (1 - done) * gamma^n * (min(Q1', Q2')(s', a') - alpha * log pi(a'|s'))``;
-    2. every ``actor_update_interval``-th update the actor (its convolutions the critic's, detached) and then the
-       temperature, ``alpha * (-log pi - target_entropy)`` with ``log pi`` detached;
-    3. every ``target_update_interval``-th update the critic target: Q heads by ``tau``, the encoder (CURL's key
-       encoder) by ``encoder_tau``;
-    4. CURL's step: InfoNCE between the critic encoder's features of the anchor and the key encoder's of a second
-       crop of obs t, stepping the critic's encoder with two Adams (``encoder_optimizer``, and
-       ``auxiliary_optimizer`` over W and the encoder) as the authors' ``encoder_optimizer`` and ``cpc_optimizer``.
-
-    Updates are counted over the whole run (``_n_updates``), the first being 0 (the authors' ``step % 2`` from their
-    even ``init_steps``). The defaults are the authors' (``train.py``, the paper's DMC table); acting takes the
-    centre crop. CURL's own arguments are keyword-only; the others are SAC's (``auxiliary_learning_rate``: the
-    encoder's and W's rate, ``learning_rate`` by default; ``check_finite_losses``).
-
-    :param crop_size: side of the random crops (84 of the paper's 100x100 renders), at most the frame size.
-    :param encoder_tau: the critic target's encoder (the key encoder) ``<- (1 - tau) target + tau online`` (0.05).
-    :param features_dim: size of :class:`CURLEncoder`'s features (50); ``policy_kwargs["features_extractor_kwargs"]``
-        sets its other options (``n_layers``, ``n_filters``).
-    :param actor_update_interval: the actor and temperature learn every this many updates (2).
-    :param alpha_learning_rate: the temperature's Adam learning rate (1e-4).
-    :param alpha_beta: the temperature's Adam beta1 (0.5; beta2 0.999).
+    :param crop_size: side of the random crops, at most the frame size.
+    :param encoder_tau: momentum of the critic target's encoder (CURL's key encoder).
+    :param features_dim: size of :class:`CURLEncoder`'s features (its other options via ``policy_kwargs``).
+    :param actor_update_interval: the actor and temperature learn every this many updates.
+    :param alpha_learning_rate: the temperature's Adam learning rate.
+    :param alpha_beta: the temperature's Adam beta1 (beta2 0.999).
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"CnnPolicy": CURLPolicy}
@@ -132,7 +114,7 @@ class CURL(AuxiliaryStepMixin, SAC):
             self._setup_model()
 
     def _check_curl_arguments(self) -> None:
-        """CURL's arguments against each other and the frames (in ``_setup_model``: ``load`` checks the saved ones)."""
+        """CURL's arguments against the frames (here, not in ``__init__``, so that ``load`` checks them too)."""
         _, height, width = self.observation_space.shape  # type: ignore[misc]
         check_crop_size(self.crop_size, height, width, "CURL")
         for name in ("actor_update_interval", "target_update_interval"):
@@ -150,7 +132,6 @@ class CURL(AuxiliaryStepMixin, SAC):
                 raise ValueError(f"CURL's {name} must be a number {expected}, got {value!r}")
 
     def _setup_model(self) -> None:
-        """Check CURL's arguments, then SAC's setup with CURL's policy and loss, and the authors' temperature Adam."""
         self._check_curl_arguments()
         super()._setup_model()
         if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
@@ -159,8 +140,7 @@ class CURL(AuxiliaryStepMixin, SAC):
             )
 
     def _build_auxiliary(self) -> CURLLoss:
-        """CURL's loss on the critic's encoder, its key encoder the critic target's; W drawn from a fork of the
-        global generator, so that SAC's own random draws stay those it has without it."""
+        """CURL's loss, W drawn in a forked generator so that SAC's own random draws stay unchanged."""
         with th.random.fork_rng(devices=[]):
             return CURLLoss(
                 self.critic.features_extractor, self.crop_size, key_encoder=self.critic_target.features_extractor
@@ -174,7 +154,6 @@ class CURL(AuxiliaryStepMixin, SAC):
         self.auxiliary_optimizer = th.optim.Adam([*auxiliary.parameters(), *encoder], lr=learning_rate)
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
-        """``gradient_steps`` updates (:meth:`_update`), each on a batch of its own cropped by :meth:`_crop`."""
         self.policy.set_training_mode(True)
         optimizers = [self.actor.optimizer, self.critic.optimizer]
         if self.auxiliary_learning_rate is None:
@@ -188,8 +167,7 @@ class CURL(AuxiliaryStepMixin, SAC):
         self._record_updates(updates)
 
     def _crop(self, batch: SequenceReplayBufferSamples) -> CURLBatch:
-        """The authors' ``sample_cpc`` crops, drawn from the model's generator: the anchor and the positive
-        (``CURLLoss.prepare``), and a crop of the next observations."""
+        """The authors' ``sample_cpc`` crops: anchor, positive and next observations."""
         assert self.auxiliary is not None
         anchors, positives = self.auxiliary.prepare(batch, 0, self._auxiliary_generator)
         next_observations = random_crops(batch.next_observations, self.crop_size, self._auxiliary_generator)
@@ -198,7 +176,7 @@ class CURL(AuxiliaryStepMixin, SAC):
         )
 
     def _temperature(self) -> th.Tensor:
-        """alpha, detached: ``exp(log_ent_coef)`` when it is learned, else the fixed ``ent_coef``."""
+        """alpha, detached."""
         if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
             return self.log_ent_coef.detach().exp()
         return self.ent_coef_tensor
@@ -207,7 +185,7 @@ class CURL(AuxiliaryStepMixin, SAC):
         """One update of the authors' ``CurlSacAgent.update`` (``step``: the update's index over the run)."""
         alpha = self._temperature()
         logs = {"critic_loss": self._critic_step(batch, alpha), "ent_coef": alpha.reshape(())}
-        # The critic loss's gradient on the encoder, as its step left it, for aux_grad_ratio (no extra pass).
+        # The critic step's encoder gradient, read now for aux_grad_ratio (no extra pass).
         host_norm = gradient_norm(self.critic.features_extractor.parameters()) if aux_grad_ratio_due(step + 1) else None
         if step % self.actor_update_interval == 0:
             logs.update(self._actor_and_temperature_step(batch.observations, alpha))
@@ -221,7 +199,7 @@ class CURL(AuxiliaryStepMixin, SAC):
         return logs
 
     def _critic_step(self, batch: CURLBatch, alpha: th.Tensor) -> th.Tensor:
-        """The critic's TD step (the authors' ``update_critic``); returns the detached loss."""
+        """The authors' ``update_critic``; returns the detached loss."""
         with th.no_grad():
             next_actions, next_log_prob = self.actor.action_log_prob(batch.next_observations)
             next_q = th.cat(self.critic_target(batch.next_observations, next_actions), dim=1)
@@ -258,8 +236,7 @@ class CURL(AuxiliaryStepMixin, SAC):
         return logs
 
     def _curl_step(self, batch: CURLBatch, host_norm: th.Tensor | None = None) -> dict[str, th.Tensor]:
-        """The authors' ``update_cpc`` on the critic's anchor crop: both Adams step the encoder on one gradient;
-        with the critic loss's encoder-gradient norm ``host_norm``, logs ``aux_grad_ratio``."""
+        """The authors' ``update_cpc`` (both Adams on one gradient); logs ``aux_grad_ratio`` given ``host_norm``."""
         assert self.auxiliary is not None
         features = self.critic.extract_features(batch.observations, self.critic.features_extractor)
         loss, logs = self.auxiliary(features, batch.positives)
@@ -280,8 +257,7 @@ class CURL(AuxiliaryStepMixin, SAC):
 
     @classmethod
     def _completed_policy_kwargs(cls, policy_kwargs: dict[str, Any], data: dict[str, Any]) -> dict[str, Any]:
-        """The constructor's ``policy_kwargs`` as the saved model records them: with CURL's encoder sizes and SB3's
-        ``use_sde``."""
+        """The constructor's ``policy_kwargs`` as the saved model records them."""
         completed = _curl_policy_kwargs(policy_kwargs, data.get("crop_size", 84), data.get("features_dim", 50))
         completed.setdefault("use_sde", False)
         return super()._completed_policy_kwargs(completed, data)

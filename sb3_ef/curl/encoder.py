@@ -17,8 +17,7 @@ def _conv_output_size(size: int, n_layers: int) -> int:
 
 
 def weight_init(module: nn.Module) -> None:
-    """CURL's initialisation (the authors' ``weight_init``, applied with ``module.apply``): orthogonal linear weights;
-    delta-orthogonal convolutions (zero kernels except an orthogonal centre tap, ReLU gain); zero biases."""
+    """The authors' ``weight_init`` (for ``module.apply``): orthogonal linear, delta-orthogonal conv, zero biases."""
     if isinstance(module, nn.Linear):
         nn.init.orthogonal_(module.weight)
         nn.init.zeros_(module.bias)
@@ -32,18 +31,14 @@ def weight_init(module: nn.Module) -> None:
 
 
 class CURLEncoder(BaseFeaturesExtractor):
-    """CURL's encoder (Laskin et al., 2020): ``obs / 255`` -> 3x3 convolutions with ReLU (stride 2, then stride 1)
-    -> flatten -> Linear -> LayerNorm, with no output activation (the authors' ``output_logits=True``).
+    """CURL's encoder: ``obs / 255``, 3x3 ReLU convolutions, Linear and LayerNorm (see docs/curl.md). Larger inputs
+    are centre-cropped to ``crop_size``; it scales images itself (``normalize_images=False``).
 
-    The encoder works on ``crop_size`` x ``crop_size`` images: CURL trains on random crops of larger rendered
-    frames (84 of 100) and acts on their centre crop, so larger inputs are centre-cropped here. It scales the
-    images itself: build the policy with ``normalize_images=False``.
-
-    :param observation_space: uint8 Box of shape (3 * frame_stack, height, width), the rendered frames.
-    :param features_dim: size of the features (CURL's ``encoder_feature_dim``, 50).
+    :param observation_space: uint8 Box of stacked frames (3 * frame_stack, height, width).
+    :param features_dim: size of the features (CURL's ``encoder_feature_dim``).
     :param crop_size: side of the images the encoder sees; ``None`` for the whole frame (square frames only).
-    :param n_layers: number of convolutions (4).
-    :param n_filters: channels of every convolution (32).
+    :param n_layers: number of convolutions.
+    :param n_filters: channels of every convolution.
     """
 
     def __init__(
@@ -81,9 +76,8 @@ class CURLEncoder(BaseFeaturesExtractor):
         self.detach_convolutions = False
 
     def share_convolutions(self, source: CURLEncoder) -> None:
-        """Use ``source``'s convolutions (the same parameters) and let no gradient reach them through this encoder:
-        the authors' actor encoder, whose convolutions are tied to the critic's (``copy_conv_weights_from``) and
-        detached from the actor's loss (``detach_encoder=True``); its linear layer and LayerNorm stay its own."""
+        """Tie to ``source``'s convolutions, detached here: the authors' actor encoder (``copy_conv_weights_from``,
+        ``detach_encoder=True``)."""
         if not isinstance(source, CURLEncoder) or source.crop_size != self.crop_size:
             raise ValueError(f"CURLEncoder shares the convolutions of a CURLEncoder of the same crop, got {source!r}")
         if [p.shape for p in source.convnet.parameters()] != [p.shape for p in self.convnet.parameters()]:

@@ -1,14 +1,5 @@
-"""CURL's contrastive loss (Laskin et al., ICML 2020): InfoNCE between two random crops of each observation.
-
-Each observation is cropped twice at random. The anchor crop goes through the online encoder (the host's, shared
-with its critic: the authors' anchor *is* the critic's crop), the positive crop through a momentum encoder. With a
-learned bilinear matrix W the logits are ``z_a W z_pos^T`` (batch x batch), the positive of the same observation on
-the diagonal, the others the negatives, and the loss is the cross-entropy with labels ``0 .. batch - 1``.
-
-The momentum encoder is either the host's (``CURL``'s: the critic target's encoder, as in the authors' code, moved
-with the critic target) or, for a host without one, a copy of the online encoder kept here and moved by
-:meth:`CURLLoss.after_update`.
-"""
+"""CURL's contrastive loss (Laskin et al., ICML 2020): bilinear InfoNCE between two random crops of each
+observation, the positive crop through a momentum key encoder (see docs/curl.md)."""
 
 from __future__ import annotations
 
@@ -28,17 +19,11 @@ from sb3_ef.curl.crop import check_crop_size, random_crops
 class CURLLoss(AuxiliaryLoss):
     """CURL's bilinear InfoNCE on the host encoder's features, with a momentum key encoder.
 
-    :param encoder: the online encoder (the host critic's features extractor, e.g.
-        :class:`~sb3_ef.curl.CURLEncoder`), which takes the raw uint8 crops. It is not stored here (the host owns
-        it); ``after_update`` receives it again.
-    :param crop_size: side of the random crops (84 for the paper's 100x100 renders), at most the frame size.
-    :param key_encoder: the host's momentum encoder of the positives (``CURL``: its critic target's encoder), which
-        the host saves and moves; not stored in this module's state. ``None``: a copy of ``encoder`` of this
-        module's own, saved with it and moved by :meth:`after_update`.
-    :param encoder_tau: with no ``key_encoder``: the copy's momentum update, ``key <- (1 - tau) key + tau online``
-        (the authors' 0.05).
-    :param key_update_interval: with no ``key_encoder``: the copy moves on every ``key_update_interval``-th
-        ``after_update`` (the authors' ``critic_target_update_freq``, 2).
+    :param encoder: the host's online encoder of raw uint8 crops (not stored: ``after_update`` receives it again).
+    :param crop_size: side of the random crops, at most the frame size.
+    :param key_encoder: the host's momentum encoder, which the host saves and moves; ``None``: a copy kept here.
+    :param encoder_tau: with no ``key_encoder``: the copy's momentum (the authors' 0.05).
+    :param key_update_interval: with no ``key_encoder``: the copy moves every this many ``after_update`` calls.
     """
 
     updates: th.Tensor
@@ -85,15 +70,12 @@ class CURLLoss(AuxiliaryLoss):
         self.owns_key_encoder = key_encoder is None
         self.encoder_tau = encoder_tau
         self.key_update_interval = key_update_interval
-        # The authors' initialisation of W: uniform in [0, 1).
         self.W = nn.Parameter(th.rand(self.features_dim, self.features_dim))
-        # after_update calls, a tensor in the state dict, so that a resumed run keeps the key encoder's phase.
+        # In the state dict, so that a resumed run keeps the key encoder's phase.
         self.register_buffer("updates", th.zeros((), dtype=th.long))
 
     def prepare(self, batch: Any, pad: int, generator: th.Generator | None = None) -> tuple[th.Tensor, th.Tensor]:
-        """Two independent random crops of ``batch.observations`` (:func:`~sb3_ef.curl.crop.random_crops`): the
-        anchors (the host encodes them; ``CURL``'s critic and actor train on them too) and the positives (the
-        target). ``pad`` is not used: CURL's augmentation is the crop."""
+        """Two independent random crops of ``batch.observations``: anchors and positives (``pad`` is unused)."""
         observations = batch.observations
         if observations.dim() != 4 or min(observations.shape[-2:]) < self.crop_size:
             raise ValueError(
@@ -109,8 +91,7 @@ class CURLLoss(AuxiliaryLoss):
         return logits - logits.max(dim=1, keepdim=True).values
 
     def forward(self, features: th.Tensor, targets: th.Tensor) -> tuple[th.Tensor, dict[str, th.Tensor]]:
-        """InfoNCE of the anchors' ``features`` against the key encoder's features of the positive crops
-        ``targets`` (no gradient into the key encoder)."""
+        """InfoNCE of the anchors' ``features`` against the key encoder's features of the positives ``targets``."""
         if features.dim() != 2 or features.shape[1] != self.features_dim:
             raise ValueError(
                 f"CURL expects features of shape (batch, {self.features_dim}), got {tuple(features.shape)}"
@@ -122,8 +103,7 @@ class CURLLoss(AuxiliaryLoss):
         return loss, {"curl_loss": loss.detach()}
 
     def after_update(self, encoder: nn.Module) -> None:
-        """Count the update; with a key encoder of its own, every ``key_update_interval``-th call
-        ``key <- (1 - encoder_tau) key + encoder_tau online`` (a host's key encoder is moved by the host)."""
+        """Count the update and, with a key encoder of its own, move it every ``key_update_interval`` calls."""
         self.updates += 1
         if self.owns_key_encoder and int(self.updates) % cast(int, self.key_update_interval) == 0:
             momentum_update(encoder, self.key_encoder, cast(float, self.encoder_tau), "encoder")

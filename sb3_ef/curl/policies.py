@@ -1,10 +1,4 @@
-"""CURL's actor and critic as an SB3 SAC policy: the authors' networks (MishaLaskin/curl ``curl_sac.py``).
-
-The critic is SB3's ``ContinuousCritic`` on a :class:`CURLEncoder`, with the authors' orthogonal initialisation of
-its Q heads; the critic target starts as its copy. The actor is SB3's SAC ``Actor`` with the authors' log-std
-mapping and sampling, on a :class:`CURLEncoder` whose convolutions are the critic's (detached: only the critic and
-CURL's loss train them), its linear layer and LayerNorm its own.
-"""
+"""CURL's actor and critic as an SB3 SAC policy with the authors' networks (see docs/curl.md, "Networks")."""
 
 from __future__ import annotations
 
@@ -22,13 +16,11 @@ from sb3_ef.curl.encoder import CURLEncoder, weight_init
 
 
 class CURLActor(Actor):
-    """SB3's SAC actor with the authors' Gaussian: ``log_std = log_std_min + (log_std_max - log_std_min) *
-    (tanh(z) + 1) / 2`` instead of SB3's clamp, and the authors' initialisation (orthogonal weights, zero biases;
-    the mean and log-std layers are the two halves of one orthogonal ``Linear(hidden, 2 * action_dim)``, as the
-    authors' last layer is split).
+    """SB3's SAC actor with the authors' tanh-mapped log-std and initialisation (mean and log-std layers the two
+    halves of one orthogonal layer). Other arguments are SB3's ``Actor``'s.
 
-    :param log_std_min: lowest log-std (the authors' ``actor_log_std_min``, -10).
-    :param log_std_max: highest log-std (``actor_log_std_max``, 2); the other arguments are SB3's ``Actor``'s.
+    :param log_std_min: lowest log-std (the authors' ``actor_log_std_min``).
+    :param log_std_max: highest log-std (the authors' ``actor_log_std_max``).
     """
 
     def __init__(self, *args: Any, log_std_min: float = -10.0, log_std_max: float = 2.0, **kwargs: Any):
@@ -53,15 +45,14 @@ class CURLActor(Actor):
         return {**super()._get_constructor_parameters(), **bounds}
 
     def get_action_dist_params(self, obs: PyTorchObs) -> tuple[th.Tensor, th.Tensor, dict[str, th.Tensor]]:
-        """Mean and log-std (the authors' tanh mapping into ``[log_std_min, log_std_max]``) before the squash."""
+        """Mean and log-std (tanh-mapped into ``[log_std_min, log_std_max]``) before the squash."""
         latent_pi = self.latent_pi(self.extract_features(obs, self.features_extractor))
         log_std = th.tanh(cast(nn.Linear, self.log_std)(latent_pi))
         log_std = self.log_std_min + 0.5 * (self.log_std_max - self.log_std_min) * (log_std + 1)
         return self.mu(latent_pi), log_std, {}
 
     def action_log_prob(self, obs: PyTorchObs) -> tuple[th.Tensor, th.Tensor]:
-        """A squashed Gaussian action and its log-probability, (batch, 1), computed as the authors do: noise from
-        ``randn_like``, the Gaussian log-density of the noise, minus ``log(relu(1 - action^2) + 1e-6)``."""
+        """A squashed Gaussian action and its (batch, 1) log-probability, computed as the authors do."""
         mean, log_std, _ = self.get_action_dist_params(obs)
         noise = th.randn_like(mean)
         action = th.tanh(mean + noise * log_std.exp())
@@ -71,14 +62,11 @@ class CURLActor(Actor):
 
 
 class CURLPolicy(SACPolicy):
-    """SB3's ``SACPolicy`` with the authors' CURL networks: :class:`CURLEncoder` features (``normalize_images``
-    False: the encoder scales the images), hidden layers of 1024, :class:`CURLActor`, orthogonal Q heads, and the
-    actor's convolutions tied to the critic's (:meth:`CURLEncoder.share_convolutions`). The actor's optimiser holds
-    the actor's own parameters (its MLP, its encoder's linear layer and LayerNorm), the critic's the whole critic.
+    """SB3's ``SACPolicy`` with the authors' CURL networks, the actor's convolutions tied to the critic's and left
+    out of the actor's optimiser. Other arguments are ``SACPolicy``'s (``share_features_extractor`` stays False).
 
-    :param log_std_min: see :class:`CURLActor` (-10).
-    :param log_std_max: see :class:`CURLActor` (2). The other arguments are ``SACPolicy``'s, with CURL's defaults;
-        ``share_features_extractor`` must stay False (the authors' critic and actor have an encoder each).
+    :param log_std_min: see :class:`CURLActor`.
+    :param log_std_max: see :class:`CURLActor`.
     """
 
     actor: CURLActor
