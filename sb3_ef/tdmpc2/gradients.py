@@ -9,10 +9,7 @@ import torch as th
 def clipped_world_model_gradients(
     optimizer: th.optim.Optimizer, host_loss: th.Tensor, auxiliary_loss: th.Tensor | None, max_norm: float
 ) -> dict[str, th.Tensor]:
-    """Backpropagate and clip; returns the norms before clipping (``grad_norm``, ``auxiliary_grad_norm``).
-
-    The auxiliary gradient (EF's norms are in the thousands) is clipped apart and added: one shared clip would
-    shrink the host's update by the auxiliary norm."""
+    """Backpropagate and clip the auxiliary gradient apart (see docs/tdmpc2.md); returns the pre-clip norms."""
     host_params, auxiliary_params = _parameter_groups(optimizer)
     auxiliary_grads = None
     if auxiliary_loss is not None:
@@ -27,8 +24,7 @@ def clipped_world_model_gradients(
         scale = (max_norm / (auxiliary_norm + 1e-6)).clamp(max=1.0)
         for param, grad in pairs:
             if param.grad is None:
-                # In the parameter's memory layout (autograd.grad's may differ: channels-last decoder weights),
-                # which the fused Adam step assumes.
+                # The parameter's memory layout (channels-last weights), which fused Adam assumes.
                 param.grad = th.empty_like(param).copy_(grad).mul_(scale)
             else:
                 param.grad.add_(grad * scale)

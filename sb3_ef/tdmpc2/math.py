@@ -77,7 +77,6 @@ def planning_iterations(action_dim: int, iterations: int = 6, large_action_dim: 
 
 
 def update_q_scale(q_scale: th.Tensor, q_values: th.Tensor, tau: float) -> None:
-    """Move ``q_scale`` in place by ``tau`` towards the 5-95 percentile range of ``q_values``, at least 1
-    (TD-MPC2's ``RunningScale``)."""
+    """Move ``q_scale`` by ``tau`` towards the 5-95 percentile range of ``q_values``, at least 1 (``RunningScale``)."""
     low, high = th.quantile(q_values, th.tensor([0.05, 0.95], device=q_values.device))
     q_scale.lerp_(th.clamp(high - low, min=1.0), tau)

@@ -27,12 +27,7 @@ class LatentModel(Protocol):
 
 @dataclass
 class MPPIPlanner:
-    """Model-predictive path integral control with policy-prior samples (TD-MPC2's defaults), batched over envs.
-
-    Each iteration scores ``num_samples`` action sequences (``num_pi_trajs`` from the policy prior) by model rewards
-    plus the final Q and refits the Gaussian to the ``num_elites`` best, weighted by ``exp(temperature * value)``.
-    The action is a drawn elite's first (plus noise when exploring); ``eval_action="mean"`` acts with the final mean.
-    """
+    """MPPI with policy-prior samples and TD-MPC2's defaults, batched over envs (see docs/tdmpc2.md)."""
 
     horizon: int = 3
     iterations: int = 6
@@ -71,8 +66,7 @@ class MPPIPlanner:
     def plan(
         self, model: LatentModel, z: th.Tensor, previous_mean: th.Tensor | None = None, deterministic: bool = False
     ) -> tuple[th.Tensor, th.Tensor]:
-        """Actions ``(B, A)`` and the final mean ``(B, H, A)`` from latents ``z`` ``(B, L)``, warm-started from
-        ``previous_mean`` shifted by one step (``None``: zero); ``deterministic`` acts without noise."""
+        """Actions ``(B, A)`` and final mean ``(B, H, A)`` from ``z`` ``(B, L)``, warm-started by ``previous_mean``."""
         batch, device = z.shape[0], z.device
         action_dim = model.action_dim
         mean = th.zeros(batch, self.horizon, action_dim, device=device)

@@ -57,11 +57,8 @@ _DRQV2_ARGUMENTS = {
 
 
 class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
-    """Everything TD-MPC2 learns and plans with, and the algorithm's ``auxiliary`` module, if any.
-
-    ``optimizer`` trains the world model (groups ``encoder``, ``heads`` and the algorithm's ``auxiliary``),
-    ``pi_optimizer`` the policy prior; ``q_scale`` is the running 5-95 percentile range of Q. ``predict`` carries
-    the MPPI warm-start plans as its state.
+    """World model, planner and ``auxiliary``: ``optimizer`` trains the world model and auxiliary, ``pi_optimizer``
+    the policy prior; ``predict``'s state is the MPPI warm start (see docs/tdmpc2.md).
 
     :param observation_space: uint8 Box (3 * frame_stack, 64, 64).
     :param action_space: Box in [-1, 1].
@@ -182,8 +179,7 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
         episode_start: np.ndarray | None = None,
         deterministic: bool = False,
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
-        """SB3's ``predict`` with the planner's warm start as the state: ``(plans,)``, the final MPPI means
-        ``(n_envs, horizon, action_dim)`` of the previous call; ``None`` and ``episode_start`` plan from zero."""
+        """SB3's ``predict``; the state is the planner's warm start (see docs/tdmpc2.md)."""
         if isinstance(observation, tuple):
             raise ValueError(
                 "predict expects the observation as an array (a VecEnv's obs, or the obs of gymnasium's "
@@ -221,8 +217,7 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
     def _plan_actions(
         self, observations: th.Tensor, previous_mean: th.Tensor | None, deterministic: bool
     ) -> tuple[th.Tensor, th.Tensor]:
-        """:meth:`plan`; ``deterministic`` draws from generators seeded with :data:`DETERMINISTIC_SEED`, leaving the
-        global ones (training's stream) as they were."""
+        """:meth:`plan`; ``deterministic`` draws from seeded generators, leaving training's stream as it was."""
         with _seeded_draws(observations.device, DETERMINISTIC_SEED) if deterministic else nullcontext():
             return self.plan(observations, previous_mean, deterministic)
 
@@ -233,7 +228,7 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
 
 
 class TDMPC2EFPolicy(EFPolicyMixin, TDMPC2Policy):
-    """:class:`TDMPC2Policy` of TDMPC2-EF, with the sizes its Ego-Foresight module is built from.
+    """:class:`TDMPC2Policy` with the sizes TDMPC2-EF's Ego-Foresight module is built from.
 
     :param agent_dim: size of the agent part of the latent (a multiple of ``simnorm_dim``, whole SimNorm groups).
     :param ef_kwargs: extra arguments of :class:`sb3_ef.ef.EgoForesight`.

@@ -29,8 +29,7 @@ def training_sequence(
     horizon: int,
     augment_first: Callable[[SequenceReplayBufferSamples], tuple[th.Tensor, Any]],
 ) -> Sequence:
-    """The first ``horizon`` steps of ``batch``'s windows: observations t+1..t+H rebuilt and shifted, the one at t
-    augmented by ``augment_first`` (with the auxiliary loss's targets)."""
+    """The first ``horizon`` steps of ``batch``'s windows, shifted; the one at t augmented by ``augment_first``."""
     observations = batch.observations
     size, channels, height, width = observations.shape
     stack = channels // FRAME_CHANNELS

@@ -34,12 +34,8 @@ from sb3_ef.tdmpc2.world_model import WorldModel
 
 
 class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
-    """TD-MPC2 (Hansen et al., "TD-MPC2: Scalable, Robust World Models for Continuous Control", ICLR 2024) for
-    pixels, with SB3's interface.
-
-    An implicit world model trained by latent consistency, two-hot reward and TD-value losses over a short horizon,
-    a max-entropy policy prior on detached latents, MPPI planning. A subclass's auxiliary loss
-    (``_build_auxiliary``, e.g. :class:`TDMPC2EF`'s) reads the first latent and is clipped on its own.
+    """TD-MPC2 (Hansen et al., ICLR 2024) for pixels with SB3's interface; a subclass's auxiliary loss reads the
+    first latent and is clipped on its own. See docs/tdmpc2.md.
 
     :param policy: ``"CnnPolicy"`` or a :class:`TDMPC2Policy` (sub)class.
     :param env: the environment (uint8 stacked 64x64 RGB frames, Box actions) or its id.
@@ -223,8 +219,7 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         return pi_loss.detach()
 
     def losses(self, batch: SequenceReplayBufferSamples) -> tuple[dict[str, th.Tensor], th.Tensor, th.Tensor]:
-        """Unweighted world-model losses (plus the weighted ``auxiliary_loss`` and its logs), the rollout latents
-        ``(H+1, B, L)`` and their validity. Augmentation runs eagerly, :meth:`_world_model_losses` maybe compiled."""
+        """Unweighted world-model losses (and weighted ``auxiliary_loss``), the latents ``(H+1, B, L)``, validity."""
         augment_first = partial(self._augment_observations, pad=SHIFT_PAD)
         return self._world_model_losses(training_sequence(batch, self.horizon, augment_first))
 

@@ -18,8 +18,8 @@ from sb3_ef.tdmpc2.tdmpc2 import TDMPC2
 
 
 class TDMPC2EF(EFMixin, TDMPC2):
-    """TDMPC2-EF: :class:`TDMPC2` whose world model is also trained by ``beta * L_ef`` (Ego-Foresight, Nunes et al.,
-    ICLR 2026) on the first latent; ``horizon`` stays the model's and the planner's, EF's is ``ef_horizon``.
+    """:class:`TDMPC2` whose world model is also trained by ``beta * L_ef`` on the first latent (see docs/tdmpc2.md);
+    the other arguments are :class:`TDMPC2`'s.
 
     :param beta: weight of the Ego-Foresight loss (to train without EF, use :class:`TDMPC2`).
     :param ef_horizon: Ego-Foresight prediction horizon H (the rollout length k is drawn in [1, H]).
@@ -27,8 +27,6 @@ class TDMPC2EF(EFMixin, TDMPC2):
     :param babbling_mode: ``"sign"`` (random +-1) or ``"clamped_uniform"``.
     :param babbling_in_eval: ``predict`` also babbles during the babbling steps (the EF authors' Meta-World protocol).
     :param policy_kwargs: see :class:`TDMPC2EFPolicy`.
-
-    The other arguments are :class:`TDMPC2`'s.
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"CnnPolicy": TDMPC2EFPolicy}

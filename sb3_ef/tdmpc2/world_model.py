@@ -27,8 +27,7 @@ class PolicyOutput(NamedTuple):
 
 
 class WorldModel(nn.Module):
-    """One method per head: ``encode``, ``next``, ``reward``, ``pi``, ``q``; the latent is the SimNorm of the
-    flattened conv output, reward and Q are logits over ``two_hot``'s bins, the target Q-ensemble a Polyak copy.
+    """TD-MPC2's heads ``encode``, ``next``, ``reward``, ``pi`` and ``q`` on a SimNorm latent (see docs/tdmpc2.md).
 
     :param in_channels: channels of the stacked observation (3 * frame stack).
     :param action_dim: size of the continuous action.
@@ -131,9 +130,7 @@ class WorldModel(nn.Module):
         """Scalar Q from two random heads, their ``"min"`` (TD targets) or ``"avg"`` (planning, policy)."""
         if reduce not in ("min", "avg"):
             raise ValueError(f"reduce must be 'min' or 'avg', got {reduce!r}")
-        # Every head is evaluated and two are picked by a tensor index, as the reference does: one graph under
-        # torch.compile whichever heads are drawn, and the compiled update draws the random numbers the eager one
-        # draws (Q dropout in every head, then the pick).
+        # All heads, then two picked by a tensor index (as the reference): one compiled graph, eager's random draws.
         values = self.two_hot.decode(self.q(z, action, target)[th.randperm(self.num_q, device=z.device)[:2]])
         return values.min(0).values if reduce == "min" else values.mean(0)
 
