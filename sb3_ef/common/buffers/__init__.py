@@ -1,8 +1,4 @@
-"""The frame-deduplicating replay buffer that samples RL transitions together with Ego-Foresight windows.
-
-:class:`SequenceReplayBuffer` composes ``episodes`` (checks, bookkeeping), ``storage`` (tensors), ``sampling``
-(draws, gathers, prefetch), ``persistence`` (pickling) and ``sb3_arrays`` (SB3's layout); see docs/buffer.md.
-"""
+"""The frame-deduplicating replay buffer that samples RL transitions with Ego-Foresight windows (docs/buffer.md)."""
 
 from sb3_ef.common.buffers.episodes import MASKS_INFO_KEY
 from sb3_ef.common.buffers.sampling import SequenceReplayBufferSamples

@@ -1,9 +1,4 @@
-"""Writing into per-env frame rings: the checks before storing and the episode bookkeeping.
-
-An episode takes ``frame_stack`` slots for its first observation, then one per step. A slot carries a step when a
-transition starts at the observation whose newest frame sits there and all its frames are still stored; an
-episode's last frame never carries one, so a run of step slots never crosses episodes.
-"""
+"""Writing into per-env frame rings: the checks before storing and the episode bookkeeping (docs/buffer.md)."""
 
 from __future__ import annotations
 
@@ -28,8 +23,7 @@ class Placement:
 
 
 class EpisodeRings:
-    """The host-side bookkeeping of ``n_envs`` rings of ``capacity`` frame slots: where each step's frames and data
-    go."""
+    """The host-side bookkeeping of ``n_envs`` rings of ``capacity`` frame slots."""
 
     def __init__(
         self, n_envs: int, capacity: int, frame_stack: int, frame_channels: int, obs_shape: tuple[int, ...]
@@ -135,8 +129,7 @@ class EpisodeRings:
         newest = self.head[env] + 1
         slot = newest % self.capacity
         if newest >= self.capacity:
-            # The steps whose stacked observation holds the overwritten frame sit in this slot and the next k - 1
-            # (a later episode's first step sits at least k slots further). They are never sampled again.
+            # The steps whose observation holds the overwritten frame: this slot and the next k - 1.
             readers = env * self.capacity + np.arange(slot, slot + self.frame_stack) % self.capacity
             self.n_transitions -= int(self.has_step_rows[readers].sum())
             self.has_step_rows[readers] = False

@@ -1,8 +1,6 @@
-"""Pickling a sequence buffer (SB3's ``save_replay_buffer`` / ``load_replay_buffer``) as one flat dict of named fields.
+"""Pickling a sequence buffer as one flat dict of NumPy fields, loadable on any machine (docs/buffer.md).
 
-The written slots go in as NumPy arrays, so a saved buffer loads on any machine. A pickle whose steps hold
-``_terminals`` rather than ``_dones`` and ``_timeouts`` loads with ``dones`` = terminations, no ``timeouts``, no
-masks, and SB3's ``pos`` and ``full`` counted from its ``add()`` calls.
+A pickle with ``_terminals`` (no ``_dones``/``_timeouts``) loads with dones = terminations, no timeouts, no masks.
 """
 
 from __future__ import annotations

@@ -1,7 +1,4 @@
-"""Sampling a sequence buffer: indices drawn on the host, gathered on the storage device into reused outputs (with
-prefetch, in a background thread), host batches copied to a CUDA training device through pinned memory on a side
-stream ordered by CUDA events.
-"""
+"""Sampling a sequence buffer: host draws, gathers on the storage device, prefetch, pinned copies (docs/buffer.md)."""
 
 from __future__ import annotations
 
@@ -88,9 +85,7 @@ class _Pending:
 
 
 class BatchSampler:
-    """Draws and gathers batches of n-step transitions with their windows from ``storage``, where ``rings`` say
-    steps are; the other arguments are :class:`~sb3_ef.common.buffers.SequenceReplayBuffer`'s (``mask_size``: the
-    masks' ``(height, width)`` when they are stored)."""
+    """Draws and gathers n-step transitions with their windows from ``storage``, where ``rings`` say steps are."""
 
     def __init__(
         self,
@@ -172,7 +167,6 @@ class BatchSampler:
 
     def _draw(self, batch_size: int) -> np.ndarray:
         """``(2, batch_size)``: env and absolute index of the newest observation frame of uniformly drawn steps."""
-        # Draw uniformly among the written slots [0, filled) of each ring and keep those that carry steps.
         capacity, has_step_rows = self.rings.capacity, self.rings.has_step_rows
         filled = self.rings.filled()
         ends = np.cumsum(filled)

@@ -1,7 +1,4 @@
-"""SB3's ``ReplayBuffer`` arrays of a sequence buffer: ``(buffer_size, n_envs, ...)``, row ``i`` holding the step of
-the ``i``-th ``add()`` call modulo ``buffer_size``; rows whose step is no longer stored read as zeros. Observations
-are gathered on demand by :class:`StackedFrameView`, the per-step arrays built as NumPy arrays.
-"""
+"""SB3's ``(buffer_size, n_envs, ...)`` ``ReplayBuffer`` arrays derived from a sequence buffer (docs/buffer.md)."""
 
 from __future__ import annotations
 
@@ -26,9 +23,7 @@ def sb3_rows(rings: EpisodeRings, pos: int) -> np.ndarray:
 
 
 class StackedFrameView:
-    """Read-only ``(buffer_size, n_envs, 3k, h, w)`` uint8 array of the observations (``offset=0``) or next
-    observations (``offset=1``) of the storage ``rows`` (:func:`sb3_rows`); indexing gathers only the rows asked for
-    (an unallocated storage reads as zeros)."""
+    """Read-only ``(buffer_size, n_envs, 3k, h, w)`` array of the (next, ``offset=1``) observations of ``rows``."""
 
     dtype = np.dtype(np.uint8)
 

@@ -1,6 +1,4 @@
-"""``SequenceReplayBuffer``: SB3's replay buffer interface over per-env frame rings, each frame stored once and the
-stacked observations rebuilt at sample time (the parts are listed in :mod:`sb3_ef.common.buffers`; docs/buffer.md).
-"""
+"""``SequenceReplayBuffer``: SB3's replay buffer over per-env frame rings, each frame stored once (docs/buffer.md)."""
 
 from __future__ import annotations
 
@@ -42,10 +40,7 @@ def _check_observation_space(observation_space: spaces.Space, frame_channels: in
 
 
 class SequenceReplayBuffer(ReplayBuffer):
-    """Replay buffer for stacked uint8 image observations that keeps each frame once.
-
-    Usable as SB3's ``replay_buffer_class``; it allocates none of ``ReplayBuffer``'s arrays (``observations``, ...
-    are derived on demand in SB3's layout).
+    """SB3 ``replay_buffer_class`` for stacked uint8 frames that keeps each frame once (SB3's arrays are derived).
 
     :param buffer_size: capacity in frames, split between the envs (an episode of T steps uses T + frame_stack).
     :param observation_space: ``Box(0, 255, (frame_channels * k, h, w), uint8)``, frames stacked oldest first.
@@ -59,9 +54,7 @@ class SequenceReplayBuffer(ReplayBuffer):
     :param horizon: length H of the Ego-Foresight window (future actions, frames, rewards).
     :param frame_channels: channels of one frame (3 for RGB).
     :param memmap_dir: keep the frames in an unnamed temporary file in this folder (``np.memmap``) rather than RAM.
-    :param storage_device: where the data live and are gathered: ``"cpu"``, a CUDA device, or ``"auto"``: the
-        training device when the buffer plus a margin fits its free memory, else host memory. Allocated at the first
-        ``add()``, which raises ``MemoryError`` before storing anything when it does not fit.
+    :param storage_device: ``"cpu"``, a CUDA device, or ``"auto"``: the training device when the buffer fits.
     :param prefetch: gather the next batch in a background thread (``None``: when host storage feeds CUDA).
     :param store_masks: store the agent masks of ``infos[i]["agent_masks"]``, returned in ``sample().masks``.
     """
@@ -123,8 +116,7 @@ class SequenceReplayBuffer(ReplayBuffer):
         self.memmap_dir = None if memmap_dir is None else os.fspath(memmap_dir)
         self.storage_request = request
         self.store_masks = bool(store_masks)
-        # SB3's set_random_seed sets torch's initial seed to the model's seed: seeded runs draw the same batches, and
-        # nothing else (the env code's NumPy draws, the networks' initialisation) moves this stream or is moved by it.
+        # Seeded from torch's initial seed (SB3 sets it): seeded runs draw the same batches, on a stream of their own.
         self._build_parts(prefetch, seed=th.initial_seed())
         # Chosen now, allocated at the first add(): SB3's load rebuilds this buffer for models loaded only to act.
         self.storage_device = self._storage.choose_device(request, self.device)

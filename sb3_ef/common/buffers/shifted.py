@@ -17,8 +17,7 @@ from sb3_ef.common.buffers.sequence import SequenceReplayBuffer
 def augment_frames(
     batch: SequenceReplayBufferSamples, augment: Callable[..., tuple[th.Tensor, ...]]
 ) -> SequenceReplayBufferSamples:
-    """``batch`` with its images augmented by ``augment``: the observations and future frames alike, the next
-    observations apart."""
+    """``batch`` augmented by ``augment``: observations and future frames alike, the next observations apart."""
     horizon = batch.future_frames.shape[1]
     observations, future_frames = augment(batch.observations, batch.future_frames.flatten(1, 2))
     (next_observations,) = augment(batch.next_observations)
@@ -30,8 +29,7 @@ def augment_frames(
 
 
 class ShiftedSequenceReplayBuffer(SequenceReplayBuffer):
-    """:class:`SequenceReplayBuffer` whose samples are random-shifted as in DrQ (:func:`augment_frames`): SAC, TD3
-    and TQC get DrQ's augmentation without changing their ``train()``.
+    """:class:`SequenceReplayBuffer` whose samples are random-shifted as in DrQ, for SAC, TD3 and TQC.
 
     :param shift_pad: the largest shift in pixels; the other arguments are :class:`SequenceReplayBuffer`'s.
     """

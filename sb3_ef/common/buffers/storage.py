@@ -1,6 +1,4 @@
-"""Where a sequence buffer's data lives: torch tensors in host memory (frames optionally memory-mapped) or on a GPU,
-one row per frame slot of every ring plus a last row that stays zero (masked reads point at it).
-"""
+"""Where a sequence buffer's data lives: torch tensors in host memory (optionally memory-mapped) or on a GPU."""
 
 from __future__ import annotations
 
@@ -75,11 +73,7 @@ def write_rows(target: th.Tensor, rows: list[int] | np.ndarray, values: np.ndarr
 
 
 class FrameStorage:
-    """The buffer's tensors, allocated on demand on one device. Row ``e * capacity + s`` holds slot ``s`` of env
-    ``e``'s ring: the frame, its bit-packed mask and the step taken from the observation whose newest frame it is.
-
-    ``mask_bytes`` is None when masks are not stored; the other arguments are the buffer's settings.
-    """
+    """The buffer's tensors, allocated on demand; row ``e * capacity + s`` is slot ``s`` of env ``e``, the last zero."""
 
     STEP_TENSORS = ("actions", "rewards", "dones", "timeouts")
 
