@@ -33,8 +33,7 @@ __getattr__ = lazy_attributes(__name__, _PUBLIC)
 
 
 class _Package(types.ModuleType):
-    """Keeps ``collect``, ``pretrain`` and ``evaluate`` the functions: the import system would set each loaded
-    submodule on its package, hiding the function of the same name."""
+    """Keeps ``collect``, ``pretrain`` and ``evaluate`` the functions, not the submodules the import system sets."""
 
     def __setattr__(self, name: str, value: Any) -> None:
         if not (name in _PUBLIC and isinstance(value, types.ModuleType)):

@@ -1,9 +1,5 @@
-"""``sb3-ef collect``, ``sb3-ef pretrain`` and ``sb3-ef predict``: offline Ego-Foresight from the command line.
-
-sb3-ef collect ENV OUT [--episodes 10] [--size 64] [--mode sign|clamped_uniform] [--policy MODEL.zip] ...
-sb3-ef pretrain DATASET OUT [--encoder dcgan-unet|drqv2|tdmpc2] [--context 3] [--horizon 10] [--steps 10000] ...
-sb3-ef predict MODEL OUT --dataset DATASET [--episode 0] [--start T] [--actions dataset|figure8] [--steps 30]
-"""
+"""``sb3-ef collect``, ``sb3-ef pretrain`` and ``sb3-ef predict``: offline Ego-Foresight from the command line
+(see docs/offline.md)."""
 
 from __future__ import annotations
 

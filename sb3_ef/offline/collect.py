@@ -1,6 +1,5 @@
-"""Record episodes of an sb3-ef env (motor babbling, or a saved DrQv2EF / TDMPC2EF policy) with the agent masks, in
-the folder format or as a LeRobot dataset. Episode ``i`` is seeded ``seed + i`` alone, so a rerun with the settings
-kept in ``OUT/sb3_ef_collect.json`` keeps the intact episodes and records the rest."""
+"""Record episodes of an sb3-ef env (motor babbling, or a saved DrQv2EF / TDMPC2EF policy) with agent masks, as files
+or a LeRobot dataset; episode ``i`` is seeded ``seed + i`` alone, so a rerun records only what is missing."""
 
 from __future__ import annotations
 
@@ -30,9 +29,7 @@ from sb3_ef.offline.episodes import (
 )
 from sb3_ef.offline.progress import make_progress_bar
 
-#: ``collect``'s file formats: one ``.npz`` / ``.h5`` file per episode, or a LeRobot v3.0 dataset folder.
 FORMATS = ("npz", "h5", "lerobot")
-#: The file in the output folder that records a collection's settings.
 RECORD = "sb3_ef_collect.json"
 #: The ``sb3-ef collect`` options that set ``collect``'s recorded arguments, where not ``--<argument>``.
 OPTIONS = {
@@ -45,8 +42,7 @@ OPTIONS = {
 
 
 def record_episode(env: Any, act: Any, seed: int | None = None, source: str = "", masks: bool = True) -> Episode:
-    """Play one episode with ``act(observation) -> action``, keeping the newest frame of each observation and, with
-    ``masks``, the agent masks (a second render per step)."""
+    """Play one episode with ``act(observation) -> action``, keeping each observation's newest frame (and mask)."""
     observation, _ = env.reset(seed=seed)
     agent_mask: Callable[[], Any] = env.unwrapped.agent_mask if masks else lambda: None
     frames, agent_masks, actions = [observation[-FRAME_CHANNELS:]], [agent_mask()], []
@@ -109,14 +105,12 @@ def collect(
     progress_bar: bool = True,
     **env_kwargs: Any,
 ) -> list[str]:
-    """Write ``episodes`` files ``episode_00000.<npz|h5>`` to ``out_dir`` and return their paths, or with
-    ``file_format="lerobot"`` a LeRobot v3.0 dataset and return ``[out_dir]``. A rerun records what is missing or
-    damaged; Ctrl-C keeps the finished episodes and raises :class:`~sb3_ef.common.interrupt.Interrupted`.
+    """Write ``episodes`` files ``episode_00000.<npz|h5>`` to ``out_dir`` (their paths returned), or a LeRobot
+    dataset (``[out_dir]``); a rerun records what is missing or damaged. See docs/offline.md.
 
-    :param env_name: ``dmc/<domain>-<task>``, ``metaworld/<task>`` or another registered sb3-ef env (``toy/agent-v0``).
+    :param env_name: ``dmc/<domain>-<task>``, ``metaworld/<task>`` or another registered sb3-ef env.
     :param mode: babbling mode when no ``policy`` is given (``"sign"`` as in the paper, or ``"clamped_uniform"``).
-    :param policy: path of a saved DrQv2EF / TDMPC2EF to act instead of babbling (its frame size and stack are used),
-        of ``algo`` ``drqv2_ef`` or ``tdmpc2_ef`` (default: tried in turn).
+    :param policy: a saved DrQv2EF / TDMPC2EF (``algo``: ``drqv2_ef`` or ``tdmpc2_ef``, else both tried) to act.
     :param fast_render: render without shadows and reflections (faster on CPU; train on the same setting).
     :param env_kwargs: more ``make_env`` options, e.g. ``episode_length`` (simulator steps).
     :param masks: agent masks for every episode, none, or the episodes of these indices (LeRobot: any index, all).
@@ -166,7 +160,7 @@ def _check_folder(out_dir: str, settings: dict[str, Any]) -> None:
 
 
 def _write_record(out_dir: str, settings: dict[str, Any]) -> None:
-    """Keep the settings in ``out_dir`` (a file that holds them already is left alone: a full disk still reruns)."""
+    """Keep the settings in ``out_dir``, leaving a file that holds them alone (a full disk still reruns)."""
     os.makedirs(out_dir, exist_ok=True)
     path, text = os.path.join(out_dir, RECORD), json.dumps(settings, indent=2)
     if not os.path.isfile(path) or Path(path).read_text() != text:
@@ -185,7 +179,7 @@ def _collect_files(
             if index not in kept:
                 with_masks = masks if isinstance(masks, bool) else index in masks
                 episode = recorder.episode(index, path, with_masks)
-                with sigint_deferred():  # the file is written whole: an interrupt waits for it
+                with sigint_deferred():
                     write_episode(path, episode)
             bar.update(1)
     except KeyboardInterrupt:
@@ -206,8 +200,7 @@ def _collect_files(
 
 
 def _intact_episodes(paths: list[str], recorder: _Recorder) -> set[int]:
-    """The indices of the episode files there that read back intact (a damaged one: a warning); one of another frame
-    shape or action size is refused before anything is recorded."""
+    """The indices of the episode files that read back intact; refuses one of another frame shape or action size."""
     intact, other_shapes = set(), []
     for index, path in enumerate(paths):
         if not os.path.exists(path):
@@ -240,7 +233,7 @@ def _collect_lerobot(recorder: _Recorder, out_dir: str, settings: dict[str, Any]
     if writer.episodes >= episodes:
         return out_dir
     try:
-        with writer:  # on an error or Ctrl-C it still finishes the episodes added (files and meta/)
+        with writer:
             for index in range(writer.episodes, episodes):
                 writer.add(recorder.episode(index, f"{out_dir} (episode {index})", masks))
                 bar.update(1)

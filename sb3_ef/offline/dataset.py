@@ -24,8 +24,7 @@ def check_like(episode: Episode, first: Episode) -> Episode:
 
 
 def decode_image(data: bytes, image_size: int | None, error: str) -> np.ndarray:
-    """A JPEG / PNG as uint8 (3, H, W), resized to ``image_size`` squared when given; ``error`` is the message of
-    the ``EpisodeError`` raised when Pillow cannot read it."""
+    """A JPEG / PNG as uint8 (3, H, W), resized to ``image_size`` squared when given; ``error`` names a bad one."""
     from PIL import Image
 
     try:
@@ -56,8 +55,7 @@ def check_image_size(image_size: Any, optional: bool = True) -> int | None:
 
 
 class EpisodeDataset(ABC):
-    """Episodes read on demand: ``len(dataset)``, ``dataset[i]`` and iteration. Subclasses implement ``__len__`` and
-    ``_read(index)`` (checked by :func:`~sb3_ef.offline.episodes.make_episode`); shorter than ``min_frames`` raises."""
+    """Episodes read on demand; subclasses implement ``__len__`` and ``_read(index)``."""
 
     def __init__(self, min_frames: int = 2):
         self.min_frames = min_frames

@@ -1,7 +1,5 @@
-"""Image encoders for offline Ego-Foresight: the DrQ-v2 and TD-MPC2 encoders (reused from their hosts, so weights
-move into an RL agent) and the paper's BAIR model, a 64x64 DCGAN encoder whose feature map feeds EF's decoder as a
-U-Net skip. Each returns ``(h, skip)`` for uint8 stacked frames; ``skip`` is ``None`` without skips.
-"""
+"""Image encoders for offline Ego-Foresight: DrQ-v2's and TD-MPC2's (reused, so weights move into an RL agent) and
+the paper's BAIR DCGAN U-Net; each returns ``(h, skip)`` for uint8 stacked frames (``skip`` ``None`` without)."""
 
 from __future__ import annotations
 
@@ -21,9 +19,8 @@ DCGAN_FRAME_SIZE = 64
 
 
 class DCGANUNetEncoder(nn.Module):
-    """DCGAN encoder for 64x64 frames: four Conv(4, stride 2) + BatchNorm + LeakyReLU(0.2) blocks of ``width`` times
-    1, 2, 4, 8 channels, then a 4x4 convolution to ``features_dim`` and a tanh. Block ``skip_block``'s output (None:
-    none) is the U-Net skip map EF's decoder takes, carrying the scene's detail so that ``h`` can leave it out."""
+    """The BAIR model's DCGAN encoder for 64x64 frames; block ``skip_block``'s output (None: none) is the U-Net skip
+    map EF's decoder takes, carrying the scene's detail so that ``h`` can leave it out."""
 
     def __init__(self, in_channels: int, features_dim: int = 128, width: int = 32, skip_block: int | None = 1):
         super().__init__()
@@ -79,8 +76,7 @@ _KWARGS_TARGETS: dict[str, tuple[type, tuple[str, ...]]] = {
 def build_encoder(
     kind: str, frame_shape: tuple[int, int, int], context: int, action_dim: int, **kwargs
 ) -> DCGANUNetEncoder | HostEncoder:
-    """The encoder ``kind`` (one of :data:`ENCODERS`) for ``context`` stacked frames of ``frame_shape``; ``kwargs``
-    go to :class:`DCGANUNetEncoder`, ``DrQv2Encoder`` (``features_dim`` 2048) or TD-MPC2's ``WorldModel``."""
+    """The encoder ``kind`` (one of :data:`ENCODERS`) for ``context`` stacked frames of ``frame_shape``."""
     if kind in _KWARGS_TARGETS:
         target, set_here = _KWARGS_TARGETS[kind]
         check_keyword_arguments(f"the {kind} encoder's encoder_kwargs (--encoder-kwargs)", target, kwargs, set_here)

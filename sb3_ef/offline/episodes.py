@@ -50,8 +50,7 @@ class Episode:
 def make_episode(
     frames: np.ndarray, actions: np.ndarray, masks: np.ndarray | None = None, source: str = "", min_frames: int = 2
 ) -> Episode:
-    """Check one episode's arrays and return it as an :class:`Episode`; an ``EpisodeError`` names ``source`` (file
-    and episode), what was expected and what was received. ``min_frames``: context + horizon for training."""
+    """Check one episode's arrays (``EpisodeError`` naming ``source``) and return it as an :class:`Episode`."""
     frames, actions = np.asarray(frames), np.asarray(actions)
     if frames.dtype != np.uint8:
         raise EpisodeError(f"{source}: expected uint8 frames (0-255), got dtype {frames.dtype}")
@@ -110,8 +109,7 @@ def write_episode(path: str | os.PathLike, episode: Episode) -> str:
 
 
 def read_episode_file(path: str | os.PathLike, source: str | None = None, min_frames: int = 2) -> Episode:
-    """One episode of the folder format, checked (:func:`make_episode`); a damaged file, missing arrays or an
-    ``.npz`` holding Python objects raise ``EpisodeError`` naming ``source`` (default: the path)."""
+    """One episode of the folder format, checked; a damaged file raises ``EpisodeError`` naming ``source``."""
     path = os.fspath(path)
     source = source or path
     with _open_episode_file(path, source) as file:
@@ -129,8 +127,7 @@ def episode_file_shapes(path: str, source: str) -> tuple[tuple[int, ...], tuple[
 
 @contextmanager
 def _open_episode_file(path: str, source: str) -> Iterator[Any]:
-    """The open ``.npz`` (numpy's ``NpzFile``) or HDF5 file, holding ``frames`` and ``actions``; a damaged file,
-    or one holding Python objects, raises ``EpisodeError`` while it is read."""
+    """The open ``.npz`` or HDF5 file holding ``frames`` and ``actions``."""
     try:
         if path.endswith(NPZ_SUFFIXES):
             with open(path, "rb") as handle:

@@ -1,6 +1,5 @@
-"""Held-out scores of an offline EF model next to the baseline that copies the last context frame t: for k = 1..H the
-squared error of frame t + k over the frame and the agent's pixels (at t or t + k), and the precision of the h_a
-saliency against the agent mask at t + k, next to chance (the mask's share of the frame)."""
+"""Held-out scores of an offline EF model next to the baseline that copies the last context frame: frame and agent
+errors per step ahead, and the h_a saliency's precision against the agent mask (see docs/offline.md)."""
 
 from __future__ import annotations
 
@@ -44,10 +43,7 @@ def evaluate(
     seed: int = 0,
     progress: bool = False,
 ) -> dict[str, float | list[float]]:
-    """Scores on held-out ``episodes``: ``frame_mse``, ``copy_frame_mse``, ``frame_ratio`` (model / copy) and, with
-    masks, the same for ``agent`` and ``saliency_precision`` / ``_recall`` / ``_chance`` / ``_precision_over_chance``;
-    means over k = 1..H of the ``*_per_k`` lists; ``windows``. ``progress`` shows a bar (saliency takes minutes on CPU).
-    """
+    """Scores on held-out ``episodes`` (named in docs/offline.md's "Held-out scores"); ``progress`` shows a bar."""
     config = model.config
     picks = evaluation_picks(episodes, config.context, config.horizon, stride)
     if not picks:
@@ -103,8 +99,7 @@ def window_saliency(model: OfflineEF, windows: Windows, index: int, k: int) -> S
 def saliency_scores(
     model: OfflineEF, episodes: list[Episode], picks: list[tuple[int, int]], count: int, seed: int, bar: Any
 ) -> dict[str, float]:
-    """Mean precision / recall of the thresholded h_a saliency of the predicted frame t + k (k drawn in 1..H)
-    against the agent mask at t + k, over ``count`` windows drawn from ``picks``."""
+    """Mean precision / recall of the h_a saliency of frame t + k against its agent mask, over ``count`` windows."""
     config = model.config
     rng = np.random.default_rng(seed)
     chosen = [picks[i] for i in rng.choice(len(picks), size=min(count, len(picks)), replace=False)]

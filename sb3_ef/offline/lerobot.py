@@ -1,8 +1,5 @@
-"""LeRobot datasets read with pyarrow and PyAV, without the ``lerobot`` package (and its torchvision, datasets,
-huggingface-hub). A v3.0 folder holds ``meta/info.json``, an episode table (``meta/episodes/...parquet``: each
-episode's data and video file and time span), Parquet data files (a row per frame) and MP4s of consecutive episodes;
-frame ``i`` is the video frame at ``from_timestamp + timestamp[i]``. v2.x folders (one file each) are read too.
-"""
+"""LeRobot datasets (v3.0 and v2.x) read with pyarrow and PyAV, without the ``lerobot`` package and its
+dependencies; frame ``i`` of an episode is the video frame at ``from_timestamp + timestamp[i]``."""
 
 from __future__ import annotations
 
@@ -31,14 +28,13 @@ __all__ = ["MASK_KEY", "LeRobotDataset", "LeRobotWriter", "is_lerobot_dataset", 
 
 
 class LeRobotDataset(EpisodeDataset):
-    """Episodes of a local LeRobot dataset folder (v3.0, or v2.x): one camera's frames (``video``: MP4 of any codec
-    FFmpeg decodes; or ``image``: PNG / JPEG bytes) and the actions, indexed on open and decoded on ``dataset[i]``.
+    """Episodes of a local LeRobot dataset folder: one camera's frames (video or image) and the actions.
 
     :param root: the dataset folder (holding ``meta/info.json``).
     :param camera: the camera feature, e.g. ``"observation.images.top"`` (default: the first video or image one).
     :param action_key: the action feature (a float vector per frame).
     :param image_size: resize frames to ``image_size`` squared (None: keep the camera's size).
-    :param mask_key: a per-frame boolean (height, width) feature of agent masks (default: ``MASK_KEY`` if present).
+    :param mask_key: a per-frame boolean (height, width) agent-mask feature (default: ``MASK_KEY`` if present).
     """
 
     def __init__(

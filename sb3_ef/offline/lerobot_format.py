@@ -13,8 +13,7 @@ V3_DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
 V3_VIDEO_PATH = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
 V3_EPISODES_PATH = "meta/episodes/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
 VIDEO_COLUMNS = ("chunk_index", "file_index", "from_timestamp", "to_timestamp")
-#: The Parquet column of the agent masks written by :class:`~sb3_ef.offline.lerobot_writer.LeRobotWriter` (not a
-#: LeRobot convention).
+#: The Parquet column of the agent masks :class:`~sb3_ef.offline.lerobot_writer.LeRobotWriter` writes (sb3-ef's own).
 MASK_KEY = "observation.agent_mask"
 
 

@@ -1,6 +1,4 @@
-"""Feature statistics of a LeRobot dataset in LeRobot's form (``min``, ``max``, ``mean``, ``std``, ``count``,
-``q01`` .. ``q99`` per camera channel in [0, 1] or vector component): exact per episode, aggregated as LeRobot does
-(quantiles: the envelope of the episodes')."""
+"""Feature statistics of a LeRobot dataset in LeRobot's form: exact per episode, aggregated as LeRobot does."""
 
 from __future__ import annotations
 

@@ -1,8 +1,5 @@
-"""Episodes written as a LeRobot v3.0 dataset folder (one camera as MP4, the actions and optionally agent masks in
-Parquet, ``meta/``) with pyarrow and PyAV. Every file is renamed into place once complete, ``meta/info.json`` last;
-an error or Ctrl-C still finishes the episodes added, so the folder is always a dataset that ``append=True``
-continues, and a kill or full disk leaves the last finished state.
-"""
+"""Episodes written as a LeRobot v3.0 dataset folder with pyarrow and PyAV; every file is renamed into place once
+complete, ``meta/info.json`` last, so the folder is always a dataset that ``append=True`` continues."""
 
 from __future__ import annotations
 
@@ -47,7 +44,7 @@ class _Segment:
         for path in (self.video, self.data):
             os.makedirs(os.path.dirname(path), exist_ok=True)
         lossless = writer.codec == "libx264rgb"
-        os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 prints its whole configuration per file unless told errors only
+        os.environ.setdefault("SVT_LOG", "1")  # errors only: SVT-AV1 prints its configuration per file
         self.container = writer.av.open(str(temporary_path(self.video)), "w", format="mp4")
         options = {"qp": "0"} if lossless else {"crf": str(writer.crf)}
         self.stream = self.container.add_stream(writer.codec, rate=writer.fps, options=options)
@@ -55,11 +52,10 @@ class _Segment:
         self.stream.pix_fmt = "rgb24" if lossless else "yuv420p"
         self.stream.codec_context.gop_size = 2  # LeRobot's keyframe interval: cheap seeks to any episode
         self.frames, self.broken = 0, False
-        self.tables: list[Any] = []  # the Parquet tables of the episodes complete in the segment
+        self.tables: list[Any] = []  # of the episodes complete in the segment
 
     def encode(self, frames: np.ndarray) -> float:
-        """Append the frames (N, 3, H, W) to the video; returns the time of the first one in the file. An error
-        here may have lost packets of earlier frames: the segment is then ``broken`` and not kept."""
+        """Append frames (N, 3, H, W) and return the first one's time; an error marks the segment ``broken``."""
         start = self.frames / self.writer.fps
         try:
             for frame in frames:
@@ -75,8 +71,7 @@ class _Segment:
         return start
 
     def finish(self) -> None:
-        """Flush the video and write the data file (one row group per episode), each renamed once complete; a
-        segment without a complete episode is dropped."""
+        """Flush the video and write the data file, each renamed once complete; drop a segment with no episode."""
         if not self.tables:
             self.abort()
             return
@@ -98,12 +93,11 @@ class _Segment:
 
 
 class LeRobotWriter:
-    """Writes episodes as a LeRobot v3.0 dataset folder with the statistics and ``meta/tasks.parquet`` LeRobot
-    reads. Row ``t`` holds frame ``t`` and action ``t`` (the last frame's action is zeros); timestamps ``t / fps``.
+    """Writes episodes as a LeRobot v3.0 dataset folder; row ``t`` holds frame ``t`` and action ``t`` (the last
+    frame's action is zeros). See docs/offline.md.
 
     :param root: a new or empty folder; with ``append=True`` also a dataset this writer wrote, continued.
-    :param codec: an FFmpeg video encoder: ``"libsvtav1"`` (AV1, LeRobot's default; lossy), ``"libx264"`` (H.264,
-        lossy) or ``"libx264rgb"`` (H.264 in RGB with ``qp=0``: lossless, frames read back exactly).
+    :param codec: ``"libsvtav1"`` (AV1, LeRobot's default), ``"libx264"`` or ``"libx264rgb"`` (lossless).
     :param episodes_per_file: start a new data and video file every this many episodes (None: one file each).
     :param append: continue a dataset of this writer in ``root`` (same frame shape, action size, fps and masks).
     """
@@ -123,7 +117,7 @@ class LeRobotWriter:
         crf: int = 30,
         append: bool = False,
     ):
-        self.av, self.pq = lerobot_imports()  # a message naming the extra to install when one is missing
+        self.av, self.pq = lerobot_imports()
         import pyarrow as pa
 
         self.pa = pa
@@ -145,7 +139,7 @@ class LeRobotWriter:
         return len(self._rows)
 
     def add(self, episode: Episode) -> None:
-        """Append one episode (its frames, actions and, when the writer records masks, masks)."""
+        """Append one episode."""
         if episode.frame_shape != self.frame_shape or episode.action_dim != self.action_dim:
             raise ValueError(
                 f"{episode.source}: frames {episode.frame_shape} and {episode.action_dim}-d actions differ from the "
@@ -158,7 +152,7 @@ class LeRobotWriter:
         if self._segment is None:
             self._segment = _Segment(self, self._next_file)
             self._next_file += 1
-        with sigint_deferred():  # an encoder emits earlier frames' packets later: a cut here would lose those
+        with sigint_deferred():  # the encoder emits earlier frames' packets later: a cut would lose them
             self._add(episode, self._segment)
 
     def _add(self, episode: Episode, segment: _Segment) -> None:
@@ -181,7 +175,7 @@ class LeRobotWriter:
             "meta/episodes/file_index": 0,
             **lerobot_stats.to_columns(stats),
         }
-        segment.tables.append(self._table(columns))  # from here on the episode is complete: kept by close()
+        segment.tables.append(self._table(columns))  # the episode is complete: close() keeps it
         self._rows.append(row)
         self._frames += length
 
@@ -191,8 +185,7 @@ class LeRobotWriter:
         return self
 
     def close(self) -> str:
-        """Finish the files of the episodes added and write ``meta/``; returns the dataset folder. Ctrl-C meanwhile
-        waits until it is done."""
+        """Finish the files of the episodes added and write ``meta/``; returns the dataset folder."""
         with sigint_deferred():
             return self._close()
 
@@ -211,8 +204,7 @@ class LeRobotWriter:
         return self.root
 
     def _finish_segment(self) -> None:
-        """Finish the current data and video files; if that fails (or the video lost packets) their episodes are
-        dropped from the table, so that ``meta/`` never names a file that is not there."""
+        """Finish the current files; on failure drop their episodes, so that ``meta/`` names only files there."""
         segment, self._segment = self._segment, None
         if segment is None:
             return
@@ -234,7 +226,6 @@ class LeRobotWriter:
         warnings.warn(f"{len(dropped)} episodes of {self.root} were lost with a file that failed", stacklevel=4)
 
     def _columns(self, episode: Episode, index: int) -> dict[str, np.ndarray]:
-        """The episode's columns of the data file, as arrays."""
         length = len(episode.frames)
         actions = np.zeros((length, self.action_dim), np.float32)
         actions[: episode.steps] = episode.actions
@@ -251,8 +242,7 @@ class LeRobotWriter:
         return columns
 
     def _table(self, columns: dict[str, np.ndarray]) -> Any:
-        """Parquet columns: fixed-size lists for the action vectors and the (height, width) masks. A 1-d action is a
-        float column, as LeRobot stores every feature of shape [1] (its reader refuses a list there)."""
+        """Parquet columns: fixed-size lists for actions and masks; a 1-d action is a float column (LeRobot's way)."""
         pa = self.pa
         arrays = {name: pa.array(values) for name, values in columns.items() if values.ndim == 1}
         actions = columns["action"]
@@ -308,8 +298,7 @@ class LeRobotWriter:
         }
 
     def _existing_rows(self) -> list[dict[str, Any]]:
-        """The episode table of the dataset ``append`` continues (none yet: an empty list), checked against the
-        writer's settings."""
+        """The episode table of the dataset ``append`` continues, checked against the writer's settings."""
         if not os.path.isfile(os.path.join(self.root, INFO)):
             return []
         with open(os.path.join(self.root, INFO)) as file:
@@ -339,7 +328,7 @@ class LeRobotWriter:
         if exc_info[0] is None:
             self.close()
             return
-        try:  # keep the episodes added so far: finish their files and meta/, so that append=True continues them
+        try:  # keep the episodes added so far, for append=True
             if self._rows:
                 self.close()
             elif self._segment is not None:
@@ -351,14 +340,14 @@ class LeRobotWriter:
 
 
 def _file_number(row: dict[str, Any], camera: str) -> int:
-    """The sequence number (chunk * CHUNKS_SIZE + file) of the data or video file an episode row points to."""
+    """The sequence number of the data or video file an episode row points to."""
     data = row["data/chunk_index"] * CHUNKS_SIZE + row["data/file_index"]
     video = row[f"videos/{camera}/chunk_index"] * CHUNKS_SIZE + row[f"videos/{camera}/file_index"]
     return max(data, video)
 
 
 def _refuse_used_folder(root: str) -> list[dict[str, Any]]:
-    """No episode rows, once ``root`` is known to be new or empty (a dataset is never written beside other files)."""
+    """No episode rows, once ``root`` is known to be new or empty."""
     if os.path.isfile(os.path.join(root, INFO)):
         raise FileExistsError(f"{root} already holds a LeRobot dataset ({INFO}); write to another folder")
     refuse_files_in(root, ": a LeRobot dataset is written into a new or empty folder")

@@ -31,8 +31,7 @@ class OfflineEFConfig:
 
 
 class OfflineEF(nn.Module):
-    """Encoder + Ego-Foresight. ``features(obs)`` gives ``(h, skip)`` for uint8 stacked context frames
-    (B, 3 * context, H, W), oldest first, as sb3-ef envs stack them."""
+    """Encoder + Ego-Foresight; ``features(obs)`` gives ``(h, skip)`` for uint8 stacked context frames, oldest first."""
 
     def __init__(self, config: OfflineEFConfig):
         super().__init__()
@@ -73,8 +72,7 @@ class OfflineEF(nn.Module):
 
 
 def read_checkpoint(path: str | os.PathLike, device: str | th.device = "cpu") -> dict[str, Any]:
-    """The dict of a checkpoint written by ``pretrain`` (``model.pt`` or ``checkpoint.pt``), unpickled
-    ``weights_only``; a damaged file, a Stable-Baselines3 model zip or another file is a ``ValueError`` naming it."""
+    """The dict of a ``pretrain`` checkpoint, unpickled ``weights_only``; any other file is a ``ValueError``."""
     name = os.fspath(path)
     if not os.path.isfile(name):
         raise FileNotFoundError(f"No pretrained model at {name!r}")

@@ -69,8 +69,8 @@ def predict_episode(
     steps: int | None = None,
     video: str = "gif",
 ) -> dict[str, str]:
-    """Predict from the context ending at frame ``start`` (default: the first possible) of ``episode`` and write
-    ``prediction.png`` (rows: context, prediction and, for dataset actions, truth) and ``prediction.gif`` / ``.mp4``.
+    """Predict from the context ending at frame ``start`` of ``episode`` and write ``prediction.png`` (context,
+    prediction, truth) and ``prediction.gif`` / ``.mp4``.
 
     :param actions: ``"dataset"`` (the episode's own, true frames shown) or ``"figure8"`` (the paper's probe).
     :param steps: frames to predict (default: the horizon; with dataset actions at most to the episode's end).

@@ -1,7 +1,5 @@
-"""Offline pretraining of an encoder + Ego-Foresight on (frames, actions) episodes, as in the paper's BAIR
-experiment: held-out episodes, TensorBoard scalars and image grids, atomic resumable checkpoints (a resumed run keeps
-the checkpoint's model and training settings; Ctrl-C saves one and raises ``Interrupted``) and a progress bar.
-"""
+"""Offline pretraining of an encoder + Ego-Foresight on (frames, actions) episodes (the paper's BAIR experiment),
+with held-out scores, TensorBoard and resumable checkpoints: see docs/offline.md."""
 
 from __future__ import annotations
 
@@ -107,23 +105,17 @@ def pretrain(
     cache_mb: float = 1024,
     workers: int = 0,
 ) -> tuple[OfflineEF, dict[str, Any]]:
-    """Train encoder + EF to predict frame t + k from ``context`` frames and k actions (k drawn in 1..``horizon``).
-
-    Writes to ``out_dir``: ``checkpoint.pt`` every ``checkpoint_every`` steps (training continues from it when
-    ``resume``, with the same settings), ``model.pt`` at the end (load with
-    :func:`~sb3_ef.offline.model.load_pretrained`), ``metrics.json`` with the held-out scores of
-    :func:`~sb3_ef.offline.evaluate.evaluate`, and TensorBoard logs under ``tb/``.
+    """Train encoder + EF to predict frame t + k from ``context`` frames and k actions (k in 1..``horizon``),
+    writing ``checkpoint.pt``, ``model.pt``, ``metrics.json`` and ``tb/`` into ``out_dir`` (see docs/offline.md).
 
     :param dataset: a source for :func:`~sb3_ef.offline.readers.open_dataset`, a reader, or loaded episodes.
-    :param encoder: ``"dcgan-unet"`` (64x64, U-Net skips), ``"drqv2"`` or ``"tdmpc2"`` (64x64).
-    :param shift_pad: random-shift augmentation of context and target together (DrQ-v2's is 4), 0 for none.
-    :param saliency_windows: held-out windows whose h_a saliency is scored at the end (each costs one backward
-        pass per 4x4 patch of the frame).
+    :param encoder: ``"dcgan-unet"`` (U-Net skips), ``"drqv2"`` or ``"tdmpc2"``, all on 64x64 frames.
+    :param shift_pad: random-shift pad of context and target together (DrQ-v2's is 4), 0 for none.
+    :param saliency_windows: held-out windows whose h_a saliency is scored at the end (slow: a backward per patch).
     :param holdout: held-out episodes (count, or fraction when < 1), the last ones of the dataset.
     :param resume: continue from ``checkpoint.pt`` of an unfinished (or shorter) run in ``out_dir``.
     :param overwrite: train again over a finished run (``model.pt`` at ``steps`` or more); refused otherwise.
-    :param cache_mb: memory for decoded training episodes: a dataset that does not fit is streamed
-        (:mod:`sb3_ef.offline.streaming`); held-out episodes are loaded whole.
+    :param cache_mb: memory for decoded training episodes; a dataset that does not fit is streamed.
     :param workers: ``DataLoader`` worker processes decoding windows (0: in this process).
     :return: the trained model (eval mode) and the final held-out scores.
     """
@@ -159,7 +151,7 @@ def pretrain(
 
 
 def _check_settings(values: dict[str, Any]) -> None:
-    """Refuse settings that cannot train (counts below 1, a learning rate <= 0, negative sizes) at once."""
+    """Refuse settings that cannot train, all problems in one message."""
     rules: dict[str, tuple[str, int | None]] = {
         "learning_rate": ("a number > 0", None),
         "cache_mb": ("a number > 0", None),
@@ -330,8 +322,7 @@ def _finish(run: _Run, train_episodes: int, show_progress: bool) -> dict[str, An
 
 
 def _refuse_finished_run(out_dir: str, steps: int, resume: bool, overwrite: bool) -> None:
-    """A finished run (``model.pt`` at ``steps`` or beyond) is kept unless ``overwrite``: only a resumed run with
-    more steps continues it."""
+    """Keep a finished run (``model.pt`` at ``steps`` or beyond) unless ``overwrite`` or resumed with more steps."""
     model_path = os.path.join(out_dir, MODEL)
     if overwrite or not os.path.isfile(model_path):
         return

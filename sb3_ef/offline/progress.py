@@ -16,8 +16,7 @@ class _NoBar:
 
 
 def make_progress_bar(total: int, description: str, unit: str, enabled: bool = True, initial: int = 0) -> Any:
-    """A tqdm bar over ``total`` items starting at ``initial``; one that shows nothing when not ``enabled`` or when
-    tqdm is not installed."""
+    """A tqdm bar over ``total`` items from ``initial``; a silent one when not ``enabled`` or without tqdm."""
     try:
         from tqdm.auto import tqdm
     except ImportError:

@@ -1,5 +1,4 @@
-"""Episode readers of a folder of NPZ / HDF5 files, a Minari dataset and BAIR's robot-pushing TFRecords
-(``softmotion30_44k``), and ``open_dataset``, which picks the reader (these, LeRobot's or RLDS's) from the source."""
+"""Episode readers of NPZ / HDF5 folders, Minari and BAIR's TFRecords, and ``open_dataset``, which picks a reader."""
 
 from __future__ import annotations
 
@@ -45,7 +44,7 @@ class FolderDataset(EpisodeDataset):
         return len(self.paths)
 
     def lengths(self) -> list[int]:
-        """Frames per episode from the array headers, whose shapes must agree (refused before training starts)."""
+        """Frames per episode from the array headers, whose shapes must agree."""
         lengths, first = [], None
         for index, path in enumerate(self.paths):
             source = f"{path} (episode {index})"
@@ -68,9 +67,8 @@ class FolderDataset(EpisodeDataset):
 
 
 class MinariDataset(EpisodeDataset):
-    """Episodes of a local Minari dataset of image observations (channels-last, channels-first or frame-stacked),
-    under ``observation_key`` (default ``"pixels"`` or ``"image"``) of dict ones; agent masks from infos' ``mask_key``.
-    """
+    """Episodes of a local Minari dataset of image observations (``observation_key`` of dict ones: default
+    ``"pixels"`` or ``"image"``); agent masks from infos' ``mask_key``."""
 
     def __init__(
         self, dataset_id: str, observation_key: str | None = None, mask_key: str = "agent_mask", min_frames: int = 2
@@ -124,8 +122,7 @@ def _channels_first(images: np.ndarray, source: str) -> np.ndarray:
 
 
 class BAIRDataset(ExampleShards):
-    """BAIR robot pushing (``softmotion30_44k``) TFRecord files or a folder of them: an Example per episode with, per
-    step ``t``, ``{t}/{camera}/encoded`` (raw RGB of ``image_size`` squared, or a JPEG / PNG) and ``{t}/action``;
+    """BAIR robot pushing (``softmotion30_44k``) TFRecord files or a folder of them, an Example per episode;
     ``camera``: ``"image_aux1"`` (the 64x64 view) or ``"image_main"``."""
 
     def __init__(
@@ -182,8 +179,7 @@ class BAIRDataset(ExampleShards):
 
 
 def open_dataset(source: str | os.PathLike, min_frames: int = 2, **kwargs) -> EpisodeDataset:
-    """The reader for ``source``: ``minari:<id>``, a LeRobot folder, an RLDS folder (or ``rlds:<path>``),
-    ``.tfrecord`` file(s) / a folder of them (BAIR), or a folder of episodes; ``kwargs`` go to the reader."""
+    """The reader for ``source`` (see docs/offline.md's Readers); ``kwargs`` go to the reader."""
     from sb3_ef.offline.lerobot import LeRobotDataset, is_lerobot_dataset
     from sb3_ef.offline.rlds import RLDSDataset, is_rlds_folder
 

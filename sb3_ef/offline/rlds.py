@@ -1,6 +1,5 @@
-"""RLDS / TFDS episode shards (Open X-Embodiment) read without TensorFlow: a TFDS folder (``<name>/<version>/``) of
-``features.json`` and shards ``<name>-<split>.tfrecord-00000-of-00016`` of one Example per episode, its steps stacked
-under ``/``-joined names (``steps/observation/image``: a JPEG / PNG per step; ``steps/action``: floats)."""
+"""RLDS / TFDS episode shards (Open X-Embodiment) read without TensorFlow: one Example per episode, its steps
+stacked under ``/``-joined names (``steps/observation/image``, ``steps/action``); see docs/offline.md."""
 
 from __future__ import annotations
 
@@ -63,13 +62,12 @@ def is_rlds_folder(path: str | os.PathLike) -> bool:
 
 
 class RLDSDataset(ExampleShards):
-    """Episodes of RLDS / TFDS TFRecord shards: one image feature and the action(s) of each step, record ``i``
-    read (CRC-checked when ``verify``) and decoded on ``dataset[i]``.
+    """Episodes of RLDS / TFDS TFRecord shards: one image feature and the action(s) of each step, decoded on access.
 
     :param paths: a TFDS dataset folder (``<name>/<version>``), or shard files.
     :param layout: an ``OXE_LAYOUTS`` name (default: the folder's dataset name when it is one, else auto-detected).
-    :param image_key: the image feature (without ``steps/``); ``action_keys``: float features concatenated into the
-        action (``"1-<feature>"``: one minus it); both override ``layout``.
+    :param image_key: the image feature (without ``steps/``); overrides ``layout``.
+    :param action_keys: float features concatenated into the action (``"1-<feature>"``: one minus it).
     :param image_size: resize frames to ``image_size`` squared (None: keep their size).
     """
 

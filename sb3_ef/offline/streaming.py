@@ -1,6 +1,5 @@
-"""Training windows from datasets larger than memory: each batch is drawn uniformly over the windows of a pool of
-decoded episodes (``cache_mb``), after ``swap`` of them are replaced by episodes drawn in proportion to their window
-counts, so every window keeps the same long-run rate (``WindowSampler``'s draws when the dataset fits)."""
+"""Training windows from datasets larger than memory, drawn from a pool of decoded episodes that is partly replaced
+before each batch so that every window keeps the same long-run rate (see docs/offline.md)."""
 
 from __future__ import annotations
 
@@ -39,8 +38,7 @@ def episode_bytes(episode: Episode) -> int:
 
 
 class StreamingWindowSampler:
-    """Windows of ``context`` frames, ``horizon`` actions and frames from episodes ``indices`` of ``dataset`` (of
-    ``lengths`` frames, default ``dataset.lengths()``), ``swap`` pool episodes replaced before each batch."""
+    """Windows from episodes ``indices`` of ``dataset``, ``swap`` pool episodes replaced before each batch."""
 
     def __init__(
         self,
@@ -103,8 +101,7 @@ class StreamingWindowSampler:
 
 
 class WindowStream(th.utils.data.IterableDataset):
-    """Endless batches for ``DataLoader(stream, batch_size=None, num_workers=workers)``: each worker has its own
-    :class:`StreamingWindowSampler`, seeded ``seed + worker id``, with ``cache_mb / workers`` of memory."""
+    """Endless batches for a ``DataLoader``; each worker has its own sampler, seeded ``seed + worker id``."""
 
     def __init__(self, batch_size: int, workers: int, **sampler: Any):
         super().__init__()

@@ -1,7 +1,5 @@
-"""TFRecord files (read and written) and ``tf.train.Example`` records (read) without TensorFlow. A record is its
-length (uint64), that length's masked CRC-32C, the data and the data's masked CRC-32C (in C with ``google-crc32c`` or
-``crc32c``, else pure Python). :class:`ExampleShards`: episodes of one Example per record.
-"""
+"""TFRecord files (read and written) and ``tf.train.Example`` records (read) without TensorFlow, and
+:class:`ExampleShards`, episodes of one Example per record."""
 
 from __future__ import annotations
 
@@ -29,7 +27,7 @@ Features = dict[str, "list[bytes] | np.ndarray"]
 
 
 def python_crc32c(data: bytes) -> int:
-    """CRC-32C (Castagnoli) of ``data`` in pure Python: the fallback when no C implementation is installed."""
+    """CRC-32C of ``data`` in pure Python: the fallback when no C implementation is installed."""
     crc = 0xFFFFFFFF
     table = _CRC_TABLE
     for byte in data:
@@ -72,8 +70,7 @@ def read_records(path: str | os.PathLike, check_crc: bool = True) -> Iterator[by
 
 
 def record_offsets(path: str | os.PathLike) -> list[int]:
-    """Byte offsets of every record, from the length fields alone, each checked against its CRC-32C; a damaged
-    length field or a file that ends inside a record raises ``ValueError`` naming the record."""
+    """Byte offsets of every record from the length fields alone, each checked against its CRC (``ValueError``)."""
     offsets: list[int] = []
     size = os.path.getsize(path)
     with open(path, "rb") as file:
@@ -104,8 +101,7 @@ def record_offsets(path: str | os.PathLike) -> list[int]:
 def read_record_at(
     file: BinaryIO, offset: int, path: str = "", check_crc: bool = True, index: int | None = None
 ) -> bytes:
-    """The data of the record at byte ``offset`` of an open TFRecord file, its two CRCs checked when ``check_crc``
-    (a truncated record or a wrong checksum: ``ValueError`` naming ``path``, the record ``index`` and the offset)."""
+    """The data of the record at byte ``offset`` of an open TFRecord file, its two CRCs checked when ``check_crc``."""
     record = f"record {index} (byte {offset})" if index is not None else f"the record at byte {offset}"
     file.seek(offset)
     header = file.read(12)
@@ -208,8 +204,7 @@ def _decode_feature(buffer: bytes) -> list[bytes] | np.ndarray:
 
 
 def parse_example(data: bytes) -> Features:
-    """A serialised ``tf.train.Example`` as ``{name: list of bytes | float32 array | int64 array}`` (``ValueError``
-    when ``data`` is no well-formed Example)."""
+    """A serialised ``tf.train.Example`` as ``{name: list of bytes | float32 array | int64 array}``."""
     try:
         return _parse_example(data)
     except (IndexError, TypeError, ValueError, struct.error, UnicodeDecodeError) as error:
@@ -235,8 +230,7 @@ def _parse_example(data: bytes) -> Features:
 
 
 class ExampleShards(EpisodeDataset):
-    """Episodes stored one ``tf.train.Example`` per record of TFRecord shards (BAIR's, RLDS's), indexed on open:
-    damaged, truncated or only empty shards raise ``EpisodeError``, an empty one among others a warning."""
+    """Episodes stored one ``tf.train.Example`` per record of TFRecord shards (BAIR's, RLDS's), indexed on open."""
 
     def __init__(self, paths: Sequence[str], verify: bool = True, min_frames: int = 2):
         super().__init__(min_frames)

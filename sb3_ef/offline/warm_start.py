@@ -42,9 +42,8 @@ def _mismatches(source: nn.Module, target: nn.Module) -> list[str]:
 
 
 def load_ef(model: Any, pretrained: str | os.PathLike | OfflineEF) -> Any:
-    """Copy a pretrained encoder and ``EgoForesight`` into a DrQv2EF / TDMPC2EF whose architecture matches: the
-    host's encoder and settings (``--encoder drqv2`` / ``tdmpc2``), ``context`` equal to the frame stack, the same frame
-    and action sizes and EF settings. Only weights move (latent EF's momentum target included).
+    """Copy a pretrained encoder and ``EgoForesight`` (weights only) into a DrQv2EF / TDMPC2EF of the same
+    architecture: see docs/offline.md's warm-starting section.
 
     :param model: a DrQv2EF or TDMPC2EF (``model.policy`` holds the networks).
     :param pretrained: a ``model.pt`` / ``checkpoint.pt`` written by ``pretrain``, or an :class:`OfflineEF`.
