@@ -1,5 +1,4 @@
-"""Ego-Foresight: agent/scene split, action-conditioned rollout, pixel decoder or latent target, loss
-(algorithm-agnostic), and EF as an auxiliary loss of a host (``ForesightLoss``)."""
+"""Ego-Foresight: agent/scene split, action-conditioned rollout, pixel or latent target, and the host's loss."""
 
 from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.ef.decoder import FrameDecoder, decoder_layers

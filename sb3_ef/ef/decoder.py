@@ -15,10 +15,8 @@ SUPPORTED_SIZES_TEXT = "84 or 4 * 2**n with n >= 1 (8, 16, 32, 64, 128, ...)"
 
 
 def decoder_layers(size: int) -> tuple[tuple[int, int, int], ...]:
-    """The (kernel, stride, padding) of each layer that takes a 1x1 input to ``size`` x ``size``.
-
-    84 uses the authors' stack; powers of two times 4 use 1 -> 4 (k4, s1) then doublings (k4, s2, p1).
-    """
+    """The (kernel, stride, padding) of each layer from 1x1 to ``size`` x ``size``: the authors' stack for 84, else
+    1 -> 4 then doublings."""
     if size == 84:
         return _LAYERS_84
     doublings = math.log2(size / 4) if size >= 8 else 0.0
@@ -32,10 +30,8 @@ def _output_size(size: int, kernel: int, stride: int, padding: int) -> int:
 
 
 class FrameDecoder(nn.Module):
-    """Transposed convolutions with BatchNorm + LeakyReLU(0.2), a Sigmoid output in [0, 1], no biases, N(0, 0.02) init.
-
-    With ``skip_channels > 0`` (U-Net style), every layer after the first also receives an encoder feature map
-    (B, skip_channels, any, any) resized bilinearly to that layer's input resolution and concatenated on channels.
+    """Transposed convolutions with BatchNorm + LeakyReLU(0.2), a Sigmoid output, no biases, DCGAN init; with
+    ``skip_channels > 0`` every layer after the first also gets the resized encoder map (U-Net style).
 
     :param in_dim: size of the input feature vector.
     :param frame_shape: (channels, size, size) of the decoded frame.
@@ -68,7 +64,7 @@ class FrameDecoder(nn.Module):
         self.apply(_dcgan_init)
 
     def forward(self, features: th.Tensor, skip: th.Tensor | None = None) -> th.Tensor:
-        """Decode (B, in_dim) features (and a (B, skip_channels, h', w') map if skips are on) to (B, C, h, w)."""
+        """Decode (B, in_dim) features (and the skip map if skips are on) to (B, C, h, w)."""
         if (skip is None) != (self.skip_channels == 0):
             raise ValueError(
                 f"This decoder has skip_channels={self.skip_channels}: "
@@ -79,8 +75,7 @@ class FrameDecoder(nn.Module):
                 f"Expected a skip map of shape ({features.shape[0]}, {self.skip_channels}, h, w), "
                 f"got {tuple(skip.shape)}"
             )
-        # The first layer sees a 1x1 input without padding: that transposed convolution is a plain matmul, computed
-        # as one (several times faster on CPU than the ConvTranspose2d kernel, same weights and result).
+        # On a 1x1 input the first transposed convolution is a matmul: computed as one (several times faster on CPU).
         first_conv, *first_tail = cast(nn.Sequential, self.blocks[0])
         weight = cast(nn.ConvTranspose2d, first_conv).weight
         x = (features @ weight.flatten(1)).unflatten(1, weight.shape[1:])

@@ -1,6 +1,5 @@
-"""Ego-Foresight: the module (agent/scene split, action-conditioned rollout, frame decoding and its loss, or the
-prediction of target features in feature space), the rule that draws each update's rollout length, and EF as an
-auxiliary loss of a host algorithm (:class:`ForesightLoss`)."""
+"""Ego-Foresight: the module (agent/scene split, rollout, frame or feature prediction), the rollout-length rule, and
+EF as a host's auxiliary loss (:class:`ForesightLoss`); see docs/ef.md."""
 
 from __future__ import annotations
 
@@ -37,14 +36,12 @@ STEP_SAMPLINGS = ("batch", "sample")
 def draw_rollout_steps(
     future_mask: th.Tensor, horizon: int, step_sampling: str = "batch", generator: th.Generator | None = None
 ) -> th.Tensor:
-    """Draw k in [1, horizon] for each sample of a batch; returns a (B,) long tensor on the mask's device.
-
-    - ``"batch"``: one k ~ U{1..horizon} for the whole batch (the authors' code). Samples whose step k falls
-      outside their episode are then dropped from the loss by the host's ``valid`` (the mask at k).
-    - ``"sample"``: each sample draws its own k uniformly among its *valid* steps, so every sample with at
-      least one valid step contributes; a sample with no valid step draws from all steps and stays invalid.
+    """Draw k in [1, horizon] per sample, a (B,) long tensor: one k per batch or per sample (docs/ef.md, "Choices").
 
     :param future_mask: (B, H) bool, true where step t+i lies inside the episode; H >= horizon.
+    :param horizon: the largest k.
+    :param step_sampling: ``"batch"`` or ``"sample"``.
+    :param generator: the generator to draw from.
     """
     if step_sampling not in STEP_SAMPLINGS:
         raise ValueError(f"step_sampling must be one of {STEP_SAMPLINGS}, got {step_sampling!r}")
@@ -62,10 +59,7 @@ def draw_rollout_steps(
 
 
 class RolloutBlock(nn.Module):
-    """A recurrent MLP ``h_a(t+1) = FC([h_a(t), a(t)])`` in TD-MPC2's style (Linear -> LayerNorm -> Mish blocks).
-
-    There is no residual connection: the block outputs the next agent features directly, as in the authors' code.
-    Only the agent part of the features goes in, so whatever it predicts must be explained by the actions.
+    """A recurrent MLP ``h_a(t+1) = FC([h_a(t), a(t)])`` of TD-MPC2-style blocks, with no residual (the authors').
 
     :param agent_dim: size of the agent features ``h_a``.
     :param action_dim: size of one action.
@@ -100,27 +94,24 @@ class RolloutBlock(nn.Module):
 
 
 class EgoForesight(nn.Module):
-    """Self-supervised agent-aware features: predict the frame k steps ahead from h_scene and a rolled-out h_agent.
-
-    The encoder's features ``h`` (B, feature_dim) are split into agent features (the first ``agent_dim``) and
-    scene features (the rest). Only the agent features are moved forward, by the actions, so the encoder is pushed
-    to put whatever the actions control (the agent's body) into them.
+    """Predict the frame k steps ahead from h_scene and h_agent rolled out by the actions, so that the encoder puts
+    what the actions control into h_agent (docs/ef.md).
 
     :param feature_dim: size of the encoder features h.
     :param action_dim: size of one action.
-    :param frame_shape: (channels, size, size) of the predicted frame (see ``decoder_layers`` for the sizes).
+    :param frame_shape: (channels, size, size) of the predicted frame (sizes: ``decoder_layers``).
     :param agent_dim: size of h_agent, the first features of h.
     :param horizon: H, the largest rollout length drawn for the loss.
     :param rollout_hidden_dims: hidden widths of the rollout MLP.
     :param decoder_channels: width of the decoder's hidden layers.
     :param skip_channels: channels of the encoder feature map passed as U-Net skip, 0 for none.
-    :param step_sampling: ``"batch"`` (one k per batch) or ``"sample"`` (one k per sample), see ``draw_steps``.
-    :param decode_batch_size: decode only this many samples per batch (``None``: all, the paper); changes the method.
+    :param step_sampling: ``"batch"`` (one k per batch) or ``"sample"`` (one k per sample).
+    :param decode_batch_size: decode only this many samples per batch (``None``: all); changes the method.
     :param target: ``"pixel"`` (the paper, frame t+k) or ``"latent"`` (target features of t+k; the decoder a probe).
-    :param projection_dim: latent EF's projection size (256); only with ``target="latent"``.
-    :param head_hidden_dim: width of latent EF's projection and prediction MLPs (512); only with ``target="latent"``.
-    :param temperature: latent EF's InfoNCE temperature (0.1), finite and positive; only with ``target="latent"``.
-    :param loss_scale: weight of latent EF's InfoNCE, times ``beta`` (3); only with ``target="latent"``.
+    :param projection_dim: latent EF's projection size (latent only).
+    :param head_hidden_dim: width of latent EF's projection and prediction MLPs (latent only).
+    :param temperature: latent EF's InfoNCE temperature (latent only).
+    :param loss_scale: weight of latent EF's InfoNCE, times ``beta`` (latent only).
     """
 
     head: LatentHead  # latent EF only
@@ -180,7 +171,7 @@ class EgoForesight(nn.Module):
             self.head = LatentHead(
                 feature_dim, projection, hidden, DEFAULT_TEMPERATURE if temperature is None else temperature
             )
-            # Updates of the probe decoder (``probe_loss`` steps, counted by whoever fits it): 0 means untrained.
+            # Probe decoder updates, counted by whoever fits it: 0 means untrained.
             self.register_buffer("probe_steps", th.zeros((), dtype=th.long))
 
     @property
@@ -208,7 +199,7 @@ class EgoForesight(nn.Module):
         return self.decoder(th.cat([h_agent, h_scene], dim=-1), skip)
 
     def draw_steps(self, future_mask: th.Tensor, generator: th.Generator | None = None) -> th.Tensor:
-        """The rollout length k in [1, horizon] per sample, (B,) long; the rule is in ``draw_rollout_steps``."""
+        """The rollout length k per sample (:func:`draw_rollout_steps`)."""
         return draw_rollout_steps(future_mask, self.horizon, self.step_sampling, generator)
 
     def loss(
@@ -220,18 +211,15 @@ class EgoForesight(nn.Module):
         valid: th.Tensor | None = None,
         skip: th.Tensor | None = None,
     ) -> th.Tensor:
-        """Squared error of the frame ``steps`` actions ahead, summed over pixels, averaged over valid samples.
-
-        Only max(steps) rollout steps are computed (all of ``future_actions`` under ``torch.compile``, whose checks
-        of ``steps`` are skipped); each sample's prediction is gathered at its own k.
+        """Squared error of the frame ``steps`` actions ahead, summed over pixels, averaged over valid samples (0,
+        still differentiable, when none is).
 
         :param h: (B, feature_dim) features of the context.
         :param future_actions: (B, T, action_dim) actions from the context on, T >= max(steps).
         :param steps: (B,) rollout lengths k >= 1, from ``draw_steps``.
-        :param target: (B, C, h, w) frame at step k, uint8 in [0, 255] or float in [0, 1], shifted with the context.
-        :param valid: optional (B,) bool or float weights; samples with ``valid == 0`` contribute nothing.
+        :param target: (B, C, h, w) frame at step k, uint8 or float in [0, 1], shifted with the context.
+        :param valid: optional (B,) bool or float weights.
         :param skip: encoder feature map of the context when ``skip_channels > 0``.
-        :return: a scalar; 0 (still differentiable) when no sample is valid.
         """
         if self.target == "latent":
             raise ValueError(
@@ -263,13 +251,11 @@ class EgoForesight(nn.Module):
         valid: th.Tensor | None = None,
         candidates_valid: th.Tensor | None = None,
     ) -> th.Tensor:
-        """Latent EF's loss (``target="latent"`` only): the InfoNCE (:func:`~sb3_ef.ef.latent.info_nce`) of the head's
-        prediction from ``[rolled-out h_a at k, h_s]`` against target projections, averaged over valid samples.
+        """Latent EF's loss: the InfoNCE of the head's prediction from ``[h_a at k, h_s]`` against target
+        projections, averaged over valid samples. Other arguments are :meth:`loss`'s.
 
-        :param target: (N, projection_dim), N >= B, target projections (from
-            :class:`~sb3_ef.ef.latent.MomentumTarget`): row ``i < B`` that of sample i's observation at t+k, all rows
-            the candidates every prediction is told apart from. The other arguments are :meth:`loss`'s.
-        :param candidates_valid: optional (N,) bool: the candidates inside their episode (:func:`info_nce`).
+        :param target: (N >= B, projection_dim) target projections: row i < B sample i's at t+k, all rows candidates.
+        :param candidates_valid: optional (N,) bool: the candidates inside their episode.
         """
         if self.target != "latent":
             raise ValueError("latent_loss needs an Ego-Foresight built with target='latent'")
@@ -294,8 +280,8 @@ class EgoForesight(nn.Module):
         valid: th.Tensor | None = None,
         skip: th.Tensor | None = None,
     ) -> th.Tensor:
-        """The probe decoder's loss (``target="latent"`` only): :meth:`loss`'s squared error of frame t+k, decoded from
-        ``[rolled-out h_a at k, h_s]`` computed without gradient, so that only :attr:`decoder` learns from it."""
+        """Latent EF's probe loss: :meth:`loss`'s error with features computed without gradient (only the decoder
+        learns)."""
         if self.target != "latent":
             raise ValueError("probe_loss needs an Ego-Foresight built with target='latent' (pixel EF trains its own)")
         batch = h.shape[0]
@@ -318,7 +304,7 @@ class EgoForesight(nn.Module):
                 f"got {tuple(future_actions.shape)}"
             )
         if th.compiler.is_compiling():
-            # Static shapes, no device sync: roll out the whole window (the prediction at each k is the same).
+            # Static shapes, no device sync: roll out the whole window.
             max_step = future_actions.shape[1]
         else:
             min_step, max_step = th.stack(th.aminmax(steps)).tolist()  # one device sync for both bounds
@@ -329,7 +315,7 @@ class EgoForesight(nn.Module):
         return max_step
 
     def _agent_at(self, h_agent: th.Tensor, future_actions: th.Tensor, steps: th.Tensor, max_step: int) -> th.Tensor:
-        """h_a rolled out ``max_step`` actions, each sample's state gathered at its own k: (B, agent_dim)."""
+        """h_a rolled out, each sample's state at its own k: (B, agent_dim)."""
         agent_states = self.rollout(h_agent, future_actions[:, :max_step])
         return agent_states[th.arange(h_agent.shape[0], device=h_agent.device), steps.long() - 1]
 
@@ -361,7 +347,7 @@ class EgoForesight(nn.Module):
 
 
 class ForesightTargets(NamedTuple):
-    """What EF's loss compares against for one replay batch (from :meth:`ForesightLoss.prepare`)."""
+    """What EF's loss compares against for one replay batch."""
 
     steps: th.Tensor  # (B,) rollout lengths k
     target: th.Tensor  # (B, 3, h, w) uint8 frame t+k, shifted together with the observation at t
@@ -370,9 +356,8 @@ class ForesightTargets(NamedTuple):
 
 
 class ForesightLoss(AuxiliaryLoss):
-    """Ego-Foresight as an auxiliary loss of a host's encoder: ``beta * EgoForesight.loss`` on the features of the
-    observation at t, against frame t+k; with ``ef_kwargs["target"] == "latent"``, ``beta * EgoForesight.latent_loss``
-    against :attr:`target_encoder`'s features of the observation at t+k (docs/ef.md).
+    """Ego-Foresight as an auxiliary loss of a host's encoder: ``beta`` times :meth:`EgoForesight.loss` (or
+    ``latent_loss`` against :attr:`target_encoder`'s features), see docs/ef.md.
 
     :param feature_dim: size of the host encoder's features h.
     :param action_dim: size of one action.
@@ -380,7 +365,7 @@ class ForesightLoss(AuxiliaryLoss):
     :param agent_dim: size of h_agent, the first features of h (scene features must remain).
     :param horizon: H, the largest rollout length k.
     :param beta: weight of the loss.
-    :param ef_kwargs: extra arguments of :class:`EgoForesight`, and with ``target="latent"`` ``target_tau`` (0.01).
+    :param ef_kwargs: extra arguments of :class:`EgoForesight`, and latent EF's ``target_tau``.
     :param channels_last: keep the decoder's conv weights channels-last (same maths, faster convolutions).
     :param encoder: the host's online encoder (not stored); latent EF's target encoder is a momentum copy of it.
     :param encoder_input: ``(divisor, offset)``: the host feeds ``encoder`` with ``obs.float() / divisor - offset``.
@@ -418,9 +403,8 @@ class ForesightLoss(AuxiliaryLoss):
     def prepare(
         self, batch: SequenceReplayBufferSamples, pad: int, generator: th.Generator | None = None
     ) -> tuple[th.Tensor, ForesightTargets | LatentTargets]:
-        """Draw the rollout lengths k (from ``generator``, so that EF leaves the host's random draws as they are
-        without it) and random-shift the observations at t together with frame t+k (latent EF: the target views get
-        shifts of their own, :func:`~sb3_ef.ef.latent.latent_targets`)."""
+        """Draw k from ``generator`` (leaving the host's draws unchanged) and shift the observations at t with frame
+        t+k (latent EF: :func:`~sb3_ef.ef.latent.latent_targets`)."""
         steps = self.ef.draw_steps(batch.future_mask, generator=generator)
         rows = th.arange(steps.shape[0], device=steps.device)
         valid = batch.future_mask[rows, steps - 1]
@@ -432,8 +416,7 @@ class ForesightLoss(AuxiliaryLoss):
     def forward(
         self, features: th.Tensor, targets: ForesightTargets | LatentTargets
     ) -> tuple[th.Tensor, dict[str, th.Tensor]]:
-        """``beta`` (times latent EF's ``loss_scale``) times EF's loss on ``features`` of the prepared observations;
-        logs the unweighted ``ef_loss``."""
+        """The weighted EF loss on ``features``; logs the unweighted ``ef_loss``."""
         if isinstance(targets, LatentTargets):
             if self.target_encoder is None:
                 raise ValueError("LatentTargets need a ForesightLoss built with ef_kwargs target='latent'")
@@ -455,7 +438,7 @@ class ForesightLoss(AuxiliaryLoss):
 
 
 def _weighted_mean(per_sample: th.Tensor, valid: th.Tensor | None) -> th.Tensor:
-    """Mean of per-sample losses, weighted by ``valid`` (bool or float) when given; 0 when no sample is valid."""
+    """Mean of per-sample losses weighted by ``valid``; 0 when no sample is valid."""
     if valid is None:
         return per_sample.mean()
     weights = valid.to(per_sample.dtype)
@@ -468,8 +451,7 @@ def momentum_target(
     target_tau: float | None = None,
     encoder_input: tuple[float, float] = (1.0, 0.0),
 ) -> MomentumTarget | None:
-    """Latent EF's target encoder (``ef_kwargs`` ``target_tau``, 0.01 by default) for ``ef`` on ``encoder``; ``None``
-    for pixel EF, which refuses a ``target_tau``."""
+    """Latent EF's target encoder for ``ef`` on ``encoder``; ``None`` for pixel EF."""
     if ef.target == "latent":
         if encoder is None:
             raise ValueError("target='latent' predicts the features of the host's encoder: pass encoder=")

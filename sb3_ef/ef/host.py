@@ -1,8 +1,5 @@
-"""What makes a host an Ego-Foresight variant: :class:`EFMixin`, mixed in before a plain host
-(``class DrQv2EF(EFMixin, DrQv2)``), adds Ego-Foresight's arguments, its loss
-(:class:`~sb3_ef.ef.foresight.ForesightLoss`) and motor babbling (a
-:class:`~sb3_ef.ef.babbling.MotorBabblingCallback` of ``babbling_steps`` run before ``learn``'s callbacks).
-"""
+"""What makes a host an Ego-Foresight variant: :class:`EFMixin` (``class DrQv2EF(EFMixin, DrQv2)``) adds EF's
+arguments, its loss and motor babbling."""
 
 from __future__ import annotations
 
@@ -48,8 +45,7 @@ def check_horizon_fits_episodes(ef_horizon: int | None, steps: int | None) -> No
 
 
 class EFPolicyMixin:
-    """Mixed in before a host's policy to make its EF policy: keeps the sizes EF's module is built from (keyword
-    arguments ``agent_dim``, ``ef_kwargs``) and saves them with the constructor's parameters."""
+    """Mixed in before a host's policy to make its EF policy: keeps and saves ``agent_dim`` and ``ef_kwargs``."""
 
     def __init__(self, *args: Any, agent_dim: int = 32, ef_kwargs: dict[str, Any] | None = None, **kwargs: Any):
         super().__init__(*args, **kwargs)
@@ -62,9 +58,8 @@ class EFPolicyMixin:
 
 
 class EFMixin(AuxiliaryHostMixin):
-    """Mixed in before a plain host to make its Ego-Foresight variant (``class DrQv2EF(EFMixin, DrQv2)``): EF's
-    algorithm-level arguments (:meth:`_init_ef`), the EF window in the replay buffer, the horizon check against the
-    episode length, and :meth:`_foresight` from which the host's ``_build_auxiliary`` builds EF's loss."""
+    """Mixed in before a plain host to make its Ego-Foresight variant: EF's arguments, the EF window in the replay
+    buffer, the horizon check and EF's loss."""
 
     ef_horizon: int
     _beta: float
@@ -74,8 +69,7 @@ class EFMixin(AuxiliaryHostMixin):
 
     @property
     def beta(self) -> float:
-        """Weight of EF's loss. Kept on the loss module once it is built, so that setting it changes the next
-        updates."""
+        """Weight of EF's loss; setting it changes the next updates."""
         return self._beta
 
     @beta.setter
@@ -107,7 +101,7 @@ class EFMixin(AuxiliaryHostMixin):
         return self.ef_horizon
 
     def _init_callback(self, callback: MaybeCallback, progress_bar: bool = False) -> BaseCallback:
-        """SB3's, with the :class:`MotorBabblingCallback` of ``babbling_steps`` first when babbling is on."""
+        """SB3's, with the :class:`MotorBabblingCallback` first when babbling is on."""
         if self.babbling_steps > 0:
             babbling = MotorBabblingCallback(self.babbling_steps, self.babbling_mode, self.babbling_in_eval)
             babbling.warn_if_late = False
@@ -115,14 +109,13 @@ class EFMixin(AuxiliaryHostMixin):
         return super()._init_callback(callback, progress_bar)  # type: ignore[misc]
 
     def _setup_model(self) -> None:
-        """Check that EF's window fits in an episode (here, so that ``load`` checks the saved ``ef_horizon``), then
-        the host's setup."""
+        """Check that EF's window fits in an episode (here, so that ``load`` checks it too), then the host's setup."""
         if self.env is not None:
             check_horizon_fits_episodes(self.ef_horizon, episode_steps(self.env))
         super()._setup_model()
 
     def _build_auxiliary(self) -> ForesightLoss:
-        """EF's loss on the encoder :meth:`_ef_encoder` names, sized by the host's EF policy (its ``"CnnPolicy"``)."""
+        """EF's loss on :meth:`_ef_encoder`, sized by the host's EF policy."""
         policy, expected = self.policy, self.policy_aliases["CnnPolicy"]  # type: ignore[attr-defined]
         if not isinstance(policy, expected):
             name = type(self).__name__
@@ -145,9 +138,8 @@ class EFMixin(AuxiliaryHostMixin):
         encoder: nn.Module,
         encoder_input: tuple[float, float],
     ) -> ForesightLoss:
-        """EF's loss on ``encoder`` (the module the host passes to ``after_update``; fed ``obs.float() / divisor -
-        offset`` for ``encoder_input=(divisor, offset)``) of ``feature_dim`` features, with this model's horizon and
-        ``beta``. Latent EF's target encoder is a momentum copy of ``encoder``."""
+        """EF's loss on ``encoder`` (the module the host passes to ``after_update``), with this model's horizon and
+        ``beta``."""
         action_dim = int(np.prod(self.action_space.shape))  # type: ignore[arg-type]
         return ForesightLoss(
             feature_dim,

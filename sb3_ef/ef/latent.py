@@ -1,13 +1,6 @@
-"""Ego-Foresight in feature space (``ef_kwargs=dict(target="latent")``): the pieces that replace the frame decoder.
-
-Instead of decoding frame t+k, latent EF predicts how a slow-moving copy of the host's encoder (the *target
-encoder*, :class:`MomentumTarget`) encodes the stacked observation at t+k (:func:`stacked_observations_at`): the
-predicted features (the rolled-out ``h_a`` with the context's ``h_s``) go through a projection and a prediction head
-(:class:`LatentHead`), the target features through a momentum copy of that projection, and the loss is an InfoNCE
-(:func:`info_nce`) that must pick the target of t+k among the batch's targets and, for each sample, its own
-observation at another step t+k' (:func:`draw_other_steps`). docs/ef.md ("Ego-Foresight in feature space") gives the
-reasons for each choice and the measurements behind them.
-"""
+"""Ego-Foresight in feature space (``ef_kwargs=dict(target="latent")``): the pieces that replace the frame decoder,
+a momentum target encoder, a projection and prediction head, and an InfoNCE (docs/ef.md, "Ego-Foresight in feature
+space")."""
 
 from __future__ import annotations
 
@@ -28,21 +21,18 @@ if TYPE_CHECKING:
 
 #: What Ego-Foresight predicts: the frame at t+k (the paper) or the target encoder's features of the observation at t+k.
 TARGETS = ("pixel", "latent")
-#: Momentum of the target encoder: ``target <- (1 - tau) target + tau online`` after every update (docs/ef.md).
+#: Momentum of the target encoder, moved after every update.
 DEFAULT_TARGET_TAU = 0.01
 DEFAULT_PROJECTION_DIM = 256
 DEFAULT_HEAD_HIDDEN_DIM = 512
 #: Temperature of the InfoNCE on cosine similarities.
 DEFAULT_TEMPERATURE = 0.1
-#: Weight of the InfoNCE inside EF's loss (``beta * loss_scale * InfoNCE``), so that at the paper's ``beta`` latent EF
-#: pulls on the encoder about as hard as pixel EF does (``train/aux_grad_ratio``; docs/ef.md, "Loss scale").
+#: Weight of the InfoNCE inside EF's loss, so that latent EF pulls about as hard as pixel EF (docs/ef.md).
 DEFAULT_LOSS_SCALE = 3.0
 
 
 def check_target(target: object, decode_batch_size: int | None = None, **latent_options: object) -> str:
-    """``target`` if it names one of :data:`TARGETS`, else a ``ValueError`` naming the choices; the options of the
-    other target (``decode_batch_size`` for latent EF, ``latent_options`` given, not ``None``, for pixel EF) are
-    refused, named."""
+    """``target`` if it is one of :data:`TARGETS` and no option of the other target is given, else a ``ValueError``."""
     if not isinstance(target, str) or target not in TARGETS:
         raise ValueError(f"Ego-Foresight's target (ef_kwargs['target']) must be one of {TARGETS}, got {target!r}")
     if target == "pixel":
@@ -55,7 +45,7 @@ def check_target(target: object, decode_batch_size: int | None = None, **latent_
 
 
 def check_temperature(temperature: object) -> float:
-    """``temperature`` as a float if it is a finite positive number, else a ``ValueError`` naming it."""
+    """``temperature`` as a float if it is finite and positive, else a ``ValueError``."""
     if (
         isinstance(temperature, bool)
         or not isinstance(temperature, (int, float))
@@ -67,7 +57,7 @@ def check_temperature(temperature: object) -> float:
 
 
 def check_loss_scale(loss_scale: object) -> float:
-    """``loss_scale`` as a float if it is a finite number >= 0, else a ``ValueError`` naming it."""
+    """``loss_scale`` as a float if it is finite and >= 0, else a ``ValueError``."""
     if (
         isinstance(loss_scale, bool)
         or not isinstance(loss_scale, (int, float))
@@ -79,7 +69,7 @@ def check_loss_scale(loss_scale: object) -> float:
 
 
 class LatentTargets(NamedTuple):
-    """What latent EF's loss compares against for one replay batch (from :func:`latent_targets`)."""
+    """What latent EF's loss compares against for one replay batch."""
 
     steps: th.Tensor  # (B,) rollout lengths k
     observations: th.Tensor  # (B, 3 * frame_stack, h, w) uint8 stacked observation at t+k, its own random shift
@@ -89,15 +79,14 @@ class LatentTargets(NamedTuple):
     negatives_valid: th.Tensor | None  # (B,) bool: step t+k' lies inside the episode; None if H = 1
 
     def candidates_valid(self) -> th.Tensor:
-        """(N,) bool over the candidates ``[observations, negatives]``: those that lie inside their episode."""
+        """(N,) bool: which candidates ``[observations, negatives]`` lie inside their episode."""
         return self.valid if self.negatives_valid is None else th.cat([self.valid, self.negatives_valid])
 
 
 def draw_other_steps(
     future_mask: th.Tensor, steps: th.Tensor, horizon: int, generator: th.Generator | None = None
 ) -> th.Tensor | None:
-    """For each sample a step k' != k in [1, horizon], uniform among its valid steps (among all others when it has
-    no other valid one): (B,) long, or ``None`` when ``horizon == 1`` (no other step)."""
+    """Per sample a step k' != k, uniform among its valid steps (all others if none): (B,) long, ``None`` if H = 1."""
     if horizon == 1:
         return None
     device = generator.device if generator is not None else future_mask.device
@@ -113,14 +102,11 @@ def draw_other_steps(
 
 
 def stacked_observations_at(observations: th.Tensor, future_frames: th.Tensor, steps: th.Tensor) -> th.Tensor:
-    """The stacked observation at t+k of each sample, built from the replay window (docs/architecture.md): the
-    frames of the observation at t followed by ``future_frames``, ``frame_stack`` consecutive frames ending at
-    frame t+k (oldest first, as the envs stack them).
+    """The stacked observation at t+k of each sample, rebuilt from the replay window (oldest frame first).
 
     :param observations: (B, 3 * frame_stack, h, w) stacked observations at t.
     :param future_frames: (B, H, 3, h, w) the newest frame of the observations t+1 .. t+H.
     :param steps: (B,) k in [1, H] per sample.
-    :return: (B, 3 * frame_stack, h, w), same dtype as the inputs.
     """
     batch, channels, height, width = observations.shape
     if (
@@ -148,15 +134,12 @@ def stacked_observations_at(observations: th.Tensor, future_frames: th.Tensor, s
 def info_nce(
     prediction: th.Tensor, candidates: th.Tensor, temperature: float, candidates_valid: th.Tensor | None = None
 ) -> th.Tensor:
-    """Per-sample InfoNCE: the cross-entropy of picking candidate ``i`` for prediction ``i`` among all candidates,
-    on cosine similarities divided by ``temperature``.
+    """Per-sample (B,) InfoNCE: cross-entropy of picking candidate i for prediction i, on cosine similarities.
 
     :param prediction: (B, P) predictions.
-    :param candidates: (N, P) with N >= B: row ``i < B`` is the positive of prediction ``i``, every row a negative of
-        the other predictions.
-    :param candidates_valid: optional (N,) bool: candidates outside their episode (zero-filled observations) are left
-        out of every softmax but their own sample's (whose loss the host weights by its ``valid``).
-    :return: (B,) losses.
+    :param candidates: (N >= B, P): row i < B is prediction i's positive, every row a negative of the others.
+    :param temperature: divides the similarities.
+    :param candidates_valid: optional (N,) bool: invalid candidates are left out of all softmaxes but their own.
     """
     logits = F.normalize(prediction, dim=-1) @ F.normalize(candidates, dim=-1).T / temperature
     rows = th.arange(prediction.shape[0], device=prediction.device)
@@ -168,10 +151,7 @@ def info_nce(
 
 
 class LatentHead(nn.Module):
-    """The online side of latent EF: a projection of the (predicted) features and a prediction head on it.
-
-    Both are MLPs of one ``NormedLinear`` hidden block (Linear -> LayerNorm -> Mish, no batch statistics) and a linear
-    output. The target side projects the target encoder's features with a momentum copy of ``projection``.
+    """Latent EF's online side: a projection of the features and a prediction head, MLPs of one hidden block.
 
     :param feature_dim: size of the features (``h`` of the host's encoder).
     :param projection_dim: size of the projected vectors the loss compares.
@@ -197,17 +177,12 @@ class LatentHead(nn.Module):
 
 
 class MomentumTarget(nn.Module):
-    """The target of latent EF: momentum copies of the host's encoder and of the online projection.
-
-    :meth:`update` (called from the loss's ``after_update``) moves each copy towards the online module,
-    ``target <- (1 - tau) target + tau online``, and copies the online encoder's own buffers (batch-norm statistics,
-    if any) as SB3 does for its targets. The copies are buffers (:func:`momentum_copy`), always in eval mode.
+    """Latent EF's target: momentum copies (buffers, always in eval mode) of the host's encoder and the projection.
 
     :param encoder: the host's online encoder, the module the host passes to ``after_update``.
     :param projection: the online projection (:attr:`LatentHead.projection`).
     :param tau: the momentum update's step, in (0, 1].
-    :param input_scaling: ``(divisor, offset)``: the host feeds its encoder ``obs.float() / divisor - offset`` (DrQ-v2:
-        ``(1, 0)``, its encoder scales itself; TD-MPC2: ``(255, 0.5)``; SB3 with ``normalize_images``: ``(255, 0)``).
+    :param input_scaling: ``(divisor, offset)``: the host feeds its encoder ``obs.float() / divisor - offset``.
     """
 
     def __init__(
@@ -231,13 +206,12 @@ class MomentumTarget(nn.Module):
         self.projection = momentum_copy(projection)
 
     def train(self, mode: bool = True) -> MomentumTarget:
-        """The copies stay in eval mode (a target has no dropout and does not update batch statistics)."""
+        """The copies stay in eval mode."""
         return super().train(False)
 
     @th.no_grad()
     def features(self, observations: th.Tensor) -> th.Tensor:
-        """The target encoder's features of uint8 stacked observations (the encoder's first output if it returns
-        several, as the offline encoders' ``(h, skip)``)."""
+        """The target encoder's features (its first output if several) of uint8 stacked observations."""
         output = self.encoder(observations.float() / self.divisor - self.offset)
         return output[0] if isinstance(output, tuple) else output
 
@@ -251,7 +225,7 @@ class MomentumTarget(nn.Module):
         self._move(encoder, projection, 1.0)
 
     def update(self, encoder: nn.Module, projection: nn.Module) -> None:
-        """Move the copies towards the online ``encoder`` and ``projection`` (the modules they were copied from)."""
+        """Move the copies towards the online ``encoder`` and ``projection``."""
         self._move(encoder, projection, self.tau)
 
     def _move(self, encoder: nn.Module, projection: nn.Module, tau: float) -> None:
@@ -267,9 +241,8 @@ def latent_targets(
     pad: int,
     generator: th.Generator | None = None,
 ) -> tuple[th.Tensor, LatentTargets]:
-    """Latent EF's part of ``ForesightLoss.prepare``: the observations at t with the host's random shift, and the
-    targets (the observation at t+k and each sample's other-step negative), every one shifted on its own from
-    ``generator``, so that no candidate shares the anchor's shift (a shift carries no answer)."""
+    """Latent EF's part of ``ForesightLoss.prepare``: the shifted observations at t and the targets, each shifted on
+    its own so that no candidate shares the anchor's shift."""
     future = [stacked_observations_at(batch.observations, batch.future_frames, steps)]
     others = draw_other_steps(batch.future_mask, steps, horizon, generator)
     negatives_valid = None

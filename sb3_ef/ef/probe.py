@@ -1,12 +1,5 @@
-"""The probe decoder of latent Ego-Foresight: frames from frozen features, so that the agent/scene split can be read.
-
-Latent EF (``ef_kwargs=dict(target="latent")``) decodes no frame while it trains. To see what its agent features
-carry, its :class:`~sb3_ef.ef.FrameDecoder` (``ef.decoder``) is trained afterwards as a *probe*: it learns to draw
-frame t+k from ``[h_a rolled out k actions, h_s]`` computed without gradient (:meth:`EgoForesight.probe_loss`), so
-nothing else of the model moves. The probe can only draw what the features hold: saliency of its output with respect
-to the rolled-out ``h_a`` against the agent mask (``sb3_ef.analysis``'s saliency tools, which decode through
-``ef.decode``) then says whether ``h_a`` carries the agent, as it does for pixel EF's own decoder (docs/ef.md).
-"""
+"""The probe decoder of latent Ego-Foresight: frames decoded from frozen features, so that saliency can say whether
+``h_a`` carries the agent (docs/ef.md, "Checking that h_a carries the agent")."""
 
 from __future__ import annotations
 
@@ -31,9 +24,8 @@ def probe_step(
     valid: th.Tensor | None = None,
     skip: th.Tensor | None = None,
 ) -> th.Tensor:
-    """One step of ``optimizer`` (over ``ef.decoder``'s parameters) on the probe loss; counts it in
-    ``ef.probe_steps``. The gradient is taken with ``autograd.grad`` and cleared after the step, so no ``.grad`` is
-    left on any parameter (the host's optimisers, which also hold the decoder, see none). Returns the detached loss."""
+    """One step of ``optimizer`` (over ``ef.decoder`` only) on the probe loss, counted in ``ef.probe_steps``; returns
+    the detached loss. No ``.grad`` is left behind, so the host's optimisers, which hold the decoder too, see none."""
     parameters = list(ef.decoder.parameters())
     owned = {id(p) for p in parameters}
     stepped = [p for group in optimizer.param_groups for p in group["params"]]
@@ -58,18 +50,15 @@ def fit_probe(
     seed: int = 0,
     replay_buffer: Any = None,
 ) -> list[float]:
-    """Train the probe decoder of ``model.ef`` (latent EF) on windows of its replay buffer; returns the losses.
+    """Train the probe decoder of ``model.ef`` (latent EF) on its replay buffer; returns the losses. Only the decoder
+    moves: the model's weights, optimisers, random streams and training batches are left as they were.
 
-    The encoder's features (``model.encode``, in eval mode) and the rollout are computed without gradient, and only
-    the decoder's parameters move (its own Adam): the model's weights, optimisers and random streams, and the
-    batches its buffer hands to training, are left as they were. The windows (through the buffer's
-    :meth:`~sb3_ef.common.buffers.SequenceReplayBuffer.side_sampler`), k and the shifts are drawn from generators
-    seeded by ``seed``; the frames are the stored ones (no host augmentation; ``pad`` adds a random shift).
-
-    :param model: an EF host built with ``ef_kwargs=dict(target="latent")`` (``model.ef``, ``model.encode``,
-        ``model.replay_buffer``), after training.
-    :param steps: probe updates (more steps fit the probe better; it cannot draw what the features do not hold).
+    :param model: a trained EF host built with ``ef_kwargs=dict(target="latent")``.
+    :param steps: probe updates.
+    :param batch_size: windows per update.
+    :param learning_rate: the probe's Adam learning rate.
     :param pad: random shift of the context and frame t+k (0: the frames as recorded, as analysis reads them).
+    :param seed: seeds the windows, k and the shifts.
     :param replay_buffer: a :class:`~sb3_ef.common.buffers.SequenceReplayBuffer` to read instead of the model's.
     """
     ef = getattr(model, "ef", None)
@@ -96,7 +85,7 @@ def fit_probe(
     was_training = policy.training if policy is not None else None
     if policy is not None:
         policy.set_training_mode(False)
-    ef.decoder.train(True)  # batch statistics while fitting, running statistics for analysis afterwards
+    ef.decoder.train(True)  # batch statistics while fitting, running ones for analysis
     losses = []
     try:
         for _ in range(steps):
@@ -127,10 +116,8 @@ def latent_window_losses(
     steps: th.Tensor,
     pad: int = 0,
 ) -> tuple[th.Tensor, th.Tensor]:
-    """Latent EF's loss and its probe decoder's loss on a batch of full windows (offline pretraining, where every
-    step is valid): what ``ForesightLoss.prepare`` / ``forward`` compute for a host, plus the probe, which then
-    decodes the held-out predictions. Draws k' and the shifts from the global generator: the context and frame t+k
-    (the probe's) share one, each target view has its own.
+    """Latent EF's loss and its probe's loss on a batch of full windows (offline pretraining): what
+    ``ForesightLoss`` computes for a host, k' and the shifts drawn from the global generator.
 
     :param features: ``(h, skip)`` of uint8 stacked observations (the offline model's ``features``).
     :param frames: (B, H, 3, h, w) frames t+1 .. t+H; ``steps``: (B,) k; ``pad``: random shift, 0: none.

@@ -1,6 +1,5 @@
 """Motor babbling: random actions at the start of training, so that Ego-Foresight sees varied movements
-(docs/ef.md, "Motor babbling"). One module per job: the actions, the state kept on the model, adaptive babbling's
-held-out score, and the callback."""
+(docs/ef.md, "Motor babbling")."""
 
 from sb3_ef.ef.babbling.actions import BABBLING_MODES, babble, check_babbling
 from sb3_ef.ef.babbling.callback import MotorBabblingCallback, with_babbling

@@ -7,7 +7,6 @@ import numpy as np
 BABBLING_MODES = ("sign", "clamped_uniform")
 
 
-#: The model attribute holding the babbling state (saved with the model, so that a resumed run continues it).
 def check_babbling(babbling_steps: int, mode: str) -> None:
     """Check the hosts' ``babbling_steps`` and ``babbling_mode`` (and the offline collector's mode)."""
     if babbling_steps < 0:
@@ -17,11 +16,8 @@ def check_babbling(babbling_steps: int, mode: str) -> None:
 
 
 def babble(rng: np.random.Generator, shape: tuple[int, ...], mode: str = "sign") -> np.ndarray:
-    """Babbling actions of ``shape`` in [-1, 1], float32.
-
-    ``"sign"`` draws each component as -1 or +1 (the paper); ``"clamped_uniform"`` draws uniform(-4, 4) clamped to
-    [-1, 1] (the authors' code: about 75% of the components at +-1).
-    """
+    """Float32 babbling actions in [-1, 1]: ``"sign"`` draws +-1 (the paper), ``"clamped_uniform"`` uniform(-4, 4)
+    clamped (the authors' code)."""
     if mode == "sign":
         return np.where(rng.random(shape) < 0.5, -1.0, 1.0).astype(np.float32)
     return np.clip(rng.uniform(-4.0, 4.0, shape), -1.0, 1.0).astype(np.float32)

@@ -1,7 +1,5 @@
-"""Motor babbling: random actions at the start of training, so that Ego-Foresight sees varied movements. sb3-ef's
-hosts take them through their ``action_override`` hook; on SB3's own algorithms the callback shadows ``_sample_action``
-(and ``predict``) on the instance. Its state lives on the model and is saved with it (docs/ef.md, "Motor babbling").
-"""
+"""The motor babbling callback: random actions at the start of training, its state saved with the model
+(docs/ef.md, "Motor babbling")."""
 
 from __future__ import annotations
 
@@ -36,25 +34,22 @@ from sb3_ef.ef.babbling.state import STATE_ATTRIBUTE, BabblingState, Plateau
 
 
 class MotorBabblingCallback(BaseCallback):
-    """Motor babbling at the start of training on any SB3 off-policy algorithm with a ``Box`` action space: the env
-    executes and the buffer stores random actions. Logs ``rollout/babbling``, ``babbling/end_step``,
-    ``babbling/end_reason`` and, adaptive, ``babbling/score``. Adaptive babbling scores the model every ``eval_freq``
-    steps once updates begin (EF's held-out prediction error, :func:`foresight_error_ratio`, or ``criterion``) and
-    ends at the :class:`Plateau` of the scores after ``min_steps``, at ``max_steps`` at the latest.
+    """Motor babbling on any SB3 off-policy algorithm with a ``Box`` action space: the env executes and the buffer
+    stores random actions; adaptive babbling ends at a plateau of a score (docs/ef.md, "Adaptive babbling").
 
     :param steps: steps (``num_timesteps``) of babbling, or ``"adaptive"``.
     :param mode: ``"sign"`` (each component +-1, the paper) or ``"clamped_uniform"`` (the EF authors' code).
     :param in_eval: ``predict`` babbles too while active, from its own generator (the EF authors' Meta-World protocol).
     :param seed: seed of the babbling generators (``None``: the model's); a model's saved babbling state continues.
-    :param min_steps: adaptive: babbling never ends before this step (default 0).
+    :param min_steps: adaptive: babbling never ends before this step.
     :param max_steps: adaptive: babbling always ends at this step.
-    :param patience: adaptive: evaluations in a row without improvement that make a plateau (default 3).
-    :param min_delta: adaptive: relative improvement of the best score that counts (default 0.01: 1% lower).
-    :param eval_freq: adaptive: steps between two evaluations (default 1000).
+    :param patience: adaptive: evaluations in a row without improvement that make a plateau.
+    :param min_delta: adaptive: relative improvement of the best score that counts.
+    :param eval_freq: adaptive: steps between two evaluations.
     :param eval_env: adaptive: a single env like the training one, where held-out babbling episodes are recorded.
     :param criterion: adaptive: ``criterion(model) -> float``, non-negative, lower is better; instead of ``eval_env``.
-    :param holdout_steps: adaptive with ``eval_env``: babbling steps recorded in it (default 200).
-    :param holdout_windows: adaptive with ``eval_env``: windows scored at each evaluation (default 64).
+    :param holdout_steps: adaptive with ``eval_env``: babbling steps recorded in it.
+    :param holdout_windows: adaptive with ``eval_env``: windows scored at each evaluation.
     :param verbose: 1 to print when babbling ends.
     """
 
@@ -109,8 +104,7 @@ class MotorBabblingCallback(BaseCallback):
         self.holdout_steps = holdout_steps or 200
         self.holdout_windows = holdout_windows or 64
         self.held_out: HeldOutWindows | None = None
-        #: Warn when a fresh babbling state starts past ``steps`` (a caller's callback that will never babble); the
-        #: hosts' own callback of their first ``babbling_steps`` does not.
+        #: Warn when a fresh babbling state starts past ``steps`` (the hosts' own callback does not).
         self.warn_if_late = True
         self._shadowed: dict[str, Any] = {}
         self._instance_attributes: dict[str, Any] = {}
@@ -150,7 +144,6 @@ class MotorBabblingCallback(BaseCallback):
         if criterion is not None and not callable(criterion):
             raise TypeError(f"criterion must be a function of the model returning a float, got {criterion!r}")
 
-    # ------------------------------------------------------------------ state
     @property
     def state(self) -> BabblingState:
         """The babbling state on the model (set at the start of training)."""
@@ -201,7 +194,6 @@ class MotorBabblingCallback(BaseCallback):
             if expected != received:
                 raise ValueError(f"eval_env observations must have the model's shape {expected}, got {received}")
 
-    # -------------------------------------------------------------- training
     def _on_training_start(self) -> None:
         model = self.model
         state = getattr(model, STATE_ATTRIBUTE, None)
@@ -244,7 +236,7 @@ class MotorBabblingCallback(BaseCallback):
         self.logger.record("babbling/score", score)
 
     def score(self) -> float:
-        """Adaptive babbling's score of the model now (the criterion, or EF's held-out error ratio)."""
+        """Adaptive babbling's score of the model now."""
         if self.criterion is not None:
             score = float(self.criterion(self.model))
         else:
@@ -279,7 +271,6 @@ class MotorBabblingCallback(BaseCallback):
             self._end("plateau")
         return state.end_step is None
 
-    # ------------------------------------------------------ action override
     def rollout_action(self, n_envs: int) -> np.ndarray | None:
         """Babbling buffer actions while active, else ``None`` (the model's own choice)."""
         active = self._update_end()
@@ -293,7 +284,7 @@ class MotorBabblingCallback(BaseCallback):
         if not (self.in_eval and self.active):
             return None
         assert isinstance(observation, np.ndarray)  # image Boxes
-        # Transposed first, as SB3's predict does (an env of channels-last frames gives channels-last observations).
+        # Transposed first, as SB3's predict does for channels-last frames.
         vectorized = is_vectorized_observation(
             maybe_transpose(observation, self.model.observation_space), self.model.observation_space
         )
@@ -303,10 +294,8 @@ class MotorBabblingCallback(BaseCallback):
         return (actions if vectorized else actions[0]), state
 
     def _install(self) -> None:
-        """Take the model's actions over for this ``learn``: through its ``action_override`` hook (sb3-ef's hosts),
-        or, on SB3's own algorithms, by shadowing ``_sample_action`` (and ``predict``) on the instance. A takeover
-        left by a ``learn`` that raised is removed first; a second babbling callback in the same ``learn`` is
-        refused."""
+        """Take the model's actions over for this ``learn`` (docs/ef.md, "How the callback takes the actions over");
+        a takeover left by a ``learn`` that raised is removed first."""
         model = self.model
         if isinstance(model, ActionOverrideMixin):
             owner = model.action_override

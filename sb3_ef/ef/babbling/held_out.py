@@ -16,9 +16,8 @@ from sb3_ef.ef.babbling.actions import babble
 
 @dataclass
 class HeldOutWindows:
-    """Babbling windows recorded in an env that training never sees: context observation at t, the H buffer
-    actions from t, the H frames t+1..t+H and, when the env provides them, the agent masks of the newest context
-    frame and of the H frames (index 0 = newest context frame)."""
+    """Babbling windows recorded in an env that training never sees, with the agent masks when the env gives them
+    (index 0: the newest context frame)."""
 
     observations: np.ndarray  # (N, 3 * stack, h, w) uint8
     actions: np.ndarray  # (N, H, action_dim) float32 in [-1, 1]
@@ -29,8 +28,7 @@ class HeldOutWindows:
 def record_held_out_windows(
     env: gym.Env, horizon: int, steps: int, windows: int, rng: np.random.Generator, mode: str
 ) -> HeldOutWindows:
-    """Babble ``steps`` steps in ``env`` (a new episode, reset with a seed from ``rng``, whenever one ends) and keep
-    ``windows`` windows of ``horizon`` steps spread evenly over them."""
+    """Babble ``steps`` steps in ``env`` and keep ``windows`` windows of ``horizon`` steps spread evenly over them."""
     box = env.action_space
     assert isinstance(box, spaces.Box)
     agent_mask = getattr(env.unwrapped, "agent_mask", None)
@@ -73,10 +71,8 @@ def record_held_out_windows(
 def foresight_error_ratio(
     model: Any, windows: HeldOutWindows, agent_pixels: bool = True, batch_size: int = 16
 ) -> float:
-    """EF's open-loop prediction error on ``windows`` over the error of copying the newest context frame: squared
-    error per pixel, over the agent's pixels (where the agent is in the newest context frame or in frame t+k) when
-    ``agent_pixels`` and the windows have masks, else over all pixels; averaged over k = 1..H for the model and the
-    copy, then divided."""
+    """EF's open-loop prediction error on ``windows`` over that of copying the newest context frame, per pixel (the
+    agent's when ``agent_pixels`` and masks are given), averaged over k = 1..H."""
     horizon = windows.actions.shape[1]
     sums = np.zeros((3, horizon))  # model error, copy error, pixels, per k
     policy = model.policy

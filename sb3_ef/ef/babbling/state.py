@@ -13,8 +13,8 @@ STATE_ATTRIBUTE = "_motor_babbling"
 
 @dataclass
 class Plateau:
-    """The plateau rule of adaptive babbling: a score (an error, lower is better) improves when it falls below
-    ``best * (1 - min_delta)``; the scores have plateaued once ``patience`` evaluations in a row did not improve."""
+    """Adaptive babbling's plateau: ``patience`` evaluations in a row without a score (an error) below
+    ``best * (1 - min_delta)``."""
 
     patience: int
     min_delta: float
@@ -36,13 +36,8 @@ class Plateau:
 
 @dataclass
 class BabblingState:
-    """What a resumed run needs to continue babbling exactly; kept on the model as ``_motor_babbling``.
-
-    ``rng`` draws the rollout's babbling actions, ``eval_rng`` those of ``predict`` (``in_eval``), ``holdout_seed``
-    seeds the held-out episodes of adaptive babbling. ``end_step`` / ``end_reason`` are set when babbling ends
-    (``"steps"``, ``"plateau"`` or ``"max_steps"``); ``scores`` holds adaptive babbling's ``(step, score)``
-    evaluations, ``next_evaluation`` the step of the next one.
-    """
+    """What a resumed run needs to continue babbling exactly: the generators of the rollout, ``predict`` and the
+    held-out episodes, the end (``"steps"``, ``"plateau"`` or ``"max_steps"``) and adaptive babbling's scores."""
 
     rng: np.random.Generator
     eval_rng: np.random.Generator
