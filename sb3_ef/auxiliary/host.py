@@ -1,14 +1,5 @@
-"""What every sb3-ef host algorithm shares: the host side of the auxiliary-loss interface.
-
-:class:`AuxiliaryHostMixin` is mixed into every host (DrQ-v2, TD-MPC2, and SB3's SAC / TD3 / TQC through
-:class:`~sb3_ef.auxiliary.step.AuxiliaryStepMixin`): the sequence replay buffer; an optional auxiliary
-representation loss on the host's encoder (an :class:`~sb3_ef.auxiliary.loss.AuxiliaryLoss` that a subclass returns
-from ``_build_auxiliary``, kept where ``_keep_auxiliary`` puts it and trained by the optimiser the host names in
-``_optimise_auxiliary``); the ``action_override`` hook (motor babbling takes the actions over through it); the
-accessors ``encode`` / ``frame_shape`` read by ``sb3_ef.analysis``; the finite-loss check; logging, with
-``train/aux_grad_ratio`` (how hard the auxiliary loss pulls on the encoder next to the host's loss, on one update in
-:data:`AUX_GRAD_RATIO_EVERY`); and a ``load`` that refuses a file this class cannot load, saying what to do instead.
-"""
+"""What every sb3-ef host algorithm shares: the host side of the auxiliary-loss interface (:class:`AuxiliaryHostMixin`,
+see docs/architecture.md, "Auxiliary losses") and the ``train/aux_grad_ratio`` diagnostic."""
 
 from __future__ import annotations
 
@@ -37,7 +28,7 @@ from sb3_ef.common.saved_models import check_saved_model, save_model_atomically,
 from sb3_ef.common.validation import check_learn, check_model_path, check_observation
 
 SelfHost = TypeVar("SelfHost", bound="AuxiliaryHostMixin")
-#: One update in this many computes ``train/aux_grad_ratio`` (the logger keeps the mean of those since the last dump).
+#: One update in this many computes ``train/aux_grad_ratio``.
 AUX_GRAD_RATIO_EVERY = 100
 
 
@@ -50,7 +41,7 @@ def encoder_gradient_ratio(
     auxiliary_loss: th.Tensor, host_loss: th.Tensor, parameters: Iterable[nn.Parameter]
 ) -> th.Tensor:
     """``||d aux / d encoder|| / ||d host / d encoder||`` for a host that adds the auxiliary loss to its own (two
-    extra backward passes, graphs kept for the host's); a detached scalar tensor (no device sync)."""
+    extra backward passes, graphs kept); a detached scalar."""
     params = [param for param in parameters if param.requires_grad]
     norms = [
         _norm(th.autograd.grad(loss, params, retain_graph=True, allow_unused=True), loss.device)
@@ -66,8 +57,7 @@ def gradient_norm(parameters: Iterable[nn.Parameter]) -> th.Tensor:
 
 
 def gradient_norm_ratio(parameters: Iterable[nn.Parameter], host_norm: th.Tensor) -> th.Tensor:
-    """:func:`gradient_norm` of ``parameters`` over ``host_norm``: the ratio of an auxiliary step of its own, the
-    host's encoder-gradient norm read at the host's step (no extra pass)."""
+    """:func:`gradient_norm` of ``parameters`` over ``host_norm``: the ratio for an auxiliary step of its own."""
     return gradient_norm(parameters) / host_norm.clamp_min(1e-12)
 
 
@@ -77,15 +67,8 @@ def _norm(grads: Iterable[th.Tensor | None], device: th.device) -> th.Tensor:
 
 
 class AuxiliaryHostMixin(ActionOverrideMixin):
-    """Mixed in first by every host algorithm (``class DrQv2(AuxiliaryHostMixin, OffPolicyAlgorithm)``).
-
-    The host calls :meth:`_use_sequence_buffer` before ``super()._setup_model()``, and in its update
-    :meth:`_augment_observations` (the observations it encodes, and the auxiliary loss's targets), then adds
-    ``self.auxiliary(features, targets)`` to the loss that trains its encoder (or steps it on its own optimiser) and
-    calls ``auxiliary.after_update(encoder)`` after its optimiser steps. A subclass supplies the auxiliary loss by
-    overriding :meth:`_build_auxiliary` (and :meth:`_auxiliary_horizon` when the loss reads future steps); the host
-    says in :meth:`_optimise_auxiliary` which optimiser trains it.
-    """
+    """Mixed in first by every host algorithm (``class DrQv2(AuxiliaryHostMixin, OffPolicyAlgorithm)``); the hooks
+    and the order the host calls them in are in docs/architecture.md, "Auxiliary losses"."""
 
     policy: Any
     env: VecEnv | None
@@ -102,8 +85,7 @@ class AuxiliaryHostMixin(ActionOverrideMixin):
     #: The class name, saved with the model: ``load`` refuses a file saved by another algorithm.
     algorithm: str
     check_finite_losses: bool = False
-    # Generator of the auxiliary loss's draws; created in ``_setup_model`` from the seed, saved with the model so
-    # that a resumed run continues its stream.
+    # The auxiliary loss's draws, saved with the model so that a resumed run continues its stream.
     _auxiliary_generator: th.Generator | None = None
 
     def _build_auxiliary(self) -> AuxiliaryLoss | None:
@@ -119,18 +101,16 @@ class AuxiliaryHostMixin(ActionOverrideMixin):
         raise NotImplementedError(f"{type(self).__name__} does not say which optimiser trains its auxiliary loss")
 
     def _use_sequence_buffer(self, why: str, horizon: int, **defaults: Any) -> None:
-        """Make SB3's ``_setup_model`` build a :class:`SequenceReplayBuffer` with a window of ``horizon`` steps;
-        ``defaults`` (``n_steps``, ``gamma``) apply unless ``replay_buffer_kwargs`` sets them. ``why`` says what the
-        host samples that only this buffer provides (the error message for another buffer class)."""
+        """Make SB3's ``_setup_model`` build a :class:`SequenceReplayBuffer` of ``horizon`` steps (``defaults`` unless
+        ``replay_buffer_kwargs`` sets them); ``why`` is the error message for another buffer class."""
         check_sequence_buffer(self.replay_buffer_class, why)
         if self.replay_buffer_class is None:
             self.replay_buffer_class = SequenceReplayBuffer
         self.replay_buffer_kwargs = {**defaults, **self.replay_buffer_kwargs, "horizon": horizon}
 
     def _setup_model(self) -> None:
-        """SB3's ``_setup_model`` (the buffer's n-step returns are configured through its kwargs, so SB3's warning
-        that ``n_steps`` is ignored does not apply), then the auxiliary loss (moved to the model's device, kept
-        where :meth:`_keep_auxiliary` says, given to its optimiser), then the generator unless it was loaded."""
+        """SB3's ``_setup_model`` (without its ``n_steps`` warning: the buffer takes them), the auxiliary loss and
+        the generator unless it was loaded."""
         self.algorithm = type(self).__name__
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message=r"`n_steps=\d+` is ignored because a custom")
@@ -145,7 +125,7 @@ class AuxiliaryHostMixin(ActionOverrideMixin):
             self._auxiliary_generator.manual_seed(int(np.random.randint(2**31)) if self.seed is None else self.seed)
 
     def _keep_auxiliary(self, auxiliary: AuxiliaryLoss) -> None:
-        """Keep the auxiliary module where it is saved with the model: on the policy (``policy.auxiliary``)."""
+        """Keep the auxiliary module where it is saved with the model: ``policy.auxiliary``."""
         self.policy.auxiliary = auxiliary
 
     @property
@@ -164,9 +144,8 @@ class AuxiliaryHostMixin(ActionOverrideMixin):
         return self.policy.encode(observations.to(self.device))
 
     def _augment_observations(self, batch: SequenceReplayBufferSamples, pad: int) -> tuple[th.Tensor, Any]:
-        """The observations at t as the host encodes them, and the auxiliary loss's targets (``None`` without one).
-        Without an auxiliary loss, a random shift of ``pad`` pixels; with one, its ``prepare`` augments (shifting
-        its targets along), drawing its own random numbers from the model's generator."""
+        """The observations at t as the host encodes them (shifted by ``pad``, or by the loss's ``prepare``) and the
+        auxiliary loss's targets (``None`` without one)."""
         if self.auxiliary is None:
             (observations,) = random_shift(batch.observations, pad=pad)
             return observations, None
@@ -181,8 +160,8 @@ class AuxiliaryHostMixin(ActionOverrideMixin):
                 raise ValueError(f"{name} is {loss.item()} at update {self._n_updates}")
 
     def _train_round(self, gradient_steps: int, batch_size: int, optimizers: Iterable[th.optim.Optimizer]) -> None:
-        """A ``train`` round: training mode, the learning rate on ``optimizers`` (times each group's ``lr_scale``),
-        ``gradient_steps`` of the host's ``_update`` on replay samples, then their logs."""
+        """A ``train`` round: the learning rate (times each group's ``lr_scale``), ``gradient_steps`` of ``_update``
+        and their logs."""
         self.policy.set_training_mode(True)
         learning_rate = self.lr_schedule(self._current_progress_remaining)  # type: ignore[attr-defined]
         self.logger.record("train/learning_rate", learning_rate)
@@ -197,8 +176,7 @@ class AuxiliaryHostMixin(ActionOverrideMixin):
         self._record_updates(updates)
 
     def _record_updates(self, updates: list[dict[str, th.Tensor]]) -> None:
-        """Log each scalar of the updates (``train/<key>``), averaged over the updates that computed it (a loss
-        stepped every few updates is averaged over those)."""
+        """Log each scalar of the updates as ``train/<key>``, averaged over the updates that computed it."""
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         for key in dict.fromkeys(key for update in updates for key in update):
             values = th.stack([update[key].detach().reshape(()) for update in updates if key in update])
@@ -256,10 +234,8 @@ class AuxiliaryHostMixin(ActionOverrideMixin):
         force_reset: bool = True,
         **kwargs: Any,
     ) -> SelfHost:
-        """SB3's ``load``; a missing or damaged file is named at once, and a file this class cannot load is refused
-        with what to do instead (:func:`~sb3_ef.common.saved_models.check_saved_model`): one another algorithm saved
-        (a ``DrQv2EF`` file read as ``DrQv2`` would carry EF's weights the plain class does not have), or one of
-        sb3-ef 0.1.0 (converted once with ``sb3-ef upgrade``)."""
+        """SB3's ``load``, refusing a missing or damaged file, or one this class cannot load, with what to do instead
+        (:func:`~sb3_ef.common.saved_models.check_saved_model`)."""
         check_model_path(path)
         data = saved_data(path)
         check_saved_model(cls, path, data)
@@ -271,6 +247,5 @@ class AuxiliaryHostMixin(ActionOverrideMixin):
 
     @classmethod
     def _completed_policy_kwargs(cls, policy_kwargs: dict[str, Any], data: dict[str, Any]) -> dict[str, Any]:
-        """The ``policy_kwargs`` a caller gives ``load`` (those given to the constructor), with the entries the
-        class adds to them itself, so that SB3's comparison with the saved ones holds; none by default."""
+        """``load``'s ``policy_kwargs`` with the entries the constructor adds, so that SB3's comparison holds."""
         return policy_kwargs

@@ -1,7 +1,5 @@
-"""The one interface through which an auxiliary representation loss (Ego-Foresight, SEAR, CURL) joins a host:
-per update ``prepare`` (augmented observations and targets), the host's encoder, ``forward`` (weighted loss and logs),
-then ``after_update``; saved on the policy (DrQ-v2, TD-MPC2) or on the algorithm (SB3's hosts).
-"""
+"""The loss side of the auxiliary-loss interface: per update ``prepare``, the host's encoder, ``forward``, then
+``after_update`` (docs/architecture.md, "Auxiliary losses")."""
 
 from __future__ import annotations
 
@@ -30,9 +28,8 @@ class AuxiliaryLoss(nn.Module, ABC):
 
 
 class CarriesAuxiliary:
-    """For a policy that carries its algorithm's auxiliary module as ``policy.auxiliary``: ``policy.save`` stores
-    the module with the policy's weights and ``Policy.load`` puts it back, so that the loaded policy's state dict is
-    the saved one. A policy file that holds no module loads without one (only training uses it)."""
+    """For a policy that carries its algorithm's auxiliary module as ``policy.auxiliary``: ``policy.save`` and
+    ``Policy.load`` keep it; a policy file without one loads without it."""
 
     auxiliary: AuxiliaryLoss | None
 

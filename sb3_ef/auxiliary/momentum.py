@@ -1,5 +1,4 @@
-"""Momentum copies of an online module, the slow targets of the contrastive auxiliary losses (CURL's key encoder,
-latent Ego-Foresight's target encoder and projection): ``copy <- (1 - tau) copy + tau online`` after updates."""
+"""Momentum copies of an online module, the slow targets of CURL and latent Ego-Foresight."""
 
 from __future__ import annotations
 
@@ -11,8 +10,7 @@ from torch import nn
 
 
 def momentum_copy(module: nn.Module) -> nn.Module:
-    """A copy of ``module`` whose parameters are buffers: in its state dict (saved and loaded with the module that
-    holds it), moved by ``.to``, never in ``parameters()`` and so never given to an optimiser, never requiring grad."""
+    """A copy of ``module`` whose parameters are buffers: saved in its state dict, never given to an optimiser."""
     copied = copy.deepcopy(module)
     for submodule in copied.modules():
         for name, parameter in list(submodule._parameters.items()):
@@ -23,9 +21,8 @@ def momentum_copy(module: nn.Module) -> nn.Module:
 
 
 def momentum_update(online: nn.Module, copied: nn.Module, tau: float, what: str = "module") -> None:
-    """``copied <- (1 - tau) copied + tau online`` for every parameter of ``online`` (SB3's ``polyak_update``),
-    matched by name in ``copied`` (as parameters, or as buffers in a :func:`momentum_copy`); then ``online``'s own
-    buffers (batch-norm statistics, if any) are copied, as SB3 does for its targets.
+    """``copied <- (1 - tau) copied + tau online`` for each parameter, matched by name; ``online``'s buffers are
+    copied, as SB3 does for its targets.
 
     :param what: the module's name in the error raised when ``copied`` was not copied from a module like ``online``.
     """

@@ -1,10 +1,5 @@
-"""An auxiliary representation loss on an SB3 off-policy algorithm from pixels, as a step of its own.
-
-SB3's ``train()`` has no hook for an extra loss, so the auxiliary loss runs as its own step after each of the host's
-updates: sample a batch, augment it (the loss's ``prepare``), encode with the critic's features extractor and take
-one step of a separate Adam on that extractor and the auxiliary module. The host's updates, losses and optimisers
-are SB3's own. (CURL, which follows its authors' update, owns its ``train()`` and uses only this mixin's set-up.)
-"""
+"""An auxiliary representation loss on an SB3 off-policy algorithm from pixels, as a step of its own after each of
+the host's updates (SB3's ``train()`` has no hook for an extra loss); the host's updates stay SB3's own."""
 
 from __future__ import annotations
 
@@ -24,9 +19,8 @@ from sb3_ef.common.validation import check_algorithm_arguments
 
 
 class AuxiliaryStepMixin(AuxiliaryHostMixin):
-    """Trains the auxiliary loss a subclass builds (``_build_auxiliary``) on the critic's ``features_extractor`` of an
-    SB3 off-policy algorithm (a CNN on stacked RGB frames), mixed in before it: ``class SACEF(..., SAC)``. Its
-    arguments are keyword-only; the others are the host's.
+    """Trains the auxiliary loss a subclass builds on the critic's ``features_extractor`` of an SB3 off-policy
+    algorithm, mixed in before it (``class SACEF(..., SAC)``). Other arguments are the host's.
 
     :param shift_pad: random shift (pixels) of the auxiliary step's batch (none with a ShiftedSequenceReplayBuffer).
     :param auxiliary_learning_rate: learning rate of the auxiliary step's Adam (``None``: the host's).
@@ -35,8 +29,7 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
 
     policy: Any
     critic: Any
-    #: The auxiliary module, kept on the algorithm rather than on the host's policy, so that the policy stays SB3's
-    #: own (``policy.save`` and the host policy class's ``load`` work as in SB3); saved with the model.
+    #: The auxiliary module, kept on the algorithm so that the policy stays SB3's own; saved with the model.
     auxiliary_module: AuxiliaryLoss | None = None
     auxiliary_optimizer: th.optim.Optimizer
 
@@ -68,8 +61,7 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
             self._setup_model()
 
     def _setup_model(self) -> None:
-        """The host's setup with a sequence replay buffer, then the auxiliary module (``auxiliary_module``) and its
-        optimiser."""
+        """The host's setup with a sequence replay buffer."""
         self._use_sequence_buffer(
             f"{type(self).__name__} samples the auxiliary loss's batches",
             horizon=max(1, self._auxiliary_horizon()),
@@ -83,7 +75,7 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
 
     @property
     def auxiliary(self) -> AuxiliaryLoss | None:
-        """The auxiliary loss module (``auxiliary_module``), or ``None``."""
+        """``auxiliary_module``, or ``None``."""
         return self.auxiliary_module
 
     def _optimise_auxiliary(self, auxiliary: AuxiliaryLoss) -> None:
@@ -97,9 +89,7 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
         return self.critic.extract_features(observations.to(self.device), self.critic.features_extractor)
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
-        """The host's ``gradient_steps`` updates, unchanged, then as many auxiliary steps (:meth:`_auxiliary_step`);
-        on the updates :func:`aux_grad_ratio_due` picks, the encoder-gradient norm of the critic's loss is read at
-        the critic optimiser's step (:meth:`_read_host_gradients`) for ``aux_grad_ratio``."""
+        """The host's ``gradient_steps`` updates, unchanged, then as many auxiliary steps."""
         first = self._n_updates + 1
         host_norms: dict[int, th.Tensor] = {}
         hook = self._read_host_gradients(first, host_norms) if self.auxiliary is not None else None
@@ -123,9 +113,8 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
         self._record_updates(updates)
 
     def _read_host_gradients(self, first: int, host_norms: dict[int, th.Tensor]) -> Any:
-        """A step pre-hook on the critic's optimiser that stores, in ``host_norms`` by update number (from
-        ``first``), the gradient norm the critic's loss left on its encoder, on the updates that compute the ratio;
-        its handle, or ``None`` when that optimiser does not step the encoder (``share_features_extractor``)."""
+        """A step pre-hook on the critic's optimiser storing the encoder-gradient norm by update number, for
+        ``aux_grad_ratio``; ``None`` when that optimiser does not step the encoder."""
         encoder = list(self.critic.features_extractor.parameters())
         held = {id(param) for group in self.critic.optimizer.param_groups for param in group["params"]}
         if not all(id(param) in held for param in encoder):
@@ -142,8 +131,8 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
     def _auxiliary_step(
         self, batch: SequenceReplayBufferSamples, host_norm: th.Tensor | None = None
     ) -> dict[str, th.Tensor]:
-        """One step on the critic's encoder and the auxiliary module; returns the (detached) logs, without a sync,
-        with ``aux_grad_ratio`` when given the critic loss's encoder-gradient norm ``host_norm`` of the update."""
+        """One step on the critic's encoder and the auxiliary module; returns the detached logs (with
+        ``aux_grad_ratio`` when given ``host_norm``)."""
         assert self.auxiliary is not None
         pad = 0 if isinstance(self.replay_buffer, ShiftedSequenceReplayBuffer) else self.shift_pad  # type: ignore[attr-defined]
         observations, targets = self._augment_observations(batch, pad=pad)
