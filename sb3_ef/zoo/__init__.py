@@ -1,5 +1,4 @@
-"""rl-zoo3 plug-in: registers the registry's algorithms that rl-zoo3 trains, with their Optuna samplers (docs/zoo.md).
-Public names are imported on first use (rl-zoo3 imports torch), so that the command line is checked first."""
+"""rl-zoo3 plug-in: the registry's algorithms and Optuna samplers (docs/zoo.md), imported on first use."""
 
 from __future__ import annotations
 

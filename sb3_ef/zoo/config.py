@@ -1,5 +1,4 @@
-"""The zoo_configs YAML files: where they are, how an entry is chosen, and which keys an entry may hold (checked up
-front: rl-zoo3 passes unknown keys to the constructor, where a typo shows late or never)."""
+"""The zoo_configs YAML files: where they are, how an entry is chosen, which keys it may hold (checked up front)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""``python -m sb3_ef.zoo.enjoy``: rl-zoo3's ``enjoy`` for sb3-ef models, loaded without a full-size replay buffer
-(:class:`InferenceLoader`)."""
+"""``python -m sb3_ef.zoo.enjoy``: rl-zoo3's ``enjoy`` for sb3-ef models, without a full-size replay buffer."""
 
 from __future__ import annotations
 

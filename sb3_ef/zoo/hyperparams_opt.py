@@ -1,5 +1,4 @@
-"""Optuna samplers for rl-zoo3's ``-optimize``: EF's hyperparameters and each host's main ones, suggested raw and
-mapped by the one converter (also used for ``--trial-id``), so both agree."""
+"""Optuna samplers for rl-zoo3's ``-optimize``: EF's and each host's hyperparameters, mapped by one converter."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""The command-line options of ``sb3-ef train``, ``optimize`` and ``enjoy``, checked before anything heavy is imported
-(rl-zoo3 builds its parsers seconds of imports later; a test compares these tables with them)."""
+"""The command-line options of ``sb3-ef train``, ``optimize`` and ``enjoy``, checked before heavy imports."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""Progress lines for long training runs, readable in a terminal and in a log file (SB3's table comes minutes apart
-on pixel tasks and rl-zoo3's ``-P`` bar draws nothing into a file)."""
+"""Progress lines for long training runs, readable in a terminal and in a log file."""
 
 from __future__ import annotations
 
@@ -15,7 +14,7 @@ def _clock(seconds: float) -> str:
 
 
 class ProgressLogCallback(BaseCallback):
-    """Print the step, speed, elapsed and remaining time and the recent episode return every ``interval_s``.
+    """Print the step, speed, elapsed and remaining time and the recent return every ``interval_s``.
 
     :param total_timesteps: the step the run trains to (``num_timesteps`` counts on across a resume).
     :param interval_s: least wall time between two lines.

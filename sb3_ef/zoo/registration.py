@@ -1,5 +1,4 @@
-"""Register sb3-ef's algorithms with rl-zoo3 in place (``rl_zoo3.utils.ALGOS``, ``rl_zoo3.hyperparams_opt``'s
-dictionaries and the names config strings may use), without forking it."""
+"""Register sb3-ef's algorithms with rl-zoo3 in place (``ALGOS``, samplers, config names), without forking it."""
 
 from __future__ import annotations
 

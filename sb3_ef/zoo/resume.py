@@ -1,6 +1,4 @@
-"""rl-zoo3 runs that continue: :class:`ResumingExperimentManager` writes resumable checkpoints, makes ``-i`` carry
-on up to ``-n`` steps in all (in the model's run folder), records step-seeded evaluations and removes the folders of
-a run that fails before training (docs/zoo.md)."""
+"""rl-zoo3 runs that continue from resumable checkpoints (:class:`ResumingExperimentManager`, docs/zoo.md)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""``sb3-ef train`` and ``enjoy`` with ``--algo dreamerv3``: sheeprl's loop (a grid row's training) with rl-zoo3's
-arguments and run folders; ``--resume RUN_DIR`` continues a run in its own folder from its latest checkpoint."""
+"""``sb3-ef train`` and ``enjoy`` with ``--algo dreamerv3``: sheeprl's loop with rl-zoo3's arguments and folders."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""``python -m sb3_ef.zoo.train``: rl-zoo3's ``train`` with sb3-ef's algorithms, configs (``zoo_configs/<algo>.yml``
-unless ``--conf-file``) and environments, checked before anything is built; runs resume (:mod:`sb3_ef.zoo.resume`)."""
+"""``python -m sb3_ef.zoo.train``: rl-zoo3's ``train`` with sb3-ef's algorithms, configs and environments."""
 
 from __future__ import annotations
 
