@@ -1,6 +1,5 @@
-"""Benchmark grids: algorithms x tasks x seeds from the zoo configs, run on a local process pool or on Ray, skipping
-finished runs and resuming interrupted ones (docs/benchmark.md). Public names are imported on first use, so that
-``sb3-ef benchmark`` checks its arguments before torch is imported."""
+"""Benchmark grids run on a local process pool or on Ray, resuming interrupted runs (docs/benchmark.md).
+Public names are imported on first use, so that ``sb3-ef benchmark`` checks its arguments before torch."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""The checks of a grid's rows before anything trains (``--dry-run``, and before a local run): each row's env and
-algorithm built as its start builds them, short of networks, buffers and frames, each problem named with its row."""
+"""The checks of a grid's rows before anything trains: each row's env and algorithm built short of networks."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""A benchmark grid: algorithms x tasks x seeds, expanded into fully specified runs whose hyperparameters (the task's
-zoo entry, the block's overrides, the algorithm's own) are checked when the grid is read (format: docs/benchmark.md)."""
+"""A benchmark grid: algorithms x tasks x seeds expanded into checked, fully specified runs (docs/benchmark.md)."""
 
 from __future__ import annotations
 

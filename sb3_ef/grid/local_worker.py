@@ -1,5 +1,4 @@
-"""The set-up of a local pool worker, in a module of its own that imports only the standard library: a spawned
-worker imports it before anything else, so the set-up is in force within a fraction of a second of its start."""
+"""The set-up of a local pool worker, standard library only so that a spawned worker applies it at once."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""One benchmark run: build the env and the algorithm, train with periodic evaluation, record, checkpoint; it resumes
-from its newest checkpoint, dropping the evaluation rows after that step (files: docs/benchmark.md)."""
+"""One benchmark run: train with periodic evaluation, record, checkpoint, resume (files: docs/benchmark.md)."""
 
 from __future__ import annotations
 
