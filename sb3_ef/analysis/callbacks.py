@@ -18,9 +18,7 @@ _NOT_TEXT = ("stdout", "log", "json", "csv")
 
 
 class ForesightLoggerCallback(BaseCallback):
-    """Every ``log_freq`` calls, play an EF model ``steps`` steps (default: EF's horizon) on ``eval_env`` and log EF's
-    open-loop prediction: ``foresight/prediction``, ``foresight/saliency``, ``foresight/prediction_mse`` and, with
-    agent masks, ``foresight/mask_precision``, ``mask_recall`` and ``mask_iou`` of the thresholded h_a map.
+    """Every ``log_freq`` calls, log EF's open-loop prediction and saliency on ``eval_env`` (docs/analysis.md).
 
     :param eval_env: a single gymnasium env with the training env's observations (e.g. ``make_env(...)``).
     :param seed: reset seed, so every log starts from the same state (None: a fresh state each time).

@@ -1,5 +1,4 @@
-"""Aggregate scores (``algo, task, seed, step, score``) over algorithms, tasks and seeds: the Efficiency Normalised
-Score (defined step by step in docs/analysis.md) and rliable metrics."""
+"""Aggregate scores over algorithms, tasks and seeds: the Efficiency Normalised Score (docs/analysis.md), rliable."""
 
 from __future__ import annotations
 
@@ -31,8 +30,7 @@ def check_columns(df: pd.DataFrame, columns: tuple[str, ...]) -> None:
 
 
 def load_records(directory: str | os.PathLike, finished_only: bool = False) -> pd.DataFrame:
-    """Every evaluation CSV under ``directory`` and the ``evaluations.npz`` of each rl-zoo3 run folder without one,
-    checked; ``finished_only``: only runs with a ``result.json`` or a final model."""
+    """Every evaluation CSV and rl-zoo3 ``evaluations.npz`` under ``directory``, checked (optionally finished only)."""
     from sb3_ef.analysis.zoo_logs import EVALUATIONS_FILE, is_zoo_run_folder, zoo_run_finished, zoo_run_records
 
     pandas = require("pandas")

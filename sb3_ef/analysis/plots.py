@@ -1,5 +1,4 @@
-"""Figures written to files (matplotlib, Agg backend): learning curves, ENS bars, rliable interval plots, and the
-labelled prediction and saliency figures of ``sb3-ef analyze model``."""
+"""Figures written to files (matplotlib, Agg): learning curves, ENS bars, rliable plots, predictions, saliency."""
 
 from __future__ import annotations
 

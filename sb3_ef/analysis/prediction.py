@@ -1,5 +1,4 @@
-"""Open-loop Ego-Foresight predictions: from one stacked observation and an action sequence, the frames EF
-imagines for every step, plus the figure-eight probe sequence and PNG / GIF / MP4 writers."""
+"""Open-loop Ego-Foresight predictions from one observation and an action sequence, and their writers."""
 
 from __future__ import annotations
 

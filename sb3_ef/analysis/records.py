@@ -96,8 +96,7 @@ def append_records(path: str | os.PathLike, rows: list[dict[str, object]]) -> No
 
 
 class EvalRecorderCallback(BaseCallback):
-    """Append each evaluation of an ``EvalCallback`` to a CSV (as its ``callback_after_eval``): mean ``return``,
-    ``success`` rate of the final ``info["is_success"]`` (empty when the env reports none), ``step`` and ``frame``.
+    """Append each evaluation of an ``EvalCallback`` (as its ``callback_after_eval``) to a CSV (docs/analysis.md).
 
     :param path: CSV file; created with a header, or appended to if it already holds records.
     :param algo: algorithm name; default the model's class name.

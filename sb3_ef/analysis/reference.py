@@ -1,6 +1,4 @@
-"""Published learning curves, shipped in ``reference_data/`` (sources, licences and units in its ``SOURCES.md``), and
-a user's runs put beside them, each reference on its own axis (frames or agent steps), seeds interpolated, never
-extrapolated."""
+"""Published learning curves (``reference_data/``, sources in its ``SOURCES.md``) and a user's runs beside them."""
 
 from __future__ import annotations
 
@@ -153,8 +151,7 @@ def _seed_values(curves: pd.DataFrame, xs: np.ndarray, x: str = "x", y: str = "r
 def seed_band(
     curves: pd.DataFrame, x: str = "x", y: str = "return", end: float = np.inf, points: int | None = None
 ) -> pd.DataFrame:
-    """Seeds (``seed``, ``x``, ``y``) interpolated onto one grid (the union of their x's, or ``points`` evenly spaced
-    ones) up to ``end``: columns ``x``, ``mean``, ``std`` (``ddof=1``), ``min``, ``max``, ``seeds``."""
+    """Seeds interpolated onto one grid up to ``end``: columns ``x``, ``mean``, ``std``, ``min``, ``max``, ``seeds``."""
     pandas = require("pandas")
     spans = curves.groupby("seed")[x].agg(["min", "max"])
     low, high = float(spans["min"].max()), min(float(spans["max"].min()), end)
@@ -181,8 +178,7 @@ def _frames_per_step(group: pd.DataFrame) -> float:
 
 
 def reference_table(records: pd.DataFrame, name: str, at: tuple[int, ...] = ()) -> pd.DataFrame:
-    """Your mean at each agent step of ``at`` (default: the last step all seeds reached) beside the official mean and
-    min-max at the same point of the reference's axis (``official_*`` NaN where no official seed reached it)."""
+    """Your mean at each step of ``at`` beside the official mean and min-max at the same point of its axis."""
     pandas = require("pandas")
     check_columns(records, RECORD_COLUMNS)
     if any(step < 0 for step in at):

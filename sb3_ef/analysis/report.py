@@ -1,5 +1,4 @@
-"""One look at what EF learned on one rollout: play actions in an env, predict the same frames open loop,
-take the saliency of the last prediction and score it against the env's agent mask."""
+"""One look at what EF learned on one rollout: predictions, saliency and its score against the agent mask."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""``sb3-ef analyze results``: every table and plot of a results folder, computed in full before a file is written,
-so that bad input (a wrong argument, a malformed record) leaves nothing behind."""
+"""``sb3-ef analyze results``: every table and plot of a results folder, computed in full before any is written."""
 
 from __future__ import annotations
 

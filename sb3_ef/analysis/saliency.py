@@ -1,5 +1,4 @@
-"""Which pixels of a predicted frame each half of the representation controls (paper Section 4.2): per patch, the L2
-norm of the gradient of its summed decoded values with respect to h_a, and separately to h_s."""
+"""Which pixels of a predicted frame each half of the representation (h_a, h_s) controls (paper Section 4.2)."""
 
 from __future__ import annotations
 

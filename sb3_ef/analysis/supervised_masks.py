@@ -1,5 +1,4 @@
-"""SEAR's agent masks (learnt from the simulator's), to score beside EF's h_a saliency on the same frames
-(:func:`~sb3_ef.analysis.masks.mask_scores`)."""
+"""SEAR's agent masks, to score beside EF's h_a saliency on the same frames."""
 
 from __future__ import annotations
 

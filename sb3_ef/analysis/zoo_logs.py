@@ -1,6 +1,4 @@
-"""rl-zoo3's run folders (``<logs>/<algo>/<env>_<n>/``: ``evaluations.npz``, ``<env>/args.yml``, ``<env>/config.yml``)
-read as the evaluation records :class:`~sb3_ef.analysis.records.EvalRecorderCallback` writes, so ``sb3-ef analyze
-results logs`` works after ``sb3-ef train`` (``frame = step * action_repeat``)."""
+"""rl-zoo3's run folders read as evaluation records, so ``sb3-ef analyze results logs`` works after training."""
 
 from __future__ import annotations
 
