@@ -1,5 +1,4 @@
-"""Dreamer-v3 (Hafner et al., 2023) as a baseline: sheeprl's implementation (``pip install -e .[dreamerv3]``,
-imported only when a model is built) with SB3's learn / predict / save / load, on sb3-ef's pixel envs."""
+"""Dreamer-v3 (Hafner et al., 2023) as a baseline: sheeprl's implementation with SB3's interface (docs/dreamerv3.md)."""
 
 from sb3_ef.dreamerv3.callbacks import Evaluation
 from sb3_ef.dreamerv3.dreamerv3 import DreamerV3

@@ -1,6 +1,4 @@
-"""sheeprl's configuration of a Dreamer-v3 run: its ``exp=dreamer_v3`` experiment and ``algo=dreamer_v3_<size>``
-preset, the recipe from ``DreamerV3``'s arguments and ``sheeprl_overrides``, and the run's session (env, Fabric,
-callbacks, folders, steps, checkpoints), which cannot be overridden."""
+"""sheeprl's configuration of a Dreamer-v3 run: preset, recipe, overrides and the run's fixed session."""
 
 from __future__ import annotations
 

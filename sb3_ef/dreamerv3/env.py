@@ -1,5 +1,4 @@
-"""What Dreamer-v3 sees of an sb3-ef env: the newest ``(3, size, size)`` RGB frame of its stacked observation (its
-world model keeps its own memory); actions, rewards, episode ends, infos and action repeat are the env's."""
+"""What Dreamer-v3 sees of an sb3-ef env: the newest RGB frame of its stacked observation."""
 
 from __future__ import annotations
 
@@ -50,8 +49,7 @@ class StopTraining(BaseException):
 
 
 class StepCallbacks(gym.Wrapper):
-    """Counts sheeprl's env steps on ``model.num_timesteps`` and calls ``callback.on_step()`` after each, as SB3
-    does (``locals_``: the callback's ``locals``); ``False`` raises :class:`StopTraining`."""
+    """Counts env steps on ``model.num_timesteps`` and calls ``callback.on_step()`` after each, as SB3 does."""
 
     def __init__(self, env: gym.Env, model: Any, callback: Any, locals_: dict[str, Any]):
         super().__init__(env)

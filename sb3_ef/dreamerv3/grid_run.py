@@ -1,5 +1,4 @@
-"""A ``dreamerv3`` row of ``sb3-ef benchmark`` (and ``sb3-ef train --algo dreamerv3``): every row's files and resume
-rule (:mod:`sb3_ef.grid.run`), sheeprl's training; ``checkpoints/`` holds sheeprl's runs and ``latest.json``."""
+"""A ``dreamerv3`` row of ``sb3-ef benchmark`` and ``sb3-ef train``: the grid's files and resume rule."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""Objects of this process (the user's env, the run's callback) handed to sheeprl, whose Hydra configuration holds
-plain values only: it names them by a token, looked up here, that lives as long as its training run."""
+"""Objects of this process handed to sheeprl's plain-valued Hydra configuration by a token looked up here."""
 
 from __future__ import annotations
 

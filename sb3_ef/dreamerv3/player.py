@@ -1,5 +1,4 @@
-"""Acting with a trained Dreamer-v3: sheeprl's player (encoder, recurrent model, posterior, actor) built from a
-checkpoint's weights, one frame per step, and the evaluation episodes of a run."""
+"""Acting with a trained Dreamer-v3: sheeprl's player built from a checkpoint's weights, and evaluation episodes."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""The zip of a saved ``DreamerV3``, as SB3's: ``.zip`` added to a path without a suffix, file objects used directly,
-and the ``data`` entry naming the class that saved it (:func:`sb3_ef.common.saved_models.check_saved_model`)."""
+"""The zip of a saved ``DreamerV3``, handled as SB3 handles its own."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""One training call into sheeprl: its configuration resolved and checked as its command line does, then its
-Dreamer-v3 entry point run in this process."""
+"""One training call into sheeprl: its configuration resolved and checked, then its entry point run here."""
 
 from __future__ import annotations
 
@@ -11,8 +10,7 @@ from sb3_ef.dreamerv3.config import Session, set_session
 
 
 def resolved_config(cfg: Any, session: Session, buffer_in_checkpoint: bool = True) -> Any:
-    """``cfg`` with the session set, merged into a resumed run's configuration as sheeprl's resume does, resolved
-    and checked by sheeprl (``buffer_in_checkpoint``: the resumed checkpoint holds its replay buffer)."""
+    """``cfg`` with the session set, merged into a resumed run's as sheeprl's resume does, resolved and checked."""
     from omegaconf import OmegaConf, open_dict
     from sheeprl.cli import check_configs, resume_from_checkpoint
     from sheeprl.utils.utils import dotdict
