@@ -1,6 +1,4 @@
-"""The ``sb3-ef`` console script: each subcommand gets the rest of the command line, checked before its heavy imports.
-A user error is one line ``sb3-ef <command>: error: ...``, exit status 2 (``SB3_EF_TRACEBACK=1`` shows the
-traceback); Ctrl-C is one line ``sb3-ef <command>: interrupted[: what was kept]``, exit status 130."""
+"""The ``sb3-ef`` console script: each subcommand's command line checked before its heavy imports (docs/zoo.md)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""``sb3-ef upgrade OLD.zip NEW.zip``: a model file of sb3-ef 0.1.0 (no ``algorithm`` entry in its data, EF inside
-the host) converted once into this version's format, nothing lost."""
+"""``sb3-ef upgrade OLD.zip NEW.zip``: a model file of sb3-ef 0.1.0 converted into this version's format."""
 
 from __future__ import annotations
 
