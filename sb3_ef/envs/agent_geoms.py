@@ -1,8 +1,5 @@
-"""Which geoms of a MuJoCo model belong to the agent's own body, by one rule for every suite: all geoms of the
-kinematic trees (off the world body) holding a body that an actuator moves or that is welded to a mocap body (how
-Meta-World moves the Sawyer arm). The world body, free objects, targets and mocap handles never are: cartpole -> cart
-and pole; reacher -> the arm, not the target; finger -> the finger, not the spinner; Meta-World -> the Sawyer robot.
-"""
+"""Which geoms of a MuJoCo model belong to the agent's own body, by one rule for every suite: the kinematic trees
+(off the world body) holding a body that an actuator moves or that is welded to a mocap body (Meta-World's arm)."""
 
 from __future__ import annotations
 

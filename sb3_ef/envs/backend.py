@@ -41,8 +41,7 @@ def _backend_works(backend: str) -> tuple[bool, str]:
 
 
 def ensure_gl_backend(candidates: dict[str, str] | None = None) -> str:
-    """The ``MUJOCO_GL`` backend in use, else the first of ``candidates`` (backend -> install hint, default
-    :data:`GL_BACKENDS`) that works, set; ``RenderingBackendError`` saying what to install when none does."""
+    """The ``MUJOCO_GL`` backend in use, else the first of ``candidates`` that works, set; else what to install."""
     chosen = os.environ.get("MUJOCO_GL")
     if chosen:
         library = GL_LIBRARIES.get(chosen)

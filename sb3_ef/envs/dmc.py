@@ -31,9 +31,8 @@ DEFAULT_CAMERAS: dict[str, int] = {"quadruped": 2}
 
 
 class DMCPixelEnv(PixelEnv):
-    """A dm-control suite task (:data:`~sb3_ef.envs.tasks.DMC_TASKS`, e.g. ``"cartpole-swingup"``) with pixel
-    observations; the arguments are :func:`~sb3_ef.envs.factory.make_env`'s (camera 0 by default, 2 for quadruped;
-    ``episode_length`` 1000 simulator steps as in the suite; ``options``: :meth:`PixelEnv._setup`'s)."""
+    """A dm-control suite task (:data:`~sb3_ef.envs.tasks.DMC_TASKS`) with pixel observations; the arguments are
+    :func:`~sb3_ef.envs.factory.make_env`'s."""
 
     def __init__(self, task: str, camera: int | str | None = None, seed: int | None = None, **options: Any) -> None:
         domain, suite_task = DMC_TASKS[task]

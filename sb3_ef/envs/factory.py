@@ -43,21 +43,15 @@ def make_env(
 ):
     """Build a pixel environment: ``uint8`` observations ``(3 * frame_stack, size, size)``, actions in [-1, 1].
 
-    :param name: ``dmc/<domain>-<task>``, ``metaworld/<task>`` or ``dmc-distracting/<domain>-<task>`` (the
-        Distracting Control Suite), optional ``-v0`` suffix (all names: :data:`sb3_ef.envs.ENV_NAMES`).
+    :param name: ``dmc/<domain>-<task>``, ``metaworld/<task>`` or ``dmc-distracting/<domain>-<task>`` (docs/envs.md).
     :param size: frame height and width, in [MIN_SIZE, MAX_SIZE].
     :param frame_stack: frames stacked along channels, oldest first.
     :param action_repeat: simulator steps per agent step (rewards summed, success OR-ed).
     :param camera: camera index or name; default camera 0 for DMC (2 for quadruped), ``"corner"`` for Meta-World.
-    :param fast_render: shadows, reflections and multisampling off: several times faster on CPU, other frames
-        (analyse and evaluate with the same setting).
+    :param fast_render: shadows, reflections and multisampling off: faster on CPU, other frames (keep it throughout).
     :param seed: seed of the initial states (and of the Meta-World task variant).
-    :param agent_masks: every frame's agent mask in the infos (:attr:`~sb3_ef.envs.pixel_env.PixelEnv.agent_masks`),
-        as ``SequenceReplayBuffer(..., store_masks=True)`` stores them; one more render per step.
-    :param kwargs: suite options (:data:`SUITE_OPTIONS`): ``episode_length`` (simulator steps; 1000 DMC, 500
-        Meta-World), ``render_mode`` (``"rgb_array"``), Meta-World's ``resample_task`` and ``repeat_discount``
-        (:class:`~sb3_ef.envs.meta_world.MetaWorldPixelEnv`), Distracting Control's ``distraction``, ``difficulty``,
-        ``dynamic``, ``background_dir``, ``background_videos`` (:mod:`sb3_ef.envs.distracting.env`).
+    :param agent_masks: every frame's agent mask in the infos (one more render per step).
+    :param kwargs: suite options (:data:`SUITE_OPTIONS`), e.g. ``episode_length`` (simulator steps), ``render_mode``.
     :return: a :class:`~sb3_ef.envs.pixel_env.PixelEnv`; ``env.agent_mask()`` gives the agent's pixels.
     """
     task = parse_env_name(name)
@@ -89,7 +83,7 @@ def make_env(
     env.agent_masks = bool(agent_masks)
     if agent_masks:
         options["agent_masks"] = True
-    # The spec gym.make would give, so env.spec.id names the task (eval records, rl-zoo3, SB3) for envs made here too.
+    # The spec gym.make would give, so that env.spec.id names the task for envs made here too.
     registered = gym.spec(f"{task.suite}/{task.task}-v0")
     env.spec = dataclasses.replace(registered, kwargs={**registered.kwargs, **options})
     return env

@@ -1,7 +1,5 @@
-"""Pixel masks of named parts of a MuJoCo scene (a tool, a door, a distractor) next to the agent's mask. A part is
-the geoms named plus every geom of each named body's subtree (e.g. Meta-World's ``hammerbody``); a pixel belongs to
-it where one of its geoms is the front-most surface. :class:`PartMasks` gives all masks from one segmentation render.
-"""
+"""Pixel masks of named parts of a MuJoCo scene (a tool, a door, a distractor) next to the agent's mask: a part's
+geoms plus every geom of each named body's subtree, where one of them is the front-most surface."""
 
 from __future__ import annotations
 
@@ -31,8 +29,7 @@ def _ids(model: mujoco.MjModel, kind: mujoco.mjtObj, names: Sequence[str], count
 
 
 def part_geoms(model: mujoco.MjModel, bodies: Sequence[str] = (), geoms: Sequence[str] = ()) -> np.ndarray:
-    """Boolean array of shape ``(model.ngeom,)``: the geoms named in ``geoms`` and all geoms in the subtrees of
-    the bodies named in ``bodies``. Unknown names raise ``ValueError`` listing the model's names."""
+    """Boolean ``(model.ngeom,)``: the geoms named in ``geoms`` and those in the subtrees of ``bodies``."""
     body_ids = _ids(model, mujoco.mjtObj.mjOBJ_BODY, bodies, model.nbody, "body")
     geom_ids = _ids(model, mujoco.mjtObj.mjOBJ_GEOM, geoms, model.ngeom, "geom")
     if not body_ids and not geom_ids:
@@ -48,8 +45,7 @@ def part_geoms(model: mujoco.MjModel, bodies: Sequence[str] = (), geoms: Sequenc
 
 
 def part_mask(geom_ids: np.ndarray, selection: np.ndarray) -> np.ndarray:
-    """Bool mask of the pixels of ``geom_ids`` (segmentation, -1 = no geom) whose geom is selected in
-    ``selection`` (shape ``(ngeom,)``)."""
+    """Bool mask of the pixels of ``geom_ids`` (segmentation, -1 = no geom) whose geom is in ``selection``."""
     geom_ids = np.asarray(geom_ids)
     selection = np.asarray(selection, bool)
     if geom_ids.size and (geom_ids.min() < -1 or geom_ids.max() >= len(selection)):
@@ -61,8 +57,8 @@ def part_mask(geom_ids: np.ndarray, selection: np.ndarray) -> np.ndarray:
 
 
 class PartMasks:
-    """Masks of the agent (``"agent"``) and of named ``parts`` (name -> ``{"bodies": [...], "geoms": [...]}``, either
-    may be left out) of a (wrapped) :class:`~sb3_ef.envs.pixel_env.PixelEnv`'s scene."""
+    """Masks of the agent and of named ``parts`` (name -> ``{"bodies": [...], "geoms": [...]}``) of a PixelEnv's
+    scene, all from one segmentation render."""
 
     def __init__(self, env: Any, parts: Mapping[str, Mapping[str, Sequence[str]]]):
         if AGENT in parts:

@@ -1,7 +1,5 @@
 """Meta-World (metaworld 3.x, ``-v3`` tasks) from pixels, single-task as in the paper: one task variant drawn from
-the env's seed and kept (or re-drawn at each reset with ``resample_task=True``); 500 simulator steps an episode;
-``info["is_success"]`` is Meta-World's success flag. ``repeat_discount=0.99`` with ``gamma=authors_gamma()`` is the
-EF authors' protocol: one agent step's reward is ``r1 + 0.99 r2``."""
+the env's seed; see docs/envs.md (``repeat_discount`` and ``authors_gamma``: the EF authors' protocol)."""
 
 from __future__ import annotations
 
@@ -23,15 +21,13 @@ AUTHORS_DISCOUNT = 0.99
 
 
 def authors_gamma(action_repeat: int = 2, discount: float = AUTHORS_DISCOUNT) -> float:
-    """The per-agent-step ``gamma`` of the EF authors (with ``repeat_discount=discount``): their action repeat
-    discounts by ``discount`` per simulator step and their buffer once more, ``discount ** (action_repeat + 1)``."""
+    """The EF authors' per-agent-step ``gamma`` with ``repeat_discount=discount`` (their buffer discounts once more)."""
     return discount ** (action_repeat + 1)
 
 
 class MetaWorldPixelEnv(PixelEnv):
-    """A Meta-World task (:data:`~sb3_ef.envs.tasks.METAWORLD_TASKS`, e.g. ``"door-open"``) with pixel observations;
-    the arguments are :func:`~sb3_ef.envs.factory.make_env`'s (camera ``"corner"`` by default; ``seed`` also draws
-    the task variant; ``options``: :meth:`PixelEnv._setup`'s).
+    """A Meta-World task (:data:`~sb3_ef.envs.tasks.METAWORLD_TASKS`) with pixel observations; the other arguments
+    are :func:`~sb3_ef.envs.factory.make_env`'s (``seed`` also draws the task variant).
 
     :param resample_task: draw a new task variant at every reset instead of keeping the seed's one.
     :param repeat_discount: the reward of an agent step is ``r1 + repeat_discount * r2 + ...`` (1: summed).
@@ -78,7 +74,7 @@ class MetaWorldPixelEnv(PixelEnv):
     def _reset_sim(self, seed: int | None, options: dict[str, Any] | None) -> dict[str, Any]:
         if seed is not None:
             self._env.seed(seed)
-        elif self.resample_task:  # the variant is drawn from Meta-World's generator: reseed it from the env's
+        elif self.resample_task:  # reseed Meta-World's variant generator from the env's
             self._env.seed(self._simulator_seed())
         draw_variant = seed is not None or self.resample_task or self._env._last_rand_vec is None
         self._env._freeze_rand_vec = not draw_variant

@@ -1,5 +1,5 @@
-"""Base class of the pixel environments: action repeat, frame stack, time limit, rendering, agent masks. A suite
-subclass owns the simulator and implements three hooks (``_physics``, ``_reset_sim``, ``_step_sim``)."""
+"""Base class of the pixel environments; a suite subclass owns the simulator and implements ``_physics``,
+``_reset_sim`` and ``_step_sim``."""
 
 from __future__ import annotations
 
@@ -16,20 +16,17 @@ from gymnasium.utils import seeding
 from sb3_ef.envs.agent_geoms import agent_geoms
 from sb3_ef.envs.renderer import FrameRenderer
 
-#: Info key of the agent masks in reset and step infos when ``agent_masks`` is on (``make_env(..., agent_masks=True)``).
+#: Info key of the agent masks in reset and step infos (``make_env(..., agent_masks=True)``).
 AGENT_MASKS_INFO_KEY = "agent_masks"
 
 
 class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
-    """Pixel observations of a MuJoCo simulation: ``uint8`` ``(3 * frame_stack, size, size)``, oldest frame first
-    (``reset`` repeats the first). One agent step applies the action ``action_repeat`` times (rewards summed,
-    ``info["is_success"]`` OR-ed) and renders once; truncation after ``episode_length`` simulator steps.
-    Subclasses call :meth:`_setup` once their simulator exists."""
+    """Pixel observations of a MuJoCo simulation with action repeat, frame stack and time limit (semantics in
+    docs/envs.md); subclasses call :meth:`_setup` once their simulator exists."""
 
     metadata: dict[str, Any] = {"render_modes": ["rgb_array"]}
-    #: Infos carry each frame's agent mask under ``"agent_masks"``: reset's ``(frame_stack, size, size)``, step's
-    #: ``(frame_stack + 1, size, size)`` (``[:-1]``: the observation acted on, ``[1:]``: the new one). Set by
-    #: ``make_env(..., agent_masks=True)``; algorithms read it with ``VecEnv.get_attr("agent_masks")``.
+    #: Infos carry each frame's agent mask: reset's ``(frame_stack, size, size)``, step's ``(frame_stack + 1, ...)``
+    #: (``[:-1]``: the observation acted on, ``[1:]``: the new one); see docs/envs.md "Agent masks".
     agent_masks: bool = False
 
     def _setup(
@@ -47,8 +44,7 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
         fast_render: bool = False,
         render_mode: str | None = None,
     ) -> None:
-        """Called by a suite's constructor once its simulator exists, with the options of
-        :func:`~sb3_ef.envs.factory.make_env`; ``seed`` seeds ``np_random``."""
+        """Set up from :func:`~sb3_ef.envs.factory.make_env`'s options; ``seed`` seeds ``np_random``."""
         for argument, value in (("frame_stack", frame_stack), ("action_repeat", action_repeat)):
             if not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"{argument} must be an int >= 1, got {value!r}")
@@ -72,7 +68,7 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
         self._renderer: FrameRenderer | None = self._open_renderer()
         self._camera = self._renderer.camera
         self._frames: deque[np.ndarray] = deque(maxlen=frame_stack)
-        self._masks: deque[np.ndarray] | None = None  # with agent_masks: those of the last frame_stack + 1 frames
+        self._masks: deque[np.ndarray] | None = None  # the last frame_stack + 1 frames' masks
         self._sim_steps = 0
         self._episode_over = True
 

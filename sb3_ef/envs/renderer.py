@@ -30,9 +30,8 @@ def _close_live_renderers() -> None:
 
 
 def _close_renderers_at_exit() -> None:
-    """(Re-)register the exit hook as the newest, so it runs before any EGL ``eglTerminate`` registered so far
-    (``atexit`` is last-in first-out; dm_control registers one when a later env first imports its renderer), and the
-    contexts are freed while the display exists."""
+    """(Re-)register the exit hook as the newest, so that (``atexit`` being LIFO) it frees the contexts before any
+    ``eglTerminate`` registered so far."""
     atexit.unregister(_close_live_renderers)
     atexit.register(_close_live_renderers)
 
@@ -42,7 +41,7 @@ class FrameRenderer:
 
     :param fast: turn shadows, reflections and multisampling off (5-15x faster on a CPU renderer).
     :param flip: flip frames vertically (for cameras that render upside down).
-    :param agent_geoms: boolean array over the model's geoms marking the agent's body, for :meth:`agent_mask`.
+    :param agent_geoms: boolean array over the model's geoms marking the agent's body.
     """
 
     def __init__(
@@ -99,8 +98,7 @@ class FrameRenderer:
         return self._agent_lookup[self.geom_ids(data) + 1]
 
     def upload_texture(self, texture: int) -> None:
-        """Send the model's changed texture ``texture`` to this renderer's OpenGL context (``mujoco.Renderer`` has
-        no public call for it)."""
+        """Send the model's changed ``texture`` to this renderer's OpenGL context (``mujoco.Renderer`` has no call)."""
         self._renderer._gl_context.make_current()
         mujoco.mjr_uploadTexture(self._model, self._renderer._mjr_context, texture)
 

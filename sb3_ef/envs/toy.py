@@ -12,14 +12,13 @@ from gymnasium import spaces
 AGENT_COLOUR = (255, 0, 0)
 DISTRACTOR_COLOUR = (0, 255, 0)
 WALL_COLOUR = (0, 0, 160)
-#: Info key of the agent masks, that of ``sb3_ef.envs.pixel_env`` (not imported: this module needs no MuJoCo).
+#: ``sb3_ef.envs.pixel_env``'s info key of the agent masks (not imported: no MuJoCo here).
 AGENT_MASKS_INFO_KEY = "agent_masks"
 
 
 class ToyAgentEnv(gym.Env):
-    """A red square moved by ``speed * action`` pixels per step, a green distractor on a random walk, a blue wall
-    placed at random per episode, on black; the squares stop at the borders. Reward: minus the agent's distance to the
-    frame centre (in frame sizes). Observations and ``agent_masks`` as :class:`~sb3_ef.envs.pixel_env.PixelEnv`'s.
+    """A MuJoCo-free test world: a red square moved by ``speed * action`` pixels per step, a green distractor on a
+    random walk and a blue wall; reward: minus the agent's distance to the centre. Observations as PixelEnv's.
 
     :param size: frame height and width in pixels.
     :param frame_stack: number of stacked frames.

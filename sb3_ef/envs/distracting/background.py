@@ -13,12 +13,10 @@ from sb3_ef.envs.renderer import FrameRenderer
 
 class BackgroundDistraction:
     """Shows frames of DAVIS videos on every face of the skybox (no geom: agent masks never see it) and gives the
-    floor's ``grid`` material ``ground_alpha``. Each reset draws a video, then one frame (static) or a start frame and
-    direction (dynamic: one frame a simulator step, turning at either end).
+    floor's ``grid`` material ``ground_alpha``.
 
     :param videos: folders of JPEG frames (:func:`~sb3_ef.envs.distracting.davis.video_folders`).
-    :param texture_side: side of the sky's face in texels, at most (and by default) the model's (800 in DMC); a
-        smaller face costs less to upload at every frame of a playing video.
+    :param texture_side: side of the sky's face in texels, at most (and by default) the model's; smaller uploads faster.
     """
 
     def __init__(

@@ -1,11 +1,5 @@
-"""Camera distraction: the rendering camera moved and rolled within the suite's ranges, per episode and per step.
-
-At reset a position (spherical, about the world origin or, for a tracking camera, the agent's centre of mass), roll
-and velocities are drawn around the camera's own pose. At every step the velocity takes a capped Gaussian random-walk
-step and moves the camera, clipped at its range's edge; the camera turns to the point it looked at, then rolls
-(static settings: zero velocities). The pose is written to ``data.cam_xpos`` / ``cam_xmat`` after the simulator step,
-so the RGB and segmentation renders (agent masks) both see the moved camera.
-"""
+"""Camera distraction: the rendering camera moved and rolled within the suite's ranges, per episode and per step
+(docs/envs.md); the pose is written to ``data.cam_xpos`` / ``cam_xmat``, so agent masks see the moved camera too."""
 
 from __future__ import annotations
 
@@ -53,8 +47,7 @@ def _look_at_upright(target: np.ndarray, position: np.ndarray) -> np.ndarray:
 
 
 def _look_at(target: np.ndarray, position: np.ndarray) -> np.ndarray:
-    """Camera orientation looking from ``position`` at ``target``: the shortest rotation of the view axis (some
-    roll), smooth at the poles where :func:`_look_at_upright` flips (reacher's top-down camera)."""
+    """Orientation looking from ``position`` at ``target`` by the shortest rotation: smooth at the poles (reacher)."""
     direction = (target - position) / np.linalg.norm(target - position)
     axis = np.cross([0.0, 0.0, -1.0], direction)
     sin = float(np.linalg.norm(axis))

@@ -9,8 +9,8 @@ from sb3_ef.envs.distracting.settings import ColorSettings
 
 
 class ColorDistraction:
-    """Each material's RGB (agent, floor, targets alike; not the skybox) uniform within ``max_delta`` of its own at
-    every reset and, when dynamic, a Gaussian step of ``step_std`` per simulator step, clipped to [0, 1]."""
+    """Each material's RGB uniform within ``max_delta`` of its own at reset and, when dynamic, a Gaussian step of
+    ``step_std`` per simulator step."""
 
     def __init__(self, model: mujoco.MjModel, settings: ColorSettings) -> None:
         original = model.mat_rgba[:, :3].copy()

@@ -1,5 +1,5 @@
-"""DAVIS 2017 videos for the background distraction: the suite's train / val lists, folder checks, frame loading.
-``background_dir`` is ``DAVIS/JPEGImages/480p``, a folder of one JPEG folder per video (``<video>/00000.jpg``)."""
+"""DAVIS 2017 videos for the background distraction: the suite's train / val lists, folder checks, frame loading
+(see docs/envs.md "The DAVIS videos")."""
 
 from __future__ import annotations
 
@@ -45,8 +45,7 @@ DAVIS_DOWNLOAD_HINT = (
 
 _JPEG_SUFFIXES = (".jpg", ".jpeg")
 
-#: Video folders whose frames all decoded, each with the name, size and modification time of its frames (a frame
-#: changed since is decoded again).
+#: Video folders whose frames all decoded, with each frame's name, size and modification time.
 _DECODED: set[tuple[Path, tuple[tuple[str, int, int], ...]]] = set()
 
 
@@ -58,8 +57,7 @@ def frame_files(folder: Path) -> list[Path]:
 
 
 def video_names(videos: str | Sequence[str], difficulty: str) -> tuple[str, ...]:
-    """The videos a difficulty draws from: the first 4 (easy), 8 (medium) or all (hard) of ``videos`` (``"train"``,
-    ``"val"`` or a list of video folder names)."""
+    """The videos a difficulty draws from: the first 4 (easy), 8 (medium) or all (hard) of ``videos``."""
     if isinstance(videos, str) and videos in VIDEO_LISTS:
         names = VIDEO_LISTS[videos]
     elif not isinstance(videos, str) and videos and all(isinstance(name, str) and name for name in videos):
@@ -100,8 +98,7 @@ def background_root(background_dir: str | os.PathLike[str] | None) -> Path:
 def video_folders(
     background_dir: str | os.PathLike[str] | None, videos: str | Sequence[str], difficulty: str
 ) -> tuple[Path, ...]:
-    """The folders of the videos a background distraction draws from, each checked to hold JPEG frames that all
-    decode; ``ValueError`` saying where to download DAVIS when videos are missing, naming a damaged frame."""
+    """The folders of the videos a background distraction draws from, each checked to hold frames that decode."""
     names = video_names(videos, difficulty)
     root = background_root(background_dir)
     missing = [name for name in names if not frame_files(root / name)]
@@ -131,8 +128,8 @@ def _frame_error(path: Path, error: OSError) -> ValueError:
 
 
 def check_frames(folders: Sequence[Path]) -> None:
-    """Decode every JPEG frame of ``folders`` (at an eighth of its size) so that a damaged one is named when the env
-    is made, not at the reset that draws it; unchanged folders that decoded before are skipped."""
+    """Decode every frame of ``folders`` (at an eighth of its size) so that a damaged one is named when the env is
+    made; unchanged folders that decoded before are skipped."""
     for folder in folders:
         files = frame_files(folder)
         signature = tuple((path.name, path.stat().st_size, path.stat().st_mtime_ns) for path in files)

@@ -1,6 +1,5 @@
 """Distracting Control Suite tasks (Stone et al., 2021): DMC pixel envs whose background, colours and camera change
-after each reset and simulator step, before rendering. Their draws come from a generator seeded at every reset from
-``np_random``, so seeded envs repeat their frames and resumed runs their episodes."""
+after each reset and simulator step, drawn from a generator seeded at every reset from ``np_random``."""
 
 from __future__ import annotations
 
@@ -39,12 +38,11 @@ class Distraction(Protocol):
 
 
 class DistractingDMCPixelEnv(DMCPixelEnv):
-    """A Distracting Control task (:data:`~sb3_ef.envs.tasks.DISTRACTING_TASKS`, e.g. ``"walker-walk"``); the other
-    arguments are :class:`~sb3_ef.envs.dmc.DMCPixelEnv`'s.
+    """A Distracting Control task (:data:`~sb3_ef.envs.tasks.DISTRACTING_TASKS`); the other arguments are
+    :class:`~sb3_ef.envs.dmc.DMCPixelEnv`'s. See docs/envs.md "Distracting Control".
 
     :param distraction: ``"background"``, ``"camera"``, ``"color"`` or a list of them (default: all three).
-    :param difficulty: ``"easy"``, ``"medium"`` or ``"hard"``: colour and camera ranges scaled by 0.1, 0.2, 0.3;
-        backgrounds from the first 4, 8 or all of the videos.
+    :param difficulty: ``"easy"``, ``"medium"`` or ``"hard"`` (ranges scaled by 0.1, 0.2, 0.3).
     :param dynamic: distractions move within the episode (the video plays, colours and camera drift).
     :param background_dir: DAVIS 2017's ``DAVIS/JPEGImages/480p`` folder (default ``$SB3_EF_DAVIS_DIR``).
     :param background_videos: ``"train"`` (the suite's 60 videos), ``"val"`` (its 30) or a list of video folders.

@@ -1,6 +1,5 @@
-"""The Distracting Control Suite's settings, the numbers of its reference code (Stone et al. 2021, arXiv 2101.02722,
-``distracting_control/suite_utils.py``): a difficulty scale ``s`` sets the colour and camera ranges and the number of
-DAVIS videos; ``dynamic`` adds per-step drift. No MuJoCo import: ``make_env`` checks these options first."""
+"""The Distracting Control Suite's settings, the numbers of its reference code (``suite_utils.py``): see docs/envs.md
+"What each distraction does". No MuJoCo import: ``make_env`` checks these options first."""
 
 from __future__ import annotations
 
@@ -20,8 +19,7 @@ DIFFICULTY_SCALES: dict[str, float] = {"easy": 0.1, "medium": 0.2, "hard": 0.3}
 #: Background videos per difficulty: the first n of the video list (``None``: all of them).
 DIFFICULTY_VIDEOS: dict[str, int | None] = {"easy": 4, "medium": 8, "hard": None}
 
-#: Alpha of the ground plane (material ``grid``) under the background distraction: the video shows through
-#: a transparent floor, except where the floor carries the task (walker, cheetah).
+#: Alpha of the floor (material ``grid``) under the background distraction: opaque where it carries the task.
 GROUND_PLANE_ALPHA = {"ball_in_cup": 0.3, "cartpole": 0.3, "cheetah": 1.0, "finger": 0.3, "reacher": 0.0, "walker": 1.0}
 
 
@@ -35,9 +33,8 @@ class ColorSettings:
 
 @dataclass(frozen=True)
 class CameraSettings:
-    """Camera distraction ranges: angles (radians) within ``delta`` of the camera's own, zoom as fractions of its
-    distance, velocities in world units per step for a camera 4 units away. ``upper_quadrant`` keeps the camera above
-    the ground on the front side, looking without roll (all domains but reacher, whose top-down camera would spin)."""
+    """Camera distraction ranges (radians, fractions of the distance, units per step at distance 4);
+    ``upper_quadrant`` keeps the camera above the ground on the front side, without roll."""
 
     horizontal_delta: float
     vertical_delta: float
@@ -64,9 +61,7 @@ def color_settings(difficulty: str, dynamic: bool) -> ColorSettings:
 
 
 def camera_settings(domain: str, difficulty: str, dynamic: bool) -> CameraSettings:
-    """The suite's camera distraction: angle ranges ``s * pi / 2``, zoom ``-0.5 s .. +1.5 s`` of the distance,
-    and when dynamic a velocity random walk (std ``0.1 s``, at most ``0.4 s``) and a roll one (std ``s pi / 300``,
-    at most ``s pi / 50``)."""
+    """The suite's camera distraction ranges at scale ``s``."""
     scale = check_difficulty(difficulty)
     angle = np.pi / 2 * scale
     return CameraSettings(
