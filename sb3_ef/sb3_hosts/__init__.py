@@ -1,5 +1,4 @@
-"""Auxiliary losses on SB3's off-policy algorithms from pixels: a step of their own on the critic's encoder after
-each update (:class:`AuxiliaryStepMixin`); SAC, TD3 and sb3-contrib's TQC with Ego-Foresight."""
+"""SAC, TD3 and sb3-contrib's TQC from pixels with an auxiliary loss (Ego-Foresight) as a step of its own."""
 
 from sb3_ef.auxiliary.step import AuxiliaryStepMixin
 from sb3_ef.common.buffers import ShiftedSequenceReplayBuffer

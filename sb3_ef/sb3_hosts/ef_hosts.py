@@ -1,6 +1,5 @@
-"""SAC-EF, TD3-EF and TQC-EF: SB3's algorithms, unchanged, plus Ego-Foresight trained on the critic's encoder as a
-step of its own after each of the host's updates (:class:`~sb3_ef.auxiliary.step.AuxiliaryStepMixin`; see
-docs/ef.md for the choice)."""
+"""SAC-EF, TD3-EF and TQC-EF: SB3's algorithms, unchanged, plus Ego-Foresight on the critic's encoder as a step of
+its own after each update (docs/ef.md gives the choice)."""
 
 from __future__ import annotations
 
@@ -17,23 +16,22 @@ from sb3_ef.ef.host import EFMixin
 
 
 def with_use_sde(policy_kwargs: dict[str, Any], data: dict[str, Any]) -> dict[str, Any]:
-    """``policy_kwargs`` with the ``use_sde`` entry SAC and TQC add to their own (from the saved ``use_sde``)."""
+    """``policy_kwargs`` with the ``use_sde`` entry SAC and TQC add to their own."""
     if "use_sde" in policy_kwargs or not isinstance(data.get("use_sde"), bool):
         return policy_kwargs
     return {**policy_kwargs, "use_sde": data["use_sde"]}
 
 
 class EFStepMixin(EFMixin, AuxiliaryStepMixin):
-    """Adds Ego-Foresight to an SB3 off-policy algorithm whose critic has a ``features_extractor`` (a CNN on stacked
-    RGB frames): ``class SACEF(EFStepMixin, SAC)``. Its arguments are keyword-only, as :class:`AuxiliaryStepMixin`'s.
+    """Adds Ego-Foresight to an SB3 off-policy algorithm with a CNN critic encoder: ``class SACEF(EFStepMixin, SAC)``.
 
-    :param beta: weight of the EF loss in its own Adam step (``auxiliary_learning_rate`` sets how hard EF pulls).
-    :param ef_horizon: EF's prediction horizon H (the rollout length k is drawn in [1, H]).
-    :param agent_dim: size of the agent features, the first ``agent_dim`` features of the critic's encoder.
-    :param ef_kwargs: extra arguments of :class:`sb3_ef.ef.EgoForesight` (decoder / rollout options).
+    :param beta: weight of the EF loss in its own Adam step.
+    :param ef_horizon: EF's prediction horizon H.
+    :param agent_dim: size of the agent features, the first features of the critic's encoder.
+    :param ef_kwargs: extra arguments of :class:`sb3_ef.ef.EgoForesight`.
     :param babbling_steps: steps of motor babbling at the start (0: none).
-    :param babbling_mode: ``"sign"`` (random +-1) or ``"clamped_uniform"``.
-    :param babbling_in_eval: ``predict`` also babbles while ``num_timesteps < babbling_steps``.
+    :param babbling_mode: ``"sign"`` or ``"clamped_uniform"``.
+    :param babbling_in_eval: ``predict`` also babbles while babbling is on.
     """
 
     def __init__(
@@ -65,8 +63,7 @@ class EFStepMixin(EFMixin, AuxiliaryStepMixin):
             self._setup_model()
 
     def _build_auxiliary(self) -> ForesightLoss:
-        """Ego-Foresight on the critic's features extractor, built from a fork of the global generator so that the
-        host's own random draws are those it has without EF."""
+        """EF on the critic's encoder, built in a forked generator so that the host's draws stay as they are."""
         with th.random.fork_rng(devices=[]):
             encoder = self.critic.features_extractor  # fed SB3's preprocessed observations (extract_features)
             scaling = (255.0 if self.critic.normalize_images else 1.0, 0.0)
@@ -74,8 +71,7 @@ class EFStepMixin(EFMixin, AuxiliaryStepMixin):
 
 
 class SACEF(EFStepMixin, SAC):
-    """SAC (Haarnoja et al., 2018) from pixels with Ego-Foresight on the critic's encoder. Takes SAC's arguments
-    and EF's (keyword-only, see :class:`EFStepMixin`); the env must give stacked uint8 RGB frames."""
+    """SAC (Haarnoja et al., 2018) from stacked uint8 frames with Ego-Foresight (arguments: :class:`EFStepMixin`)."""
 
     @classmethod
     def _completed_policy_kwargs(cls, policy_kwargs: dict[str, Any], data: dict[str, Any]) -> dict[str, Any]:
@@ -83,13 +79,11 @@ class SACEF(EFStepMixin, SAC):
 
 
 class TD3EF(EFStepMixin, TD3):
-    """TD3 (Fujimoto et al., 2018) from pixels with Ego-Foresight on the critic's encoder. Takes TD3's arguments
-    and EF's (keyword-only, see :class:`EFStepMixin`); the env must give stacked uint8 RGB frames."""
+    """TD3 (Fujimoto et al., 2018) from stacked uint8 frames with Ego-Foresight (arguments: :class:`EFStepMixin`)."""
 
 
 class TQCEF(EFStepMixin, TQC):
-    """TQC (Kuznetsov et al., 2020, sb3-contrib) from pixels with Ego-Foresight on the critic's encoder. Takes TQC's
-    arguments and EF's (keyword-only, see :class:`EFStepMixin`); the env must give stacked uint8 RGB frames."""
+    """TQC (Kuznetsov et al., 2020) from stacked uint8 frames with Ego-Foresight (arguments: :class:`EFStepMixin`)."""
 
     @classmethod
     def _completed_policy_kwargs(cls, policy_kwargs: dict[str, Any], data: dict[str, Any]) -> dict[str, Any]:

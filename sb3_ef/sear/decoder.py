@@ -1,8 +1,5 @@
-"""SEAR's decoder: half of the latent back to a full-size image through the transpose of the pooled DrQ-v2 encoder.
-
-At 84x84 it is the SEAR authors' ``PoolDecoder`` layer for layer (8x8 -> 35 -> 37 -> 39 -> 41 -> 84); other frame
-sizes get the output paddings that invert the encoder's size arithmetic.
-"""
+"""SEAR's decoder: half of the latent back to a full-size image through the transpose of the pooled DrQ-v2 encoder
+(the authors' ``PoolDecoder`` at 84x84; other sizes get the output paddings that invert the encoder's)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,5 @@
-"""SEAR's auxiliary losses (Gmelin et al., ICML 2023): the first half of the encoder's latent is decoded to the
-stacked frames (squared error in [-0.5, 0.5]), the second to their agent masks (binary cross-entropy), each summed
-over pixels and averaged over the batch; the host adds their weighted sum to the critic's loss.
-"""
+"""SEAR's auxiliary losses (Gmelin et al., ICML 2023): the halves of the encoder's latent decoded to the frames and
+to their agent masks (docs/sear.md, "The update")."""
 
 from __future__ import annotations
 
@@ -123,7 +121,7 @@ class SEARLoss(AuxiliaryLoss):
         frames = self.frame_decoder(first).clamp(-0.5, 0.5)
         target_frames = targets.frames.float() / 255.0 - 0.5
         reconstruction = (frames - target_frames).square().flatten(1).sum(dim=1).mean()
-        # The sigmoid and BCE in one: the same loss as BCE on sigmoid outputs, without its log clamp at -100.
+        # BCE on logits: BCE on sigmoid outputs without its log clamp at -100.
         mask_logits = self.mask_decoder(second)
         mask = F.binary_cross_entropy_with_logits(mask_logits, targets.masks.float(), reduction="none")
         mask = mask.flatten(1).sum(dim=1).mean()

@@ -44,16 +44,12 @@ def check_agent_masks(env: VecEnv) -> None:
 
 
 class SEAR(DrQv2):
-    """SEAR (Gmelin et al., "Efficient RL via Disentangled Environment and Agent Representations", ICML 2023):
-    :class:`DrQv2` whose encoder is also trained by :class:`SEARLoss`'s frame and agent-mask reconstruction. The env
-    must render agent masks (``make_env(..., agent_masks=True)``); the replay buffer stores them.
+    """SEAR (Gmelin et al., ICML 2023): :class:`DrQv2` whose encoder also learns :class:`SEARLoss`'s frame and
+    agent-mask reconstruction; the env must render agent masks. Other keyword arguments are :class:`DrQv2`'s.
 
-    :param buffer_size: replay buffer capacity in transitions (250000, SEAR's).
+    :param buffer_size: replay buffer capacity in transitions (SEAR's).
     :param replay_buffer_kwargs: extra buffer arguments, as :class:`DrQv2`'s (``store_masks`` is set here).
     :param coefficients: ``"sear"`` (the SEAR authors'), ``"efrl"`` (the EF authors') or a pair, see :class:`SEARLoss`.
-    :param policy_kwargs: see :class:`SEARPolicy`.
-
-    The other arguments (keywords) are :class:`DrQv2`'s.
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"CnnPolicy": SEARPolicy}
