@@ -1,8 +1,5 @@
-"""sb3-ef: Ego-Foresight for Stable-Baselines3.
-
-Public names are imported lazily so that ``import sb3_ef`` stays cheap (no MuJoCo, no rendering) and
-registers the pixel environments with gymnasium.
-"""
+"""sb3-ef: Ego-Foresight for Stable-Baselines3. Public names are imported lazily, so that ``import sb3_ef`` stays
+cheap (no MuJoCo) and registers the pixel environments with gymnasium."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""Acting with a trained model one observation at a time as an evaluation does, carrying the state ``predict``
-returns to its next call (a recurrent policy's hidden state, TD-MPC2's warm-start plans)."""
+"""Acting with a trained model one observation at a time, carrying the state ``predict`` returns to its next call."""
 
 from __future__ import annotations
 
@@ -9,8 +8,7 @@ import numpy as np
 
 
 class EpisodeActor:
-    """``model.predict`` (an algorithm's or a policy's) over one episode at a time, each call taking the state the
-    previous one returned."""
+    """``model.predict`` over one episode, each call taking the state the previous one returned."""
 
     def __init__(self, model: Any, deterministic: bool = True) -> None:
         self.model = model

@@ -10,9 +10,8 @@ from torch import nn
 
 @contextmanager
 def running_stats_kept(module: nn.Module) -> Iterator[None]:
-    """Within the block, the batch-norm layers of ``module`` normalise as they would but keep their running
-    statistics: for forwards that are not the host's own (an auxiliary loss on a shared encoder), as SB3's SAC, TD3
-    and TQC copy the critic's statistics to its target."""
+    """Within the block, ``module``'s batch-norm layers keep their running statistics: for forwards that are not the
+    host's own (an auxiliary loss on a shared encoder)."""
     layers = [
         layer
         for layer in module.modules()

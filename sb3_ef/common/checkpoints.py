@@ -1,8 +1,6 @@
-"""Resumable checkpoints, each file written atomically: ``<prefix>_<step>_steps.zip`` (the model, written last),
-``<prefix>_replay_buffer_<step>_steps.pkl`` and ``<prefix>_rng_<step>_steps.pkl``. Unlike SB3's, they are saved
-between two iterations of ``learn`` with the random states (torch, NumPy, ``random``, action space and noise, the envs'
-``np_random``), so a resumed run repeats the uninterrupted one when the checkpoint falls on an episode boundary of
-every env and the envs draw only in ``reset`` (as ``make_env``'s do)."""
+"""Resumable checkpoints (model zip written last, replay buffer, random states), each file written atomically,
+saved between two iterations of ``learn`` so that a resumed run repeats the uninterrupted one at episode
+boundaries (see docs/zoo.md)."""
 
 from __future__ import annotations
 
@@ -59,8 +57,7 @@ def _checkpoint_step(file_name: str, name_prefix: str) -> int | None:
 
 
 def list_checkpoints(run_dir: str | os.PathLike, name_prefix: str = "rl_model") -> list[Checkpoint]:
-    """The complete checkpoints (model zip written) in ``run_dir``, oldest first, with their buffer and random
-    states when present."""
+    """The complete checkpoints (model zip written) in ``run_dir``, oldest first."""
     found = (_checkpoint_step(path.name, name_prefix) for path in Path(run_dir).glob("*.zip"))
     steps = sorted(step for step in found if step is not None)
     return [_existing(step, *_paths(run_dir, name_prefix, step)) for step in steps]
@@ -75,8 +72,7 @@ def _existing(step: int, model_path: Path, *others: Path) -> Checkpoint:
 def latest_checkpoint(
     run_dir: str | os.PathLike, name_prefix: str = "rl_model", intact: bool = False
 ) -> Checkpoint | None:
-    """The newest complete checkpoint in ``run_dir``, or ``None`` when there is none. With ``intact``, damaged
-    model zips (:func:`is_intact`) are passed over with a warning naming them."""
+    """The newest complete checkpoint in ``run_dir`` or ``None``; ``intact`` passes over damaged zips with a warning."""
     for checkpoint in reversed(list_checkpoints(run_dir, name_prefix)):
         if not intact or is_intact(checkpoint.model_path):
             return checkpoint
@@ -88,8 +84,7 @@ def latest_checkpoint(
 
 
 def checkpoint_for(model_path: str | os.PathLike, name_prefix: str = "rl_model") -> Checkpoint:
-    """The checkpoint a model zip belongs to: the files beside a ``<prefix>_<step>_steps.zip``, or for any other zip
-    (a final model) the ``replay_buffer.pkl`` beside it (rl-zoo3's ``--save-replay-buffer``) and no random states."""
+    """The checkpoint a model zip belongs to; a final model's is the ``replay_buffer.pkl`` beside it (rl-zoo3's)."""
     path = Path(model_path)
     if not path.is_file():
         raise FileNotFoundError(f"No model zip at {path}")
@@ -114,7 +109,7 @@ def _env_generators(model: BaseAlgorithm) -> list[Any] | None:
 
 
 def random_states(model: BaseAlgorithm, env_generators: list[Any] | None = None) -> dict[str, Any]:
-    """The random states the learner owns, as a picklable dict (see the module docstring)."""
+    """The random states the learner owns (torch, NumPy, ``random``, action space and noise, envs), picklable."""
     return {
         "format": RNG_FORMAT,
         "num_timesteps": model.num_timesteps,
@@ -129,8 +124,7 @@ def random_states(model: BaseAlgorithm, env_generators: list[Any] | None = None)
 
 
 def restore_random_states(model: BaseAlgorithm, states: dict[str, Any]) -> None:
-    """Set the generators of :func:`random_states` back; the envs' are applied at their next reset (the model's
-    observation is cleared, so ``learn`` resets the envs)."""
+    """Set the generators of :func:`random_states` back; the envs' take effect at the reset ``learn`` then does."""
     if states.get("format") != RNG_FORMAT:
         raise ValueError(f"Random-state file format {states.get('format')!r} is not supported: expected {RNG_FORMAT}")
     if states["num_timesteps"] != model.num_timesteps:
@@ -143,8 +137,7 @@ def restore_random_states(model: BaseAlgorithm, states: dict[str, Any]) -> None:
     if env is not None and saved_generators is not None and len(saved_generators) != env.num_envs:
         raise ValueError(f"The checkpoint was saved with {len(saved_generators)} envs, got {env.num_envs}")
     if env is not None:
-        # Consume the seeds loading left pending for the next reset, so that the reset in ``learn`` draws from the
-        # restored generators instead of re-seeding the envs.
+        # Consume the seeds loading left pending, so that ``learn``'s reset draws from the restored generators.
         env.reset()
         if saved_generators is not None:
             generators = env.get_attr("np_random")
@@ -163,11 +156,10 @@ def restore_random_states(model: BaseAlgorithm, states: dict[str, Any]) -> None:
 
 
 class ResumableCheckpointCallback(BaseCallback):
-    """Save a resumable checkpoint every ``save_freq`` calls (agent steps of all envs: ``save_freq * n_envs``
-    timesteps), counted on ``num_timesteps`` so the schedule carries on across a resume.
+    """Save a resumable checkpoint every ``save_freq`` calls (``save_freq * n_envs`` timesteps, on ``num_timesteps``).
 
     :param save_replay_buffer: also save the replay buffer (off-policy algorithms).
-    :param keep: how many of the newest checkpoints to keep (older ones are deleted); ``None`` keeps them all.
+    :param keep: how many of the newest checkpoints to keep; ``None`` keeps them all.
     """
 
     def __init__(
@@ -196,7 +188,7 @@ class ResumableCheckpointCallback(BaseCallback):
         self._env_generators = {}
 
     def _on_step(self) -> bool:
-        # The envs' generators before the step that reaches the next checkpoint (and its end-of-episode reset).
+        # The envs' generators before the step that reaches the next checkpoint (and its reset).
         if self.num_timesteps + self.training_env.num_envs >= self._next_save:
             self._env_generators[self.num_timesteps] = _env_generators(self.model)
         return True
@@ -235,8 +227,7 @@ class ResumableCheckpointCallback(BaseCallback):
 def load_checkpoint(
     algo_class: type[ModelType], checkpoint: Checkpoint, env: GymEnv | None, **kwargs: Any
 ) -> ModelType:
-    """Load ``checkpoint``'s model into ``env`` (``kwargs`` go to ``algo_class.load``), with its replay buffer and
-    random states when saved, so that ``model.learn(n, reset_num_timesteps=False)`` continues the run."""
+    """Load ``checkpoint``'s model, buffer and random states, for ``learn(n, reset_num_timesteps=False)``."""
     model = algo_class.load(checkpoint.model_path, env=env, **kwargs)
     if checkpoint.replay_buffer_path is not None:
         if not isinstance(model, OffPolicyAlgorithm):

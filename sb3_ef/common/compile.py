@@ -1,6 +1,5 @@
-"""The algorithms' ``compile`` option, ``torch.compile`` of an update's parts: ``False`` (eager), ``True`` (default
-mode), a mode name (``"reduce-overhead"`` adds CUDA graphs) or a dict of ``torch.compile`` arguments (the tests use
-``{"backend": "aot_eager"}``: no code generation, as Inductor takes about a minute per graph on a small CPU)."""
+"""The algorithms' ``compile`` option, ``torch.compile`` of an update's parts: ``False`` (eager), ``True``, a mode
+name or a dict of ``torch.compile`` arguments."""
 
 from __future__ import annotations
 

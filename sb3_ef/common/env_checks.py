@@ -1,5 +1,5 @@
 """What the algorithms check about their env and replay buffer: stacked RGB frames, Box actions, a sequence buffer,
-and the episode length the env announces. Shared by the hosts, their policies, ``sb3_ef.ef`` and the analysis."""
+and the episode length the env announces."""
 
 from __future__ import annotations
 
@@ -13,13 +13,11 @@ from stable_baselines3.common.vec_env import VecEnv, VecTransposeImage
 
 from sb3_ef.common.buffers import SequenceReplayBuffer
 
-# Channels of one RGB frame in a stacked observation.
 FRAME_CHANNELS = 3
 
 
 def policy_observation_space(observation_space: spaces.Space) -> spaces.Space:
-    """The observation space an SB3 algorithm gives its policy: channels-last images made channels-first, as SB3's
-    ``VecTransposeImage`` does; any other space is the env's own."""
+    """The observation space an SB3 algorithm gives its policy (channels-last images made channels-first)."""
     if (
         isinstance(observation_space, spaces.Box)
         and is_image_space(observation_space)
@@ -30,8 +28,7 @@ def policy_observation_space(observation_space: spaces.Space) -> spaces.Space:
 
 
 def check_stacked_frames(observation_space: spaces.Space, algorithm: str) -> tuple[int, int, int]:
-    """Check for stacked uint8 RGB frames, channels-first, and return their ``(channels, height, width)``. An
-    algorithm checks its env's space as its policy will see it (:func:`policy_observation_space`)."""
+    """Check for stacked uint8 RGB frames, channels-first, and return their ``(channels, height, width)``."""
     if (
         not isinstance(observation_space, spaces.Box)
         or observation_space.dtype != np.uint8
@@ -61,8 +58,7 @@ def check_sequence_buffer(replay_buffer_class: type[ReplayBuffer] | None, why: s
 
 
 def episode_steps(env: VecEnv) -> int | None:
-    """The episode length in agent steps when the env tells it: its spec, a TimeLimit wrapper, the attributes of
-    sb3-ef's pixel envs (``episode_length`` simulator steps at ``action_repeat``) or ``max_episode_steps``."""
+    """The episode length in agent steps when the env tells it (spec, TimeLimit, sb3-ef's pixel envs), else None."""
     spec = env.get_attr("spec", indices=[0])[0]
     if spec is not None and spec.max_episode_steps is not None:
         return int(spec.max_episode_steps)

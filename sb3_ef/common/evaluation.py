@@ -20,8 +20,7 @@ def evaluation_seed(seed: int, step: int) -> int:
 
 
 class StepSeededEvalCallback(EvalCallback):
-    """SB3's ``EvalCallback`` that reseeds ``eval_env`` (env ``i``: plus ``i``) with :func:`evaluation_seed` of the
-    run's ``seed`` and the agent step before each evaluation; ``kwargs``: ``EvalCallback``'s."""
+    """SB3's ``EvalCallback`` reseeding ``eval_env`` from the run's ``seed`` and the step before each evaluation."""
 
     def __init__(self, eval_env: VecEnv, seed: int, **kwargs: Any):
         super().__init__(eval_env, **kwargs)
@@ -29,8 +28,7 @@ class StepSeededEvalCallback(EvalCallback):
 
     @classmethod
     def replacing(cls, callback: EvalCallback, seed: int) -> StepSeededEvalCallback:
-        """A step-seeded callback with ``callback``'s env, frequency, episodes, paths and callbacks (for callbacks
-        built elsewhere, such as rl-zoo3's); ``callback`` must not have been used yet."""
+        """A step-seeded copy of an unused ``callback`` built elsewhere (rl-zoo3's)."""
         assert isinstance(callback.eval_env, VecEnv)  # EvalCallback wraps any env into one
         return cls(
             callback.eval_env,

@@ -13,8 +13,7 @@ from stable_baselines3.common.policies import BasePolicy
 
 
 class OwnExplorationMixin:
-    """Mixed into an SB3 ``OffPolicyAlgorithm``: uniform random actions before ``learning_starts``, then the
-    algorithm's :meth:`_exploration_action` (SB3's ``action_noise`` is not used)."""
+    """For an SB3 ``OffPolicyAlgorithm``: random actions until ``learning_starts``, then :meth:`_exploration_action`."""
 
     num_timesteps: int
     action_space: spaces.Space
@@ -43,8 +42,7 @@ SampleAction = Callable[[int, ActionNoise | None, int], tuple[np.ndarray, np.nda
 
 
 class ActionOverride(Protocol):
-    """What takes over a host's actions for a while (motor babbling): each method returns the actions to use, or
-    ``None`` to leave the choice to the algorithm."""
+    """What takes over a host's actions for a while (motor babbling); ``None`` leaves the choice to the algorithm."""
 
     def rollout_action(self, n_envs: int) -> np.ndarray | None:
         """The buffer actions (in [-1, 1], one row per env) of the next rollout step."""
@@ -61,8 +59,7 @@ def overridden_sample_action(
     action_noise: ActionNoise | None = None,
     n_envs: int = 1,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``_sample_action``'s (env, buffer) actions: ``override``'s when it gives some, else ``sample``'s (a partial
-    over the first three arguments stands in for an algorithm's ``_sample_action``)."""
+    """``_sample_action``'s (env, buffer) actions: ``override``'s when it gives some, else ``sample``'s."""
     buffer_action = override.rollout_action(n_envs) if override is not None else None
     if buffer_action is None:
         return sample(learning_starts, action_noise, n_envs)
@@ -83,8 +80,7 @@ def overridden_predict(
 
 
 class ActionOverrideMixin:
-    """The hook through which an :class:`ActionOverride` (set as ``action_override``, never saved) replaces the
-    rollout actions and ``predict``'s answers of an SB3 off-policy algorithm, mixed in before it."""
+    """Lets an :class:`ActionOverride` (``action_override``, never saved) replace an off-policy algorithm's actions."""
 
     policy: BasePolicy
     action_override: ActionOverride | None = None

@@ -1,5 +1,5 @@
-"""Files written whole or not at all: to a temporary file beside the target, flushed and renamed over it (the rename
-flushed with the folder), so a full disk, a kill, Ctrl-C or a power cut leaves the previous file, never a cut one."""
+"""Files written whole or not at all: to a temporary file beside the target, flushed and renamed over it, so a full
+disk, a kill or Ctrl-C leaves the previous file, never a cut one."""
 
 from __future__ import annotations
 
@@ -14,8 +14,7 @@ TEMPORARY_SUFFIX = ".tmp"
 
 
 def temporary_path(path: str | os.PathLike) -> Path:
-    """The temporary file beside ``path`` that :func:`atomic_path` writes first (keeping ``path``'s suffix, so that
-    libraries that choose a format by suffix write the right one)."""
+    """The temporary file beside ``path`` that :func:`atomic_path` writes first (keeping ``path``'s suffix)."""
     path = Path(path)
     return path.with_name(f".{path.stem}{TEMPORARY_SUFFIX}{path.suffix}")
 
@@ -39,8 +38,7 @@ def _fsync_folder(folder: Path) -> None:
 
 @contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary path to write ``path``'s content to (by any library), renamed to ``path`` on success and
-    removed on any error or interrupt."""
+    """Yield a temporary path to write ``path``'s content to, renamed to ``path`` on success, else removed."""
     path = Path(path)
     temporary = temporary_path(path)
     try:

@@ -8,8 +8,7 @@ from typing import Any
 
 
 def base_arguments(base: type, arguments: Mapping[str, Any], **overrides: Any) -> dict[str, Any]:
-    """The entries of ``arguments`` that ``base.__init__`` takes, with ``overrides`` on top: a variant with SB3's
-    written-out signature passes its base's on with ``super().__init__(**base_arguments(Base, locals()))``."""
+    """The entries of ``arguments`` that ``base.__init__`` takes, ``overrides`` on top, for ``super().__init__``."""
     parameters = inspect.signature(base).parameters.values()
     names = [p.name for p in parameters if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)]
     return {name: arguments[name] for name in names if name in arguments} | overrides

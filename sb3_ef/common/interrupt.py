@@ -1,7 +1,5 @@
-"""Ctrl-C: a command saves its work and raises :class:`Interrupted` saying what was kept; ``sb3-ef`` prints it on one
-line and exits with :data:`INTERRUPTED_STATUS` (130). :func:`sigint_deferred` keeps Ctrl-C out of steps that must not
-be cut; :func:`progress_bar_callback` closes ``learn``'s progress bar however training ends.
-"""
+"""Ctrl-C: a command saves its work and raises :class:`Interrupted` saying what was kept, which ``sb3-ef`` prints on
+one line before exiting with :data:`INTERRUPTED_STATUS`; :func:`sigint_deferred` keeps Ctrl-C out of atomic steps."""
 
 from __future__ import annotations
 
@@ -30,8 +28,7 @@ def interrupted_line(command: str, interrupt: KeyboardInterrupt) -> str:
 
 @contextmanager
 def sigint_deferred() -> Iterator[None]:
-    """Run the block to its end even if Ctrl-C comes meanwhile: the SIGINT is delivered after it (outside the main
-    thread, where SIGINT never arrives, the block just runs)."""
+    """Run the block to its end even if Ctrl-C comes meanwhile: the SIGINT is delivered after it."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -55,9 +52,8 @@ def _deliver(handler: Any) -> None:
 
 @contextmanager
 def progress_bar_callback(callback: MaybeCallback, progress_bar: bool) -> Iterator[MaybeCallback]:
-    """``callback`` with SB3's progress bar added when ``progress_bar`` (pass it to SB3's ``learn`` with
-    ``progress_bar=False``); the bar is closed when the block ends by an error or Ctrl-C (one SB3 leaves open prints
-    a second traceback at interpreter shutdown)."""
+    """``callback`` with SB3's progress bar added when ``progress_bar``, closed however the block ends (one left open
+    prints a second traceback at exit)."""
     if not progress_bar:
         yield callback
         return

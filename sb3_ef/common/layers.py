@@ -59,8 +59,7 @@ def mlp(
 
 
 def orthogonal_init(module: nn.Module) -> None:
-    """DrQ-v2's initialisation, also SEAR's (``module.apply(orthogonal_init)``): orthogonal weights, with the ReLU
-    gain for convolutions and transposed convolutions, and zero biases."""
+    """DrQ-v2's (and SEAR's) initialisation for ``module.apply``: orthogonal weights, ReLU gain for convolutions."""
     if isinstance(module, nn.Linear):
         nn.init.orthogonal_(module.weight)
         nn.init.zeros_(module.bias)
@@ -72,8 +71,7 @@ def orthogonal_init(module: nn.Module) -> None:
 
 @contextmanager
 def frozen(module: nn.Module) -> Iterator[None]:
-    """Inside the block ``module``'s parameters take no gradient: a loss computed through it trains only what comes
-    before it (an actor through its critic). Kept out of compiled functions."""
+    """Inside the block ``module``'s parameters take no gradient (an actor's loss through its critic); not compiled."""
     module.requires_grad_(False)
     try:
         yield

@@ -1,5 +1,4 @@
-"""Public names of a package imported on first use, so that importing the package (or a CLI's argument check)
-does not pull in torch and SB3."""
+"""Public names of a package imported on first use, so that importing it does not pull in torch and SB3."""
 
 from __future__ import annotations
 

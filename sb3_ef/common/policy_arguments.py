@@ -9,8 +9,8 @@ from typing import Any
 
 @contextmanager
 def policy_built_with(model: Any, defaults: dict[str, Any] | None = None, **derived: Any) -> Iterator[None]:
-    """Within the block (SB3's ``_setup_model``), ``model.policy_kwargs`` adds ``defaults`` the user did not set and
-    ``derived``; afterwards it is the user's again, so saved kwargs pass SB3's check on ``load(policy_kwargs=...)``."""
+    """Within ``_setup_model``, ``model.policy_kwargs`` adds unset ``defaults`` and ``derived``; afterwards it is the
+    user's again, so saved kwargs pass SB3's check on ``load(policy_kwargs=...)``."""
     given = model.policy_kwargs
     model.policy_kwargs = {**(defaults or {}), **given, **derived}
     try:

@@ -1,5 +1,5 @@
-"""Saved model files: written whole or not at all, and what a file says about itself before SB3 loads it (which
-algorithm saved it, whether this class can load it). Imports no torch, for the command line."""
+"""Saved model files: written whole or not at all, and which algorithm saved one before SB3 loads it; no torch
+import, for the command line."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ POLICY_OWNERS = {
     "stable_baselines3.td3.policies": "TD3EF",
     "sb3_contrib.tqc.policies": "TQCEF",
 }
-#: Attributes that only the model files of sb3-ef 0.1.0's Ego-Foresight variants hold without an ``algorithm`` entry.
+#: Attributes only the model files of sb3-ef 0.1.0's Ego-Foresight variants hold.
 LEGACY_EF_ATTRIBUTES = ("ef_horizon", "_ef_generator", "ef_learning_rate")
 
 
@@ -38,8 +38,7 @@ def save_model_atomically(
     exclude: Iterable[str] | None = None,
     include: Iterable[str] | None = None,
 ) -> None:
-    """SB3's ``save`` (e.g. ``super().save``) written atomically to :func:`model_zip_path` (a file object is written
-    to directly)."""
+    """SB3's ``save`` (e.g. ``super().save``) written atomically to :func:`model_zip_path`."""
     if not isinstance(path, (str, os.PathLike)):
         save(path, exclude, include)
         return
@@ -51,8 +50,7 @@ def save_model_atomically(
 
 
 def saved_data(path: str | os.PathLike | IO[bytes] | io.BufferedIOBase) -> dict[str, Any] | None:
-    """The JSON ``data`` of a model zip (a path, with or without ``.zip``, or a file object, left at its position),
-    or ``None`` when it cannot be read (SB3's load then reports what is wrong)."""
+    """The JSON ``data`` of a model zip (path or file object), or ``None`` when unreadable (SB3's load reports why)."""
     if isinstance(path, (str, os.PathLike)):
         given = Path(path)
         path = given if given.suffix == ".zip" or given.is_file() else given.with_name(f"{given.name}.zip")
@@ -78,8 +76,7 @@ def saved_algorithm(data: dict[str, Any] | None) -> str | None:
 
 
 def is_legacy(data: dict[str, Any]) -> bool:
-    """Whether ``data`` is that of a file saved by sb3-ef 0.1.0: no ``algorithm`` entry, and an sb3-ef policy class
-    or Ego-Foresight's attributes."""
+    """Whether ``data`` is that of a file saved by sb3-ef 0.1.0 (no ``algorithm`` entry)."""
     if "algorithm" in data:
         return False
     module = (data.get("policy_class") or {}).get("__module__", "")
@@ -87,8 +84,7 @@ def is_legacy(data: dict[str, Any]) -> bool:
 
 
 def check_saved_model(algo_class: type, where: Any, data: dict[str, Any] | None) -> None:
-    """Raise ``ValueError`` saying what to do when ``algo_class`` cannot load the model whose ``data`` was read from
-    ``where``: another algorithm saved it (recorded, or told by its policy class), or sb3-ef 0.1.0 did."""
+    """Raise ``ValueError`` saying what to do when ``algo_class`` cannot load the model whose ``data`` is given."""
     if data is None:
         return
     name = algo_class.__name__

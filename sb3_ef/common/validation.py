@@ -1,5 +1,5 @@
-"""Checks of user input shared by every algorithm and command, naming what was expected and what was received, and
-close-match suggestions for mistyped names; imports no torch at load time (the command line uses it first)."""
+"""Checks of user input shared by every algorithm and command, with close-match suggestions for mistyped names;
+imports no torch at load time (the command line uses it first)."""
 
 from __future__ import annotations
 
@@ -18,8 +18,7 @@ import numpy as np
 
 
 def closest_names(name: str, choices: Iterable[str], count: int = 3, cutoff: float = 0.6) -> list[str]:
-    """Up to ``count`` of ``choices`` that look like ``name`` (a typo's likely meaning), best first; ``cutoff``:
-    the least similarity (difflib's ratio) of a match."""
+    """Up to ``count`` of ``choices`` at least ``cutoff`` similar to ``name`` (difflib's ratio), best first."""
     return difflib.get_close_matches(name, list(choices), n=count, cutoff=cutoff)
 
 
@@ -46,7 +45,7 @@ def _is_int(value: Any) -> bool:
 
 
 def _received(value: Any) -> str:
-    """The value as the message shows it: numbers as they are, anything else with its type (``str '1'``)."""
+    """Numbers as they are, anything else with its type (``str '1'``)."""
     return repr(value) if _is_number(value) else f"{type(value).__name__} {value!r}"
 
 
@@ -127,8 +126,7 @@ def _ent_coef(name: str, value: Any) -> None:
 
 _POSITIVE_INTS = ("buffer_size", "batch_size", "n_steps", "stats_window_size", "ef_horizon", "horizon", "agent_dim")
 _COEFFICIENTS = ("target_noise_clip", "target_policy_noise", "consistency_coef", "reward_coef", "value_coef")
-#: Argument name -> its check, for every algorithm that has the argument. ``None`` is accepted where the
-#: constructor's default is ``None`` (e.g. TD-MPC2's ``gamma``) and for EF's ``beta``/``ef_horizon`` (EF off).
+#: Argument name -> its check; ``None`` passes where the default is ``None`` and for ``beta``/``ef_horizon`` (EF off).
 ARGUMENT_CHECKS: dict[str, Callable[[str, Any], None]] = {
     **dict.fromkeys(_POSITIVE_INTS, _positive_int),
     **dict.fromkeys(("learning_starts", "babbling_steps", "shift_pad"), _non_negative_int),
@@ -158,8 +156,7 @@ def _defaults(algo_class: type) -> dict[str, Any]:
 
 
 def _accepted_arguments(target: Callable[..., Any]) -> set[str] | None:
-    """The keyword arguments of a function, or of a class's ``__init__`` and those it passes ``**kwargs`` on to along
-    the MRO; ``None`` when any name is taken."""
+    """The keyword arguments of a function or class (along the MRO's ``**kwargs``); ``None`` when any name is taken."""
     names: set[str] = set()
     for function in _functions(target):
         parameters = inspect.signature(function).parameters.values()
@@ -176,7 +173,7 @@ EF_ARGUMENTS = ("beta", "ef_horizon", "agent_dim", "ef_kwargs", "babbling_steps"
 
 
 def _check_argument_names(name: str, accepted: set[str] | None, given: Mapping[str, Any]) -> None:
-    """Raise ``TypeError`` naming an argument the class does not take (before the class it forwards to does)."""
+    """Raise ``TypeError`` for an argument the class does not take (before the class it forwards to does)."""
     for key, value in given.items():
         if accepted is None or key in accepted:
             continue
@@ -187,8 +184,7 @@ def _check_argument_names(name: str, accepted: set[str] | None, given: Mapping[s
 
 
 def _check_policy_kwargs(name: str, accepted: set[str] | None, policy: Any, policy_kwargs: Any) -> None:
-    """Raise ``ValueError`` for a ``policy_kwargs`` entry the policy class does not take, saying where it belongs:
-    the algorithm's own argument, the features extractor's (``features_extractor_kwargs``), or a close name."""
+    """Raise ``ValueError`` for a ``policy_kwargs`` entry the policy does not take, saying where it belongs."""
     taken = _accepted_arguments(policy) if isinstance(policy, type) else None
     if taken is None or not isinstance(policy_kwargs, Mapping):
         return
@@ -209,8 +205,7 @@ def _check_policy_kwargs(name: str, accepted: set[str] | None, policy: Any, poli
 
 
 def _check_policy_fits_observations(name: str, policy: Any, env: Any, aliases: Mapping[str, Any]) -> None:
-    """Raise ``ValueError`` for ``"MlpPolicy"`` on image observations of a class that has a ``"CnnPolicy"``: it would
-    flatten the raw pixels into one vector (and an auxiliary loss would split pixels, not features)."""
+    """Raise ``ValueError`` for ``"MlpPolicy"`` on images where a ``"CnnPolicy"`` exists (it flattens raw pixels)."""
     space = getattr(env, "observation_space", None)
     if policy != "MlpPolicy" or "CnnPolicy" not in aliases or space is None:
         return
@@ -224,9 +219,8 @@ def _check_policy_fits_observations(name: str, policy: Any, env: Any, aliases: M
 
 
 def check_algorithm_arguments(algo_class: type, arguments: Mapping[str, Any]) -> None:
-    """Check an sb3-ef algorithm's constructor arguments (``locals()`` first thing in ``__init__``, forwarded
-    ``kwargs`` included): ``TypeError`` for an argument the class does not take, ``ValueError`` for a bad value, policy
-    name or ``policy_kwargs`` entry, or ``"MlpPolicy"`` on images; a warning for CUDA that is not there."""
+    """Check an sb3-ef algorithm's constructor arguments (its ``locals()``, first thing in ``__init__``): names,
+    values, the policy and ``policy_kwargs``, and the device."""
     values = {key: value for key, value in arguments.items() if key not in ("self", "kwargs", "__class__")}
     forwarded = arguments.get("kwargs") or {}
     values.update(forwarded)
@@ -254,8 +248,7 @@ def check_algorithm_arguments(algo_class: type, arguments: Mapping[str, Any]) ->
 def check_keyword_arguments(
     what: str, target: Callable[..., Any], kwargs: Mapping[str, Any], set_by_caller: Iterable[str] = ()
 ) -> None:
-    """Raise ``ValueError`` for a key of ``kwargs`` that ``target`` (a function or class) does not take, or that the
-    caller sets itself (``set_by_caller``), naming ``what`` the keys are for, the close matches and the valid keys."""
+    """Raise ``ValueError`` for a key of ``kwargs`` that ``target`` does not take or the caller sets itself."""
     taken = _accepted_arguments(target)
     if taken is None:
         return
@@ -284,8 +277,7 @@ def check_device(device: Any) -> None:
 
 
 def check_learn(model: Any, total_timesteps: Any, reset_num_timesteps: bool) -> None:
-    """Check ``learn``'s step count; warn when ``learning_starts`` leaves no step to train on; raise when
-    ``model.batch_size`` exceeds its ``buffer_size``."""
+    """Check ``learn``'s step count, ``learning_starts`` against it, and ``batch_size`` against ``buffer_size``."""
     valid = _is_int(total_timesteps) or (_is_number(total_timesteps) and float(total_timesteps).is_integer())
     if not valid or total_timesteps < 0:
         raise ValueError(f"total_timesteps must be a whole number of steps >= 0, got {_received(total_timesteps)}")
@@ -309,8 +301,7 @@ def check_learn(model: Any, total_timesteps: Any, reset_num_timesteps: bool) -> 
 
 
 def check_observation(observation: Any, observation_space: Any) -> None:
-    """Raise ``ValueError`` when ``predict`` gets a non-uint8 array for a uint8 image space (float frames in [0, 1]
-    would be divided by 255 again); the shape is SB3's to check."""
+    """Raise ``ValueError`` for a non-uint8 array given for a uint8 image space (it would be divided by 255 again)."""
     space_dtype = getattr(observation_space, "dtype", None)
     if isinstance(observation, np.ndarray) and space_dtype == np.uint8 and observation.dtype != np.uint8:
         raise ValueError(
@@ -320,8 +311,7 @@ def check_observation(observation: Any, observation_space: Any) -> None:
 
 
 def is_intact(model_path: str | os.PathLike) -> bool:
-    """Whether a model zip can be read: a zip archive whose members pass their CRC checks and that holds SB3's
-    ``data`` (a file cut short by a full disk or a copy fails)."""
+    """Whether a model zip can be read: its members pass their CRC checks and it holds SB3's ``data``."""
     try:
         with zipfile.ZipFile(model_path) as archive:
             return "data" in archive.namelist() and archive.testzip() is None
@@ -330,8 +320,8 @@ def is_intact(model_path: str | os.PathLike) -> bool:
 
 
 def _is_torch_file(path: Path) -> bool:
-    """Whether ``path`` is a ``torch.save`` file: a zip archive whose first member is ``<name>/data.pkl`` (read from
-    the first header, as a cut SB3 zip may end in the central directory of a ``.pth`` zip stored inside it)."""
+    """Whether the first zip member is ``<name>/data.pkl`` (from the first header: a cut SB3 zip may end in a stored
+    ``.pth``'s central directory)."""
     try:
         with open(path, "rb") as file:
             header = file.read(30)
@@ -344,8 +334,7 @@ def _is_torch_file(path: Path) -> bool:
 
 
 def check_model_path(path: Any) -> Path | None:
-    """The model zip ``path`` names (``None`` for a file object); ``FileNotFoundError`` naming the path as given, or
-    ``ValueError`` for a PyTorch file (saying what reads it) or a damaged zip (:func:`is_intact`)."""
+    """The model zip ``path`` names (``None`` for a file object); raises for a missing, PyTorch or damaged file."""
     if not isinstance(path, (str, os.PathLike)):
         return None
     given = Path(path)
