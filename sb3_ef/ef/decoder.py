@@ -15,8 +15,7 @@ SUPPORTED_SIZES_TEXT = "84 or 4 * 2**n with n >= 1 (8, 16, 32, 64, 128, ...)"
 
 
 def decoder_layers(size: int) -> tuple[tuple[int, int, int], ...]:
-    """The (kernel, stride, padding) of each layer from 1x1 to ``size`` x ``size``: the authors' stack for 84, else
-    1 -> 4 then doublings."""
+    """The (kernel, stride, padding) of each layer from 1x1 to ``size`` x ``size``."""
     if size == 84:
         return _LAYERS_84
     doublings = math.log2(size / 4) if size >= 8 else 0.0
@@ -30,8 +29,7 @@ def _output_size(size: int, kernel: int, stride: int, padding: int) -> int:
 
 
 class FrameDecoder(nn.Module):
-    """Transposed convolutions with BatchNorm + LeakyReLU(0.2), a Sigmoid output, no biases, DCGAN init; with
-    ``skip_channels > 0`` every layer after the first also gets the resized encoder map (U-Net style).
+    """DCGAN-style transposed convolutions to a frame in [0, 1], with optional U-Net skips of an encoder map.
 
     :param in_dim: size of the input feature vector.
     :param frame_shape: (channels, size, size) of the decoded frame.

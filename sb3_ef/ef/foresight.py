@@ -94,8 +94,7 @@ class RolloutBlock(nn.Module):
 
 
 class EgoForesight(nn.Module):
-    """Predict the frame k steps ahead from h_scene and h_agent rolled out by the actions, so that the encoder puts
-    what the actions control into h_agent (docs/ef.md).
+    """Predict the frame k steps ahead from h_scene and h_agent rolled out by the actions (docs/ef.md).
 
     :param feature_dim: size of the encoder features h.
     :param action_dim: size of one action.
@@ -211,8 +210,7 @@ class EgoForesight(nn.Module):
         valid: th.Tensor | None = None,
         skip: th.Tensor | None = None,
     ) -> th.Tensor:
-        """Squared error of the frame ``steps`` actions ahead, summed over pixels, averaged over valid samples (0,
-        still differentiable, when none is).
+        """Squared error of the frame ``steps`` actions ahead, summed over pixels, averaged over valid samples.
 
         :param h: (B, feature_dim) features of the context.
         :param future_actions: (B, T, action_dim) actions from the context on, T >= max(steps).
@@ -251,8 +249,7 @@ class EgoForesight(nn.Module):
         valid: th.Tensor | None = None,
         candidates_valid: th.Tensor | None = None,
     ) -> th.Tensor:
-        """Latent EF's loss: the InfoNCE of the head's prediction from ``[h_a at k, h_s]`` against target
-        projections, averaged over valid samples. Other arguments are :meth:`loss`'s.
+        """Latent EF's InfoNCE of the head's prediction against target projections; else as :meth:`loss`.
 
         :param target: (N >= B, projection_dim) target projections: row i < B sample i's at t+k, all rows candidates.
         :param candidates_valid: optional (N,) bool: the candidates inside their episode.
@@ -280,8 +277,7 @@ class EgoForesight(nn.Module):
         valid: th.Tensor | None = None,
         skip: th.Tensor | None = None,
     ) -> th.Tensor:
-        """Latent EF's probe loss: :meth:`loss`'s error with features computed without gradient (only the decoder
-        learns)."""
+        """Latent EF's probe loss: :meth:`loss`'s error, only the decoder learning from it."""
         if self.target != "latent":
             raise ValueError("probe_loss needs an Ego-Foresight built with target='latent' (pixel EF trains its own)")
         batch = h.shape[0]
@@ -330,7 +326,6 @@ class EgoForesight(nn.Module):
         return frames.unflatten(0, (batch, steps))
 
     def _target_to_float(self, target: th.Tensor, batch: int) -> th.Tensor:
-        """Check the target frame's shape and bring it to float in [0, 1]."""
         if tuple(target.shape) != (batch, *self.frame_shape):
             raise ValueError(
                 f"Expected target of shape ({batch}, {', '.join(map(str, self.frame_shape))}), "
@@ -356,8 +351,7 @@ class ForesightTargets(NamedTuple):
 
 
 class ForesightLoss(AuxiliaryLoss):
-    """Ego-Foresight as an auxiliary loss of a host's encoder: ``beta`` times :meth:`EgoForesight.loss` (or
-    ``latent_loss`` against :attr:`target_encoder`'s features), see docs/ef.md.
+    """Ego-Foresight as an auxiliary loss of a host's encoder, weighted by ``beta`` (docs/ef.md).
 
     :param feature_dim: size of the host encoder's features h.
     :param action_dim: size of one action.
@@ -403,8 +397,7 @@ class ForesightLoss(AuxiliaryLoss):
     def prepare(
         self, batch: SequenceReplayBufferSamples, pad: int, generator: th.Generator | None = None
     ) -> tuple[th.Tensor, ForesightTargets | LatentTargets]:
-        """Draw k from ``generator`` (leaving the host's draws unchanged) and shift the observations at t with frame
-        t+k (latent EF: :func:`~sb3_ef.ef.latent.latent_targets`)."""
+        """Draw k from ``generator`` and shift the observations at t together with the targets."""
         steps = self.ef.draw_steps(batch.future_mask, generator=generator)
         rows = th.arange(steps.shape[0], device=steps.device)
         valid = batch.future_mask[rows, steps - 1]

@@ -81,7 +81,6 @@ class EFMixin(AuxiliaryHostMixin):
     def _init_ef(
         self, beta: float, ef_horizon: int, babbling_steps: int, babbling_mode: str, babbling_in_eval: bool
     ) -> None:
-        """Check and keep EF's algorithm-level arguments."""
         check_algorithm_arguments(type(self), {"ef_horizon": ef_horizon, "babbling_steps": babbling_steps})
         plain = next(c for c in type(self).__mro__ if issubclass(c, OffPolicyAlgorithm) and not issubclass(c, EFMixin))
         check_ef_arguments(beta, ef_horizon, babbling_steps, babbling_mode, plain.__name__)
@@ -138,8 +137,7 @@ class EFMixin(AuxiliaryHostMixin):
         encoder: nn.Module,
         encoder_input: tuple[float, float],
     ) -> ForesightLoss:
-        """EF's loss on ``encoder`` (the module the host passes to ``after_update``), with this model's horizon and
-        ``beta``."""
+        """EF's loss on ``encoder`` (the module the host passes to ``after_update``)."""
         action_dim = int(np.prod(self.action_space.shape))  # type: ignore[arg-type]
         return ForesightLoss(
             feature_dim,

@@ -25,7 +25,6 @@ TARGETS = ("pixel", "latent")
 DEFAULT_TARGET_TAU = 0.01
 DEFAULT_PROJECTION_DIM = 256
 DEFAULT_HEAD_HIDDEN_DIM = 512
-#: Temperature of the InfoNCE on cosine similarities.
 DEFAULT_TEMPERATURE = 0.1
 #: Weight of the InfoNCE inside EF's loss, so that latent EF pulls about as hard as pixel EF (docs/ef.md).
 DEFAULT_LOSS_SCALE = 3.0
@@ -241,8 +240,7 @@ def latent_targets(
     pad: int,
     generator: th.Generator | None = None,
 ) -> tuple[th.Tensor, LatentTargets]:
-    """Latent EF's part of ``ForesightLoss.prepare``: the shifted observations at t and the targets, each shifted on
-    its own so that no candidate shares the anchor's shift."""
+    """Latent EF's ``ForesightLoss.prepare``: each target shifted on its own, none sharing the anchor's shift."""
     future = [stacked_observations_at(batch.observations, batch.future_frames, steps)]
     others = draw_other_steps(batch.future_mask, steps, horizon, generator)
     negatives_valid = None

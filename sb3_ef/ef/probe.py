@@ -24,8 +24,7 @@ def probe_step(
     valid: th.Tensor | None = None,
     skip: th.Tensor | None = None,
 ) -> th.Tensor:
-    """One step of ``optimizer`` (over ``ef.decoder`` only) on the probe loss, counted in ``ef.probe_steps``; returns
-    the detached loss. No ``.grad`` is left behind, so the host's optimisers, which hold the decoder too, see none."""
+    """One probe step of ``optimizer`` (``ef.decoder`` only), leaving no ``.grad`` for the host's optimisers."""
     parameters = list(ef.decoder.parameters())
     owned = {id(p) for p in parameters}
     stepped = [p for group in optimizer.param_groups for p in group["params"]]
@@ -50,8 +49,7 @@ def fit_probe(
     seed: int = 0,
     replay_buffer: Any = None,
 ) -> list[float]:
-    """Train the probe decoder of ``model.ef`` (latent EF) on its replay buffer; returns the losses. Only the decoder
-    moves: the model's weights, optimisers, random streams and training batches are left as they were.
+    """Train the probe decoder of ``model.ef`` on its replay buffer, leaving the rest of the model as it was.
 
     :param model: a trained EF host built with ``ef_kwargs=dict(target="latent")``.
     :param steps: probe updates.
@@ -116,8 +114,7 @@ def latent_window_losses(
     steps: th.Tensor,
     pad: int = 0,
 ) -> tuple[th.Tensor, th.Tensor]:
-    """Latent EF's loss and its probe's loss on a batch of full windows (offline pretraining): what
-    ``ForesightLoss`` computes for a host, k' and the shifts drawn from the global generator.
+    """Latent EF's loss and its probe's loss on a batch of full windows (offline pretraining).
 
     :param features: ``(h, skip)`` of uint8 stacked observations (the offline model's ``features``).
     :param frames: (B, H, 3, h, w) frames t+1 .. t+H; ``steps``: (B,) k; ``pad``: random shift, 0: none.

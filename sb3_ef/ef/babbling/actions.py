@@ -16,8 +16,7 @@ def check_babbling(babbling_steps: int, mode: str) -> None:
 
 
 def babble(rng: np.random.Generator, shape: tuple[int, ...], mode: str = "sign") -> np.ndarray:
-    """Float32 babbling actions in [-1, 1]: ``"sign"`` draws +-1 (the paper), ``"clamped_uniform"`` uniform(-4, 4)
-    clamped (the authors' code)."""
+    """Float32 babbling actions in [-1, 1]: ``"sign"`` +-1, ``"clamped_uniform"`` uniform(-4, 4) clamped."""
     if mode == "sign":
         return np.where(rng.random(shape) < 0.5, -1.0, 1.0).astype(np.float32)
     return np.clip(rng.uniform(-4.0, 4.0, shape), -1.0, 1.0).astype(np.float32)

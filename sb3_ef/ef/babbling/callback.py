@@ -294,8 +294,7 @@ class MotorBabblingCallback(BaseCallback):
         return (actions if vectorized else actions[0]), state
 
     def _install(self) -> None:
-        """Take the model's actions over for this ``learn`` (docs/ef.md, "How the callback takes the actions over");
-        a takeover left by a ``learn`` that raised is removed first."""
+        """Take the model's actions over for this ``learn`` (docs/ef.md, "How the callback takes the actions over")."""
         model = self.model
         if isinstance(model, ActionOverrideMixin):
             owner = model.action_override

@@ -71,8 +71,7 @@ def record_held_out_windows(
 def foresight_error_ratio(
     model: Any, windows: HeldOutWindows, agent_pixels: bool = True, batch_size: int = 16
 ) -> float:
-    """EF's open-loop prediction error on ``windows`` over that of copying the newest context frame, per pixel (the
-    agent's when ``agent_pixels`` and masks are given), averaged over k = 1..H."""
+    """EF's open-loop error on ``windows`` over that of copying the last frame (agent pixels if ``agent_pixels``)."""
     horizon = windows.actions.shape[1]
     sums = np.zeros((3, horizon))  # model error, copy error, pixels, per k
     policy = model.policy
