@@ -36,8 +36,7 @@ _ACTION_EPS = 1e-6
 
 
 class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
-    """DrQ-v2 (Yarats et al., 2021) with SB3's interface; a subclass's auxiliary loss (``_build_auxiliary``) is
-    added to the critic's loss and optimiser. See docs/drqv2.md.
+    """DrQ-v2 (Yarats et al., 2021) with SB3's interface; an auxiliary loss joins the critic's (docs/drqv2.md).
 
     :param policy: the policy (``"CnnPolicy"``) or its class.
     :param env: the environment (uint8 stacked RGB frames, Box actions) or its registered id.
@@ -257,8 +256,7 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
 
 
 class DrQv2EF(EFMixin, DrQv2):
-    """:class:`DrQv2` whose encoder is also trained by ``beta * ef_loss`` (Ego-Foresight, see docs/ef.md); the
-    other arguments are :class:`DrQv2`'s.
+    """:class:`DrQv2` whose encoder is also trained by Ego-Foresight (docs/ef.md); other arguments as :class:`DrQv2`.
 
     :param beta: weight of the Ego-Foresight loss (to train without EF, use :class:`DrQv2`).
     :param ef_horizon: Ego-Foresight prediction horizon H (the rollout length k is drawn in [1, H]).

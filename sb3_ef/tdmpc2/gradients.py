@@ -1,5 +1,4 @@
-"""TD-MPC2's gradient clipping, with an auxiliary loss on the encoder: the host's gradient gets the reference's one
-global clip over the world model, the auxiliary loss's gradient is clipped on its own, and the two are added."""
+"""TD-MPC2's gradient clipping, with an auxiliary loss's gradient clipped on its own (docs/tdmpc2.md)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""TD-MPC2 numerics: symlog/symexp, two-hot discrete regression, and the reference's heuristics (discount, seed
-steps, planning iterations)."""
+"""TD-MPC2 numerics: symlog/symexp, two-hot discrete regression and the reference's heuristics."""
 
 from __future__ import annotations
 

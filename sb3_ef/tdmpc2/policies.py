@@ -57,8 +57,7 @@ _DRQV2_ARGUMENTS = {
 
 
 class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
-    """World model, planner and ``auxiliary``: ``optimizer`` trains the world model and auxiliary, ``pi_optimizer``
-    the policy prior; ``predict``'s state is the MPPI warm start (see docs/tdmpc2.md).
+    """World model, planner and ``auxiliary``; ``predict``'s state is the MPPI warm start (docs/tdmpc2.md).
 
     :param observation_space: uint8 Box (3 * frame_stack, 64, 64).
     :param action_space: Box in [-1, 1].

@@ -34,8 +34,7 @@ from sb3_ef.tdmpc2.world_model import WorldModel
 
 
 class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
-    """TD-MPC2 (Hansen et al., ICLR 2024) for pixels with SB3's interface; a subclass's auxiliary loss reads the
-    first latent and is clipped on its own. See docs/tdmpc2.md.
+    """TD-MPC2 (Hansen et al., ICLR 2024) for pixels with SB3's interface and an auxiliary loss hook (docs/tdmpc2.md).
 
     :param policy: ``"CnnPolicy"`` or a :class:`TDMPC2Policy` (sub)class.
     :param env: the environment (uint8 stacked 64x64 RGB frames, Box actions) or its id.

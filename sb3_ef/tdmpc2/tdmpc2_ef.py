@@ -18,8 +18,7 @@ from sb3_ef.tdmpc2.tdmpc2 import TDMPC2
 
 
 class TDMPC2EF(EFMixin, TDMPC2):
-    """:class:`TDMPC2` whose world model is also trained by ``beta * L_ef`` on the first latent (see docs/tdmpc2.md);
-    the other arguments are :class:`TDMPC2`'s.
+    """:class:`TDMPC2` also trained by Ego-Foresight on the first latent (docs/tdmpc2.md); other arguments as TDMPC2's.
 
     :param beta: weight of the Ego-Foresight loss (to train without EF, use :class:`TDMPC2`).
     :param ef_horizon: Ego-Foresight prediction horizon H (the rollout length k is drawn in [1, H]).
