@@ -98,8 +98,7 @@ class EpisodeRings:
         return np.stack(masks)
 
     def place(self, obs: np.ndarray, next_obs: np.ndarray, done: np.ndarray) -> Placement:
-        """Book one checked step of every env. An ``obs`` that does not continue the env's episode starts a new one
-        (its k frames written first); the previous one stays cut, which bootstraps like a time limit."""
+        """Book one checked step of every env; an ``obs`` that does not continue the episode starts a new one."""
         frame_rows: list[int] = []
         frames: list[np.ndarray] = []
         cleared: list[np.ndarray] = []

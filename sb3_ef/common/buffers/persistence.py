@@ -1,7 +1,5 @@
 """Pickling a sequence buffer as one flat dict of NumPy fields, loadable on any machine (docs/buffer.md).
-
-A pickle with ``_terminals`` (no ``_dones``/``_timeouts``) loads with dones = terminations, no timeouts, no masks.
-"""
+A pickle with ``_terminals`` (no ``_dones``/``_timeouts``) loads with dones = terminations, no timeouts, no masks."""
 
 from __future__ import annotations
 

@@ -17,8 +17,7 @@ _SEED_SALT = 0x5EB3EF  # keeps the buffer's stream apart from torch's own stream
 
 
 class SequenceReplayBufferSamples(NamedTuple):
-    """One batch: an n-step RL transition plus the window that starts at the same step; ``masks``: the agent masks
-    ``(batch, frame_stack, height, width)`` of the observation's frames when the buffer stores them."""
+    """One batch: n-step RL transitions plus the windows that start at the same steps (docs/buffer.md)."""
 
     observations: th.Tensor
     actions: th.Tensor
@@ -135,7 +134,6 @@ class BatchSampler:
         return self._finish(gathered, device, env)
 
     def _transfers_to_gpu(self, device: th.device) -> bool:
-        """Host batches are copied to a CUDA training device."""
         return self.storage.device.type == "cpu" and device.type == "cuda"
 
     def _prefetching(self, device: th.device) -> bool:

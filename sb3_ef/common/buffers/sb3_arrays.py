@@ -12,8 +12,7 @@ from sb3_ef.common.buffers.storage import FrameStorage
 
 
 def sb3_rows(rings: EpisodeRings, pos: int) -> np.ndarray:
-    """``(capacity, n_envs)`` storage row of each SB3 row (the zero row where no step is stored): an env's ``j``-th
-    newest stored step is the one of SB3 row ``pos - 1 - j``."""
+    """``(capacity, n_envs)`` storage row of each SB3 row (the zero row where no step is stored)."""
     capacity, zero_row = rings.capacity, rings.n_envs * rings.capacity
     rows = np.full((capacity, rings.n_envs), zero_row, dtype=np.int64)
     for env in range(rings.n_envs):
@@ -75,8 +74,7 @@ class StackedFrameView:
 
 
 def step_array_property(name: str) -> Any:
-    """A buffer property: SB3's float32 array ``name`` (``actions``, ``rewards``, ``dones``, ``timeouts``), a read-only
-    copy."""
+    """A buffer property: a read-only copy of SB3's float32 array ``name``."""
 
     def array(buffer: Any) -> np.ndarray:
         storage, rows = buffer._storage, buffer._sb3_rows()

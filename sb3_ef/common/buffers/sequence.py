@@ -196,8 +196,7 @@ class SequenceReplayBuffer(ReplayBuffer):
         done: np.ndarray,
         infos: list[dict[str, Any]],
     ) -> None:
-        """Store one step of every env, as SB3's ``_store_transition`` calls it (``next_obs``: the terminal
-        observation at an episode's end). A refused call stores nothing."""
+        """Store one step of every env, as SB3's ``_store_transition`` calls it; a refused call stores nothing."""
         expected_shape = (self.n_envs, *self.obs_shape)
         obs, next_obs = np.asarray(obs), np.asarray(next_obs)
         for name, array in (("obs", obs), ("next_obs", next_obs)):
@@ -233,8 +232,7 @@ class SequenceReplayBuffer(ReplayBuffer):
     def sample(  # type: ignore[override]  # SB3's ReplayBufferSamples, a NamedTuple, cannot be extended
         self, batch_size: int, env: VecNormalize | None = None
     ) -> SequenceReplayBufferSamples:
-        """Draw ``batch_size`` transitions uniformly (with replacement). A batch's frame tensors are reused after
-        the second next ``sample()`` call: clone what you keep longer."""
+        """Draw ``batch_size`` transitions uniformly; frame tensors are reused two calls later (docs/buffer.md)."""
         if self._rings.n_transitions == 0:
             raise ValueError("SequenceReplayBuffer.sample expects a buffer with at least one transition, got none")
         if batch_size < 1:
