@@ -1,5 +1,4 @@
-"""Where runs execute: a local process pool, or a Ray cluster (the optional ``ray`` extra). ``execute`` yields
-``("start" | "retry" | "finish", spec, None | error | result)``; leaving it early stops the runs in flight."""
+"""Where runs execute: a local process pool, or a Ray cluster (the optional ``ray`` extra)."""
 
 from __future__ import annotations
 
@@ -18,6 +17,7 @@ from sb3_ef.grid.grid import RunSpec
 from sb3_ef.grid.local_worker import call_in_worker, set_up_worker, sigint_held_for_workers
 from sb3_ef.grid.run import RunOptions, RunPaths, RunResult, execute_run, store_result
 
+#: What ``execute`` yields: ``("start" | "retry" | "finish", spec, None | error | result)``; leaving early stops runs.
 Event = tuple[str, RunSpec, Any]
 
 #: Seconds the driver waits for a stopped local worker to end before it kills it.

@@ -16,7 +16,6 @@ from sb3_ef import registry
 from sb3_ef.common.validation import did_you_mean
 from sb3_ef.zoo import config as zoo_config
 
-#: Top-level keys of a grid file.
 FILE_KEYS = frozenset({"grids", "anchors"})
 #: Keys of a grid block (those every block must give: REQUIRED_BLOCK_KEYS) and of an algorithm's mapping.
 BLOCK_KEYS = frozenset(

@@ -17,7 +17,6 @@ from sb3_ef.common.validation import did_you_mean
 PAPER_ALGORITHMS = registry.keys(paper=True, rl_zoo3=True)
 #: Algorithm keys this package registers in rl-zoo3.
 ZOO_ALGORITHMS = registry.keys(rl_zoo3=True)
-#: Algorithm keys with a zoo config: every key of the registry.
 BENCHMARK_ALGORITHMS = tuple(registry.ALGORITHMS)
 
 #: Keys rl-zoo3's ExperimentManager consumes before the remaining ones reach the algorithm constructor.

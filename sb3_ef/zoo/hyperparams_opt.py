@@ -104,7 +104,6 @@ sample_drqv2_params = _sampler(_suggest_drqv2, None)
 sample_tdmpc2_ef_params = _sampler(_suggest_tdmpc2, [0, 625, 1_250, 2_500], _tdmpc2_feature_dim)
 sample_tdmpc2_params = _sampler(_suggest_tdmpc2, None)
 
-#: The samplers the registry names (``sb3_ef.registry``), by algorithm key.
 SAMPLERS: dict[str, Callable[..., Params]] = {
     entry.key: import_target(entry.sampler) for entry in registry.ALGORITHMS.values() if entry.sampler is not None
 }

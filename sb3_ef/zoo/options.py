@@ -85,7 +85,6 @@ SB3_EF_TRAIN_OPTIONS: tuple[Option, ...] = (
     Option(("--keep-checkpoints",), "int", help="how many of the newest --save-freq checkpoints are kept (default 2)"),
 )
 
-#: rl-zoo3's ``enjoy`` options.
 ENJOY_OPTIONS: tuple[Option, ...] = (
     *_COMMON,
     Option(("--env",)),
@@ -227,7 +226,6 @@ def check_enjoy_argv(argv: Sequence[str]) -> argparse.Namespace:
 
 
 def _dest(option: Option) -> str:
-    """The option's argparse ``dest``, from its ``--name``."""
     return next(name for name in option.names if name.startswith("--"))[2:].replace("-", "_")
 
 

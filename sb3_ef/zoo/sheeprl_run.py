@@ -25,7 +25,6 @@ TRAIN_SUPPORTED = frozenset(
      "--device", "--hyperparams", "--env-kwargs", "--conf-file", "--num-threads", "--verbose", "--gym-packages",
      "--resume", "--keep-checkpoints"}
 )  # fmt: skip
-#: The enjoy options these runs take.
 ENJOY_SUPPORTED = frozenset(
     {"--algo", "--env", "--folder", "--exp-id", "--n-timesteps", "--deterministic", "--seed", "--device",
      "--env-kwargs", "--no-render", "--num-threads", "--verbose", "--gym-packages"}
