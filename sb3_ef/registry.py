@@ -1,5 +1,5 @@
-"""The algorithm registry: each key the workbench knows mapped to its class and what the workbench does with it, named
-by ``"module:attribute"`` and imported on first use. A new algorithm is one entry here, a zoo config and its package."""
+"""The algorithm registry: each key mapped to its class (imported on first use) and what the workbench does with it.
+A new algorithm is one entry here, a zoo config and its package."""
 
 from __future__ import annotations
 

@@ -17,7 +17,6 @@ from sb3_ef.analysis._optional import require
 if TYPE_CHECKING:
     import pandas as pd
 
-#: The file rl-zoo3's EvalCallback writes into a run folder.
 EVALUATIONS_FILE = "evaluations.npz"
 #: ``<env>_<n>``, with the ``_<uuid>`` that rl-zoo3's ``--uuid`` appends.
 RUN_FOLDER = re.compile(r"^(?P<env>.+)_(?P<run>\d+)(?:_[0-9a-f]{8}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{12})?$")

@@ -1,5 +1,4 @@
-"""The Fabric callback sheeprl calls at its checkpoint steps: evaluate (a CSV row), write the checkpoint, then name
-it in ``latest.json``, in that order, so a run resumed after a kill never misses nor repeats a row."""
+"""The Fabric callback sheeprl calls at its checkpoints: evaluate, write, name it in ``latest.json`` (in that order)."""
 
 from __future__ import annotations
 

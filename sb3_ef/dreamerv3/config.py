@@ -13,7 +13,6 @@ from sb3_ef.common.validation import did_you_mean
 SHEEPRL_VERSION = "0.8.4"
 #: sheeprl's Dreamer-v3 model presets (``sheeprl/configs/algo/dreamer_v3_<size>.yaml``).
 MODEL_SIZES = ("XS", "S", "M", "L", "XL")
-#: The key of the frames in sheeprl's observation dictionaries.
 FRAME_KEY = "rgb"
 #: Keys (and the sections below them) that the run sets itself, with the argument that sets them instead.
 SESSION_KEYS = {

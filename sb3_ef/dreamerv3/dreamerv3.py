@@ -178,7 +178,6 @@ class DreamerV3:
         return self
 
     def _take_weights(self, state: dict[str, Any]) -> None:
-        """Act with sheeprl's newest weights from now on."""
         self._state, self._player = state, None
 
     def _check_frames(self, frame_size: tuple[int, ...], given_by: str) -> None:
