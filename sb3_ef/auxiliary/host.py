@@ -40,8 +40,7 @@ def aux_grad_ratio_due(n_updates: int, every: int = AUX_GRAD_RATIO_EVERY) -> boo
 def encoder_gradient_ratio(
     auxiliary_loss: th.Tensor, host_loss: th.Tensor, parameters: Iterable[nn.Parameter]
 ) -> th.Tensor:
-    """``||d aux / d encoder|| / ||d host / d encoder||`` for a host that adds the auxiliary loss to its own (two
-    extra backward passes, graphs kept); a detached scalar."""
+    """``||d aux / d encoder|| / ||d host / d encoder||`` by two extra backward passes, graphs kept; detached."""
     params = [param for param in parameters if param.requires_grad]
     norms = [
         _norm(th.autograd.grad(loss, params, retain_graph=True, allow_unused=True), loss.device)
@@ -101,16 +100,14 @@ class AuxiliaryHostMixin(ActionOverrideMixin):
         raise NotImplementedError(f"{type(self).__name__} does not say which optimiser trains its auxiliary loss")
 
     def _use_sequence_buffer(self, why: str, horizon: int, **defaults: Any) -> None:
-        """Make SB3's ``_setup_model`` build a :class:`SequenceReplayBuffer` of ``horizon`` steps (``defaults`` unless
-        ``replay_buffer_kwargs`` sets them); ``why`` is the error message for another buffer class."""
+        """Make SB3 build a :class:`SequenceReplayBuffer`; ``why`` is the error message for another buffer class."""
         check_sequence_buffer(self.replay_buffer_class, why)
         if self.replay_buffer_class is None:
             self.replay_buffer_class = SequenceReplayBuffer
         self.replay_buffer_kwargs = {**defaults, **self.replay_buffer_kwargs, "horizon": horizon}
 
     def _setup_model(self) -> None:
-        """SB3's ``_setup_model`` (without its ``n_steps`` warning: the buffer takes them), the auxiliary loss and
-        the generator unless it was loaded."""
+        """SB3's ``_setup_model`` (its ``n_steps`` warning silenced: the buffer takes them), then the auxiliary loss."""
         self.algorithm = type(self).__name__
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message=r"`n_steps=\d+` is ignored because a custom")
@@ -144,8 +141,7 @@ class AuxiliaryHostMixin(ActionOverrideMixin):
         return self.policy.encode(observations.to(self.device))
 
     def _augment_observations(self, batch: SequenceReplayBufferSamples, pad: int) -> tuple[th.Tensor, Any]:
-        """The observations at t as the host encodes them (shifted by ``pad``, or by the loss's ``prepare``) and the
-        auxiliary loss's targets (``None`` without one)."""
+        """The observations at t as the host encodes them, and the auxiliary loss's targets (``None`` without one)."""
         if self.auxiliary is None:
             (observations,) = random_shift(batch.observations, pad=pad)
             return observations, None
@@ -160,8 +156,7 @@ class AuxiliaryHostMixin(ActionOverrideMixin):
                 raise ValueError(f"{name} is {loss.item()} at update {self._n_updates}")
 
     def _train_round(self, gradient_steps: int, batch_size: int, optimizers: Iterable[th.optim.Optimizer]) -> None:
-        """A ``train`` round: the learning rate (times each group's ``lr_scale``), ``gradient_steps`` of ``_update``
-        and their logs."""
+        """A ``train`` round: the learning rate (times each group's ``lr_scale``), the updates and their logs."""
         self.policy.set_training_mode(True)
         learning_rate = self.lr_schedule(self._current_progress_remaining)  # type: ignore[attr-defined]
         self.logger.record("train/learning_rate", learning_rate)
@@ -234,8 +229,7 @@ class AuxiliaryHostMixin(ActionOverrideMixin):
         force_reset: bool = True,
         **kwargs: Any,
     ) -> SelfHost:
-        """SB3's ``load``, refusing a missing or damaged file, or one this class cannot load, with what to do instead
-        (:func:`~sb3_ef.common.saved_models.check_saved_model`)."""
+        """SB3's ``load``, refusing a missing, damaged or foreign file with what to do instead."""
         check_model_path(path)
         data = saved_data(path)
         check_saved_model(cls, path, data)

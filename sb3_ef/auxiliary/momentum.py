@@ -21,8 +21,7 @@ def momentum_copy(module: nn.Module) -> nn.Module:
 
 
 def momentum_update(online: nn.Module, copied: nn.Module, tau: float, what: str = "module") -> None:
-    """``copied <- (1 - tau) copied + tau online`` for each parameter, matched by name; ``online``'s buffers are
-    copied, as SB3 does for its targets.
+    """``copied <- (1 - tau) copied + tau online`` for each parameter by name; buffers copied, as SB3 does.
 
     :param what: the module's name in the error raised when ``copied`` was not copied from a module like ``online``.
     """

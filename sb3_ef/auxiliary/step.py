@@ -19,8 +19,7 @@ from sb3_ef.common.validation import check_algorithm_arguments
 
 
 class AuxiliaryStepMixin(AuxiliaryHostMixin):
-    """Trains the auxiliary loss a subclass builds on the critic's ``features_extractor`` of an SB3 off-policy
-    algorithm, mixed in before it (``class SACEF(..., SAC)``). Other arguments are the host's.
+    """Trains an auxiliary loss on the critic encoder of the SB3 algorithm it precedes; other arguments the host's.
 
     :param shift_pad: random shift (pixels) of the auxiliary step's batch (none with a ShiftedSequenceReplayBuffer).
     :param auxiliary_learning_rate: learning rate of the auxiliary step's Adam (``None``: the host's).
@@ -75,7 +74,6 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
 
     @property
     def auxiliary(self) -> AuxiliaryLoss | None:
-        """``auxiliary_module``, or ``None``."""
         return self.auxiliary_module
 
     def _optimise_auxiliary(self, auxiliary: AuxiliaryLoss) -> None:
@@ -113,8 +111,7 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
         self._record_updates(updates)
 
     def _read_host_gradients(self, first: int, host_norms: dict[int, th.Tensor]) -> Any:
-        """A step pre-hook on the critic's optimiser storing the encoder-gradient norm by update number, for
-        ``aux_grad_ratio``; ``None`` when that optimiser does not step the encoder."""
+        """Hook the critic optimiser to keep its encoder-gradient norm; ``None`` when it does not step the encoder."""
         encoder = list(self.critic.features_extractor.parameters())
         held = {id(param) for group in self.critic.optimizer.param_groups for param in group["params"]}
         if not all(id(param) in held for param in encoder):
@@ -131,8 +128,7 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
     def _auxiliary_step(
         self, batch: SequenceReplayBufferSamples, host_norm: th.Tensor | None = None
     ) -> dict[str, th.Tensor]:
-        """One step on the critic's encoder and the auxiliary module; returns the detached logs (with
-        ``aux_grad_ratio`` when given ``host_norm``)."""
+        """One step on the critic's encoder and the auxiliary module; returns the detached logs."""
         assert self.auxiliary is not None
         pad = 0 if isinstance(self.replay_buffer, ShiftedSequenceReplayBuffer) else self.shift_pad  # type: ignore[attr-defined]
         observations, targets = self._augment_observations(batch, pad=pad)

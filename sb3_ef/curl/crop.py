@@ -18,8 +18,7 @@ def check_crop_size(crop_size: object, height: int, width: int, who: str) -> int
 
 
 def random_crops(images: th.Tensor, size: int, generator: th.Generator | None = None) -> th.Tensor:
-    """A random ``size`` x ``size`` window of each (batch, channels, height, width) image, the corner in
-    ``0 .. frame - size - 1`` as the authors' ``np.random.randint`` draws it; frames of the crop's size come whole."""
+    """A random ``size`` x ``size`` window of each image, the corner drawn as the authors' ``np.random.randint``."""
     if images.dim() != 4:
         raise ValueError(f"CURL crops (batch, channels, height, width) frames, got shape {tuple(images.shape)}")
     _, _, height, width = images.shape

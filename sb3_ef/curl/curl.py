@@ -46,8 +46,7 @@ def _curl_policy_kwargs(policy_kwargs: dict[str, Any] | None, crop_size: int, fe
 
 
 class CURL(AuxiliaryStepMixin, SAC):
-    """CURL (Laskin et al., ICML 2020), updated as the authors' ``CurlSacAgent.update`` with their defaults; the
-    update, optimisers and defaults are in docs/curl.md. Other keyword arguments are SAC's.
+    """CURL (Laskin et al., ICML 2020), the authors' ``CurlSacAgent.update`` (docs/curl.md); other arguments SAC's.
 
     :param crop_size: side of the random crops, at most the frame size.
     :param encoder_tau: momentum of the critic target's encoder (CURL's key encoder).
@@ -176,7 +175,6 @@ class CURL(AuxiliaryStepMixin, SAC):
         )
 
     def _temperature(self) -> th.Tensor:
-        """alpha, detached."""
         if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
             return self.log_ent_coef.detach().exp()
         return self.ent_coef_tensor
@@ -257,7 +255,6 @@ class CURL(AuxiliaryStepMixin, SAC):
 
     @classmethod
     def _completed_policy_kwargs(cls, policy_kwargs: dict[str, Any], data: dict[str, Any]) -> dict[str, Any]:
-        """The constructor's ``policy_kwargs`` as the saved model records them."""
         completed = _curl_policy_kwargs(policy_kwargs, data.get("crop_size", 84), data.get("features_dim", 50))
         completed.setdefault("use_sde", False)
         return super()._completed_policy_kwargs(completed, data)

@@ -31,8 +31,7 @@ def weight_init(module: nn.Module) -> None:
 
 
 class CURLEncoder(BaseFeaturesExtractor):
-    """CURL's encoder: ``obs / 255``, 3x3 ReLU convolutions, Linear and LayerNorm (see docs/curl.md). Larger inputs
-    are centre-cropped to ``crop_size``; it scales images itself (``normalize_images=False``).
+    """CURL's encoder (docs/curl.md, "Networks"); it centre-crops larger inputs and scales images itself.
 
     :param observation_space: uint8 Box of stacked frames (3 * frame_stack, height, width).
     :param features_dim: size of the features (CURL's ``encoder_feature_dim``).
@@ -76,8 +75,7 @@ class CURLEncoder(BaseFeaturesExtractor):
         self.detach_convolutions = False
 
     def share_convolutions(self, source: CURLEncoder) -> None:
-        """Tie to ``source``'s convolutions, detached here: the authors' actor encoder (``copy_conv_weights_from``,
-        ``detach_encoder=True``)."""
+        """Tie to ``source``'s convolutions, detached here, as the authors' actor encoder."""
         if not isinstance(source, CURLEncoder) or source.crop_size != self.crop_size:
             raise ValueError(f"CURLEncoder shares the convolutions of a CURLEncoder of the same crop, got {source!r}")
         if [p.shape for p in source.convnet.parameters()] != [p.shape for p in self.convnet.parameters()]:

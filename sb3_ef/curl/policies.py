@@ -16,8 +16,7 @@ from sb3_ef.curl.encoder import CURLEncoder, weight_init
 
 
 class CURLActor(Actor):
-    """SB3's SAC actor with the authors' tanh-mapped log-std and initialisation (mean and log-std layers the two
-    halves of one orthogonal layer). Other arguments are SB3's ``Actor``'s.
+    """SB3's SAC actor with the authors' tanh-mapped log-std and initialisation; other arguments SB3's ``Actor``'s.
 
     :param log_std_min: lowest log-std (the authors' ``actor_log_std_min``).
     :param log_std_max: highest log-std (the authors' ``actor_log_std_max``).
@@ -62,8 +61,7 @@ class CURLActor(Actor):
 
 
 class CURLPolicy(SACPolicy):
-    """SB3's ``SACPolicy`` with the authors' CURL networks, the actor's convolutions tied to the critic's and left
-    out of the actor's optimiser. Other arguments are ``SACPolicy``'s (``share_features_extractor`` stays False).
+    """SB3's ``SACPolicy`` with the authors' CURL networks; other arguments ``SACPolicy``'s.
 
     :param log_std_min: see :class:`CURLActor`.
     :param log_std_max: see :class:`CURLActor`.

@@ -27,8 +27,7 @@ def _encoder_sizes(size: int) -> tuple[int, int]:
 
 
 class SEARDecoder(nn.Module):
-    """Linear + ReLU to (16, p_h, p_w), then transposed convolutions to (out_channels, height, width), no output
-    activation (SEAR's loss clamps the frame and takes the mask's sigmoid).
+    """Linear + ReLU to a pooled map, then transposed convolutions to a full-size image, with no output activation.
 
     :param in_dim: size of the latent half the decoder reads.
     :param out_channels: channels of the decoded image (3 x frame stack for frames, frame stack for masks).

@@ -44,8 +44,7 @@ def check_agent_masks(env: VecEnv) -> None:
 
 
 class SEAR(DrQv2):
-    """SEAR (Gmelin et al., ICML 2023): :class:`DrQv2` whose encoder also learns :class:`SEARLoss`'s frame and
-    agent-mask reconstruction; the env must render agent masks. Other keyword arguments are :class:`DrQv2`'s.
+    """SEAR (Gmelin et al., ICML 2023): :class:`DrQv2` with :class:`SEARLoss`; other arguments are :class:`DrQv2`'s.
 
     :param buffer_size: replay buffer capacity in transitions (SEAR's).
     :param replay_buffer_kwargs: extra buffer arguments, as :class:`DrQv2`'s (``store_masks`` is set here).
