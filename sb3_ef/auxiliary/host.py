@@ -1,5 +1,4 @@
-"""What every sb3-ef host algorithm shares: the host side of the auxiliary-loss interface (:class:`AuxiliaryHostMixin`,
-see docs/architecture.md, "Auxiliary losses") and the ``train/aux_grad_ratio`` diagnostic."""
+"""The host side of the auxiliary-loss interface, shared by every host, and the ``aux_grad_ratio`` diagnostic."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""CURL's contrastive loss (Laskin et al., ICML 2020): bilinear InfoNCE between two random crops of each
-observation, the positive crop through a momentum key encoder (see docs/curl.md)."""
+"""CURL's contrastive loss: bilinear InfoNCE between two random crops of each observation (docs/curl.md)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""Ego-Foresight: the module (agent/scene split, rollout, frame or feature prediction), the rollout-length rule, and
-EF as a host's auxiliary loss (:class:`ForesightLoss`); see docs/ef.md."""
+"""Ego-Foresight: the module, the rollout-length rule, and EF as a host's auxiliary loss (docs/ef.md)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""What makes a host an Ego-Foresight variant: :class:`EFMixin` (``class DrQv2EF(EFMixin, DrQv2)``) adds EF's
-arguments, its loss and motor babbling."""
+"""What makes a host an Ego-Foresight variant: :class:`EFMixin` adds EF's arguments, its loss and motor babbling."""
 
 from __future__ import annotations
 
@@ -58,8 +57,7 @@ class EFPolicyMixin:
 
 
 class EFMixin(AuxiliaryHostMixin):
-    """Mixed in before a plain host to make its Ego-Foresight variant: EF's arguments, the EF window in the replay
-    buffer, the horizon check and EF's loss."""
+    """Mixed in before a plain host to make its Ego-Foresight variant: ``class DrQv2EF(EFMixin, DrQv2)``."""
 
     ef_horizon: int
     _beta: float

@@ -1,5 +1,4 @@
-"""The probe decoder of latent Ego-Foresight: frames decoded from frozen features, so that saliency can say whether
-``h_a`` carries the agent (docs/ef.md, "Checking that h_a carries the agent")."""
+"""Latent Ego-Foresight's probe decoder: frames from frozen features, to check that ``h_a`` carries the agent."""
 
 from __future__ import annotations
 

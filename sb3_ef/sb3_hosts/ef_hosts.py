@@ -1,5 +1,4 @@
-"""SAC-EF, TD3-EF and TQC-EF: SB3's algorithms, unchanged, plus Ego-Foresight on the critic's encoder as a step of
-its own after each update (docs/ef.md gives the choice)."""
+"""SAC-EF, TD3-EF and TQC-EF: SB3's algorithms, unchanged, plus Ego-Foresight as a step of its own (docs/ef.md)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""SEAR's auxiliary losses (Gmelin et al., ICML 2023): the halves of the encoder's latent decoded to the frames and
-to their agent masks (docs/sear.md, "The update")."""
+"""SEAR's auxiliary losses: the latent's halves decoded to the frames and their agent masks (docs/sear.md)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""The motor babbling callback: random actions at the start of training, its state saved with the model
-(docs/ef.md, "Motor babbling")."""
+"""The motor babbling callback, its state saved with the model (docs/ef.md, "Motor babbling")."""
 
 from __future__ import annotations
 

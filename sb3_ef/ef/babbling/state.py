@@ -36,8 +36,7 @@ class Plateau:
 
 @dataclass
 class BabblingState:
-    """What a resumed run needs to continue babbling exactly: the generators of the rollout, ``predict`` and the
-    held-out episodes, the end (``"steps"``, ``"plateau"`` or ``"max_steps"``) and adaptive babbling's scores."""
+    """What a resumed run needs to continue babbling exactly: generators, end (``end_reason``) and scores."""
 
     rng: np.random.Generator
     eval_rng: np.random.Generator
