@@ -1,5 +1,5 @@
-"""Ego-Foresight without RL: robot-video datasets, offline pretraining, open-loop prediction and warm starts. Public
-names are imported on first use (the CLI checks its arguments before torch loads); see docs/offline.md."""
+"""Ego-Foresight without RL: robot-video datasets, offline pretraining, open-loop prediction and warm starts (names
+imported on first use, so the CLI checks its arguments before torch loads); see docs/offline.md."""
 
 from __future__ import annotations
 

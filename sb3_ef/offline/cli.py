@@ -1,5 +1,4 @@
-"""``sb3-ef collect``, ``sb3-ef pretrain`` and ``sb3-ef predict``: offline Ego-Foresight from the command line
-(see docs/offline.md)."""
+"""``sb3-ef collect``, ``pretrain`` and ``predict``: offline Ego-Foresight from the command line (docs/offline.md)."""
 
 from __future__ import annotations
 

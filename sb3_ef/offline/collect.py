@@ -1,5 +1,4 @@
-"""Record episodes of an sb3-ef env (motor babbling, or a saved DrQv2EF / TDMPC2EF policy) with agent masks, as files
-or a LeRobot dataset; episode ``i`` is seeded ``seed + i`` alone, so a rerun records only what is missing."""
+"""Record episodes of an sb3-ef env (babbling or a saved policy) with agent masks; see docs/offline.md."""
 
 from __future__ import annotations
 
@@ -105,8 +104,7 @@ def collect(
     progress_bar: bool = True,
     **env_kwargs: Any,
 ) -> list[str]:
-    """Write ``episodes`` files ``episode_00000.<npz|h5>`` to ``out_dir`` (their paths returned), or a LeRobot
-    dataset (``[out_dir]``); a rerun records what is missing or damaged. See docs/offline.md.
+    """Record ``episodes`` into ``out_dir`` and return the files (or ``[out_dir]`` for LeRobot); reruns resume.
 
     :param env_name: ``dmc/<domain>-<task>``, ``metaworld/<task>`` or another registered sb3-ef env.
     :param mode: babbling mode when no ``policy`` is given (``"sign"`` as in the paper, or ``"clamped_uniform"``).

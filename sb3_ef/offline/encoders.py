@@ -1,5 +1,4 @@
-"""Image encoders for offline Ego-Foresight: DrQ-v2's and TD-MPC2's (reused, so weights move into an RL agent) and
-the paper's BAIR DCGAN U-Net; each returns ``(h, skip)`` for uint8 stacked frames (``skip`` ``None`` without)."""
+"""Image encoders for offline EF (DrQ-v2's, TD-MPC2's, the BAIR DCGAN U-Net), each returning ``(h, skip)``."""
 
 from __future__ import annotations
 
@@ -14,13 +13,11 @@ from sb3_ef.drqv2.policies import DrQv2Encoder
 from sb3_ef.tdmpc2.world_model import FRAME_SIZE, WorldModel
 
 ENCODERS = ("dcgan-unet", "drqv2", "tdmpc2")
-#: Frame size of the DCGAN U-Net encoder (the BAIR model's).
 DCGAN_FRAME_SIZE = 64
 
 
 class DCGANUNetEncoder(nn.Module):
-    """The BAIR model's DCGAN encoder for 64x64 frames; block ``skip_block``'s output (None: none) is the U-Net skip
-    map EF's decoder takes, carrying the scene's detail so that ``h`` can leave it out."""
+    """The BAIR model's DCGAN encoder for 64x64 frames; block ``skip_block`` gives the U-Net skip (scene detail)."""
 
     def __init__(self, in_channels: int, features_dim: int = 128, width: int = 32, skip_block: int | None = 1):
         super().__init__()

@@ -1,5 +1,4 @@
-"""One episode of robot video with actions (``frames`` uint8 (T + 1, 3, H, W), frame ``t`` seen before action ``t``;
-``actions`` float32 (T, A); optional agent ``masks`` bool (T + 1, H, W)), its checks, and the folder format."""
+"""One episode of robot video with actions (the contract in docs/offline.md), its checks, and the folder format."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""Held-out scores of an offline EF model next to the baseline that copies the last context frame: frame and agent
-errors per step ahead, and the h_a saliency's precision against the agent mask (see docs/offline.md)."""
+"""Held-out scores of an offline EF model next to the copy-the-last-frame baseline (see docs/offline.md)."""
 
 from __future__ import annotations
 

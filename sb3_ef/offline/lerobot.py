@@ -1,5 +1,4 @@
-"""LeRobot datasets (v3.0 and v2.x) read with pyarrow and PyAV, without the ``lerobot`` package and its
-dependencies; frame ``i`` of an episode is the video frame at ``from_timestamp + timestamp[i]``."""
+"""LeRobot datasets (v3.0 and v2.x) read with pyarrow and PyAV, without the ``lerobot`` package and its dependencies."""
 
 from __future__ import annotations
 

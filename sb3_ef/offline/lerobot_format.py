@@ -1,5 +1,4 @@
-"""The LeRobot dataset layout shared by the reader (:mod:`sb3_ef.offline.lerobot`) and the writer
-(:mod:`sb3_ef.offline.lerobot_writer`): paths, column names and the optional packages that read them."""
+"""The LeRobot dataset layout the reader and writer share: paths, column names and the packages that read them."""
 
 from __future__ import annotations
 

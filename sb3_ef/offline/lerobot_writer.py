@@ -1,5 +1,5 @@
-"""Episodes written as a LeRobot v3.0 dataset folder with pyarrow and PyAV; every file is renamed into place once
-complete, ``meta/info.json`` last, so the folder is always a dataset that ``append=True`` continues."""
+"""Episodes written as a LeRobot v3.0 dataset folder that is always one ``append=True`` continues (files renamed
+into place once complete, ``meta/info.json`` last)."""
 
 from __future__ import annotations
 
@@ -93,8 +93,7 @@ class _Segment:
 
 
 class LeRobotWriter:
-    """Writes episodes as a LeRobot v3.0 dataset folder; row ``t`` holds frame ``t`` and action ``t`` (the last
-    frame's action is zeros). See docs/offline.md.
+    """Writes episodes as a LeRobot v3.0 dataset folder (the last frame's action is zeros); see docs/offline.md.
 
     :param root: a new or empty folder; with ``append=True`` also a dataset this writer wrote, continued.
     :param codec: ``"libsvtav1"`` (AV1, LeRobot's default), ``"libx264"`` or ``"libx264rgb"`` (lossless).
@@ -340,7 +339,6 @@ class LeRobotWriter:
 
 
 def _file_number(row: dict[str, Any], camera: str) -> int:
-    """The sequence number of the data or video file an episode row points to."""
     data = row["data/chunk_index"] * CHUNKS_SIZE + row["data/file_index"]
     video = row[f"videos/{camera}/chunk_index"] * CHUNKS_SIZE + row[f"videos/{camera}/file_index"]
     return max(data, video)

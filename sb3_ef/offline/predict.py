@@ -1,5 +1,4 @@
-"""Open-loop predictions of a pretrained model for any action sequence (dataset actions or the paper's hand-made
-figure-eight "infinity" trajectory), written as an image grid and a GIF / MP4 next to the true frames."""
+"""Open-loop predictions of a pretrained model for dataset actions or the paper's figure-eight, as images and video."""
 
 from __future__ import annotations
 
@@ -21,7 +20,6 @@ from sb3_ef.offline.model import OfflineEF
 
 ACTION_SOURCES = ("dataset", "figure8")
 ROW_LABELS = ("context", "prediction", "truth")
-#: Width in pixels of the label column of ``prediction.png``.
 LABEL_WIDTH = 64
 
 
@@ -42,8 +40,7 @@ def labelled_grid(rows: list[np.ndarray], labels: list[str], spacing: int = 2) -
 
 @th.no_grad()
 def predict_frames(model: OfflineEF, context: np.ndarray, actions: np.ndarray) -> np.ndarray:
-    """The frames, uint8 (T, H, W, 3), after each of ``actions`` (T, action_dim) from uint8 ``context`` frames
-    (context, 3, H, W), oldest first; T may exceed the training horizon."""
+    """The uint8 (T, H, W, 3) frames after each of ``actions`` from ``context`` frames; T may exceed the horizon."""
     config = model.config
     context = np.asarray(context)
     expected = (config.context, *config.frame_shape)
@@ -69,8 +66,7 @@ def predict_episode(
     steps: int | None = None,
     video: str = "gif",
 ) -> dict[str, str]:
-    """Predict from the context ending at frame ``start`` of ``episode`` and write ``prediction.png`` (context,
-    prediction, truth) and ``prediction.gif`` / ``.mp4``.
+    """Predict from the context ending at frame ``start`` and write ``prediction.png`` and ``.gif`` / ``.mp4``.
 
     :param actions: ``"dataset"`` (the episode's own, true frames shown) or ``"figure8"`` (the paper's probe).
     :param steps: frames to predict (default: the horizon; with dataset actions at most to the episode's end).

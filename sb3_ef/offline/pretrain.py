@@ -1,5 +1,4 @@
-"""Offline pretraining of an encoder + Ego-Foresight on (frames, actions) episodes (the paper's BAIR experiment),
-with held-out scores, TensorBoard and resumable checkpoints: see docs/offline.md."""
+"""Offline pretraining of an encoder + Ego-Foresight on (frames, actions) episodes: see docs/offline.md."""
 
 from __future__ import annotations
 
@@ -151,7 +150,6 @@ def pretrain(
 
 
 def _check_settings(values: dict[str, Any]) -> None:
-    """Refuse settings that cannot train, all problems in one message."""
     rules: dict[str, tuple[str, int | None]] = {
         "learning_rate": ("a number > 0", None),
         "cache_mb": ("a number > 0", None),
@@ -240,7 +238,7 @@ def _normalised(value: Any) -> Any:
 
 
 def _train(run: _Run, batches: Iterator[Windows], start: int, show_progress: bool) -> None:
-    """Updates ``start`` .. ``run.steps``: logging, evaluations and checkpoints; Ctrl-C saves a checkpoint."""
+    """Updates ``start`` .. ``run.steps`` with logging, evaluations and checkpoints (one saved on Ctrl-C)."""
     model, done = run.model, start
     bar = make_progress_bar(run.steps, "pretrain", "step", show_progress, initial=start)
     model.train()
@@ -270,7 +268,6 @@ def _train(run: _Run, batches: Iterator[Windows], start: int, show_progress: boo
 
 
 def _update(run: _Run, batch: Windows) -> float:
-    """One gradient step of the EF loss on a batch of windows; returns the loss."""
     model, device = run.model, run.device
     batch = _to(batch, device)
     batch_size, horizon = batch.actions.shape[:2]

@@ -67,8 +67,7 @@ class FolderDataset(EpisodeDataset):
 
 
 class MinariDataset(EpisodeDataset):
-    """Episodes of a local Minari dataset of image observations (``observation_key`` of dict ones: default
-    ``"pixels"`` or ``"image"``); agent masks from infos' ``mask_key``."""
+    """Episodes of a local Minari dataset of image observations; agent masks from infos' ``mask_key``."""
 
     def __init__(
         self, dataset_id: str, observation_key: str | None = None, mask_key: str = "agent_mask", min_frames: int = 2
@@ -122,8 +121,7 @@ def _channels_first(images: np.ndarray, source: str) -> np.ndarray:
 
 
 class BAIRDataset(ExampleShards):
-    """BAIR robot pushing (``softmotion30_44k``) TFRecord files or a folder of them, an Example per episode;
-    ``camera``: ``"image_aux1"`` (the 64x64 view) or ``"image_main"``."""
+    """BAIR robot pushing (``softmotion30_44k``) TFRecords; ``camera``: ``"image_aux1"`` (64x64) or ``"image_main"``."""
 
     def __init__(
         self,

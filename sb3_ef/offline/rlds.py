@@ -1,5 +1,4 @@
-"""RLDS / TFDS episode shards (Open X-Embodiment) read without TensorFlow: one Example per episode, its steps
-stacked under ``/``-joined names (``steps/observation/image``, ``steps/action``); see docs/offline.md."""
+"""RLDS / TFDS episode shards (Open X-Embodiment) read without TensorFlow; see docs/offline.md."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""Training windows from datasets larger than memory, drawn from a pool of decoded episodes that is partly replaced
-before each batch so that every window keeps the same long-run rate (see docs/offline.md)."""
+"""Training windows from datasets larger than memory, through a pool of decoded episodes (see docs/offline.md)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""TFRecord files (read and written) and ``tf.train.Example`` records (read) without TensorFlow, and
-:class:`ExampleShards`, episodes of one Example per record."""
+"""TFRecord files and ``tf.train.Example`` records without TensorFlow, and :class:`ExampleShards` of episodes."""
 
 from __future__ import annotations
 
@@ -52,7 +51,6 @@ def _fastest_crc32c() -> tuple[Callable[[bytes], int], str]:
         return python_crc32c, "python"
 
 
-#: CRC-32C (Castagnoli) of some bytes, and the name of the implementation that computes it.
 crc32c, CRC32C_IMPLEMENTATION = _fastest_crc32c()
 
 

@@ -29,7 +29,6 @@ def _host_encoder(policy: nn.Module) -> tuple[str, nn.Module]:
 
 
 def _mismatches(source: nn.Module, target: nn.Module) -> list[str]:
-    """Parameters and buffers whose names or shapes differ between two modules."""
     source_state, target_state = source.state_dict(), target.state_dict()
     problems = [f"{key}: missing in the RL model" for key in source_state if key not in target_state]
     problems += [f"{key}: missing in the pretrained model" for key in target_state if key not in source_state]
@@ -42,8 +41,7 @@ def _mismatches(source: nn.Module, target: nn.Module) -> list[str]:
 
 
 def load_ef(model: Any, pretrained: str | os.PathLike | OfflineEF) -> Any:
-    """Copy a pretrained encoder and ``EgoForesight`` (weights only) into a DrQv2EF / TDMPC2EF of the same
-    architecture: see docs/offline.md's warm-starting section.
+    """Copy a pretrained encoder and ``EgoForesight`` into a DrQv2EF / TDMPC2EF of the same architecture.
 
     :param model: a DrQv2EF or TDMPC2EF (``model.policy`` holds the networks).
     :param pretrained: a ``model.pt`` / ``checkpoint.pt`` written by ``pretrain``, or an :class:`OfflineEF`.
