@@ -1,5 +1,4 @@
-"""Pixel environments (DMC, Meta-World, Distracting Control) with frame stacking, action repeat and agent masks;
-MuJoCo, dm-control and metaworld are imported by ``make_env``, after the OpenGL backend is chosen."""
+"""Pixel environments (DMC, Meta-World, Distracting Control); ``make_env`` imports MuJoCo once a backend is chosen."""
 
 from sb3_ef.envs.factory import MAX_SIZE, MIN_SIZE, make_env
 from sb3_ef.envs.tasks import (

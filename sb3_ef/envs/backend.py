@@ -1,5 +1,4 @@
-"""Choice of MuJoCo's headless OpenGL backend (``MUJOCO_GL``, read once when MuJoCo is imported), each candidate
-tried in a subprocess (a failed OpenGL initialisation can abort the process that tries it)."""
+"""Choice of MuJoCo's headless OpenGL backend, each candidate tried in a subprocess (a failure can abort it)."""
 
 from __future__ import annotations
 

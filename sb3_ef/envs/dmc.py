@@ -1,5 +1,4 @@
-"""DeepMind Control Suite tasks from pixels: shimmy's gymnasium wrapper of dm-control for the dynamics, sb3-ef's
-renderer for the frames; dm-control's time limit is lifted so that ``episode_length`` decides truncation."""
+"""DeepMind Control Suite tasks from pixels: shimmy's dm-control wrapper for the dynamics, sb3-ef's renderer."""
 
 from __future__ import annotations
 
@@ -31,8 +30,7 @@ DEFAULT_CAMERAS: dict[str, int] = {"quadruped": 2}
 
 
 class DMCPixelEnv(PixelEnv):
-    """A dm-control suite task (:data:`~sb3_ef.envs.tasks.DMC_TASKS`) with pixel observations; the arguments are
-    :func:`~sb3_ef.envs.factory.make_env`'s."""
+    """A dm-control suite task with pixel observations; the arguments are :func:`~sb3_ef.envs.factory.make_env`'s."""
 
     def __init__(self, task: str, camera: int | str | None = None, seed: int | None = None, **options: Any) -> None:
         domain, suite_task = DMC_TASKS[task]

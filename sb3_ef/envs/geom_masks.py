@@ -1,5 +1,4 @@
-"""Pixel masks of named parts of a MuJoCo scene (a tool, a door, a distractor) next to the agent's mask: a part's
-geoms plus every geom of each named body's subtree, where one of them is the front-most surface."""
+"""Pixel masks of named parts of a MuJoCo scene (a tool, a door: geoms and body subtrees) next to the agent's."""
 
 from __future__ import annotations
 
@@ -11,7 +10,6 @@ import numpy as np
 
 from sb3_ef.envs.agent_geoms import agent_geoms
 
-#: The name under which :class:`PartMasks` returns the agent's own mask.
 AGENT = "agent"
 
 
@@ -57,8 +55,7 @@ def part_mask(geom_ids: np.ndarray, selection: np.ndarray) -> np.ndarray:
 
 
 class PartMasks:
-    """Masks of the agent and of named ``parts`` (name -> ``{"bodies": [...], "geoms": [...]}``) of a PixelEnv's
-    scene, all from one segmentation render."""
+    """Masks of the agent and of ``parts`` (name -> ``{"bodies": [...], "geoms": [...]}``) from one render."""
 
     def __init__(self, env: Any, parts: Mapping[str, Mapping[str, Sequence[str]]]):
         if AGENT in parts:

@@ -1,5 +1,4 @@
-"""Meta-World (metaworld 3.x, ``-v3`` tasks) from pixels, single-task as in the paper: one task variant drawn from
-the env's seed; see docs/envs.md (``repeat_discount`` and ``authors_gamma``: the EF authors' protocol)."""
+"""Meta-World (metaworld 3.x, ``-v3`` tasks) from pixels, single-task as in the paper; see docs/envs.md."""
 
 from __future__ import annotations
 
@@ -26,8 +25,7 @@ def authors_gamma(action_repeat: int = 2, discount: float = AUTHORS_DISCOUNT) ->
 
 
 class MetaWorldPixelEnv(PixelEnv):
-    """A Meta-World task (:data:`~sb3_ef.envs.tasks.METAWORLD_TASKS`) with pixel observations; the other arguments
-    are :func:`~sb3_ef.envs.factory.make_env`'s (``seed`` also draws the task variant).
+    """A Meta-World task with pixel observations; the other arguments are :func:`~sb3_ef.envs.factory.make_env`'s.
 
     :param resample_task: draw a new task variant at every reset instead of keeping the seed's one.
     :param repeat_discount: the reward of an agent step is ``r1 + repeat_discount * r2 + ...`` (1: summed).

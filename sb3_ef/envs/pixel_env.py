@@ -1,5 +1,4 @@
-"""Base class of the pixel environments; a suite subclass owns the simulator and implements ``_physics``,
-``_reset_sim`` and ``_step_sim``."""
+"""Base class of the pixel environments; a suite subclass owns the simulator and implements three hooks."""
 
 from __future__ import annotations
 
@@ -16,13 +15,11 @@ from gymnasium.utils import seeding
 from sb3_ef.envs.agent_geoms import agent_geoms
 from sb3_ef.envs.renderer import FrameRenderer
 
-#: Info key of the agent masks in reset and step infos (``make_env(..., agent_masks=True)``).
 AGENT_MASKS_INFO_KEY = "agent_masks"
 
 
 class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
-    """Pixel observations of a MuJoCo simulation with action repeat, frame stack and time limit (semantics in
-    docs/envs.md); subclasses call :meth:`_setup` once their simulator exists."""
+    """Pixel observations of a MuJoCo simulation (docs/envs.md); subclasses call :meth:`_setup` once it exists."""
 
     metadata: dict[str, Any] = {"render_modes": ["rgb_array"]}
     #: Infos carry each frame's agent mask: reset's ``(frame_stack, size, size)``, step's ``(frame_stack + 1, ...)``

@@ -1,5 +1,4 @@
-"""Gymnasium registration (no MuJoCo import) of every :data:`~sb3_ef.envs.tasks.ENV_NAMES` name as ``<name>-v0``
-(``gym.make("dmc/cartpole-swingup-v0", size=64)``) and of the toy world as ``toy/agent-v0``."""
+"""Gymnasium registration (no MuJoCo import) of every env name as ``<name>-v0`` and of the toy world."""
 
 import gymnasium as gym
 

@@ -1,5 +1,5 @@
-"""Square RGB and segmentation frames from one MuJoCo camera, through ``mujoco.Renderer`` for every suite (scene
-flags for fast rendering; gymnasium's segmentation crashes under numpy 2). Import after ``ensure_gl_backend``."""
+"""Square RGB and segmentation frames from one MuJoCo camera through ``mujoco.Renderer``; import after
+``ensure_gl_backend``."""
 
 from __future__ import annotations
 
@@ -30,8 +30,7 @@ def _close_live_renderers() -> None:
 
 
 def _close_renderers_at_exit() -> None:
-    """(Re-)register the exit hook as the newest, so that (``atexit`` being LIFO) it frees the contexts before any
-    ``eglTerminate`` registered so far."""
+    """Re-register the exit hook as the newest, so that it runs before any ``eglTerminate`` (``atexit`` is LIFO)."""
     atexit.unregister(_close_live_renderers)
     atexit.register(_close_live_renderers)
 

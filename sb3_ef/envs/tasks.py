@@ -1,5 +1,4 @@
-"""Task names of the pixel environments, ``<suite>/<task>[-v0]`` (``dmc/cartpole-swingup``, ``metaworld/door-open``;
-DMC's underscores written as hyphens), and their parsing; no MuJoCo import."""
+"""Task names of the pixel environments, ``<suite>/<task>[-v0]``, and their parsing; no MuJoCo import."""
 
 from __future__ import annotations
 

@@ -17,8 +17,7 @@ AGENT_MASKS_INFO_KEY = "agent_masks"
 
 
 class ToyAgentEnv(gym.Env):
-    """A MuJoCo-free test world: a red square moved by ``speed * action`` pixels per step, a green distractor on a
-    random walk and a blue wall; reward: minus the agent's distance to the centre. Observations as PixelEnv's.
+    """A MuJoCo-free test world: a red agent square, a green random-walk distractor, a blue wall; reward: centring.
 
     :param size: frame height and width in pixels.
     :param frame_stack: number of stacked frames.

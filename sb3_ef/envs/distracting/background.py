@@ -12,8 +12,7 @@ from sb3_ef.envs.renderer import FrameRenderer
 
 
 class BackgroundDistraction:
-    """Shows frames of DAVIS videos on every face of the skybox (no geom: agent masks never see it) and gives the
-    floor's ``grid`` material ``ground_alpha``.
+    """Shows DAVIS video frames on the skybox (no geom: agent masks never see it) and a ``ground_alpha`` floor.
 
     :param videos: folders of JPEG frames (:func:`~sb3_ef.envs.distracting.davis.video_folders`).
     :param texture_side: side of the sky's face in texels, at most (and by default) the model's; smaller uploads faster.

@@ -1,5 +1,4 @@
-"""Camera distraction: the rendering camera moved and rolled within the suite's ranges, per episode and per step
-(docs/envs.md); the pose is written to ``data.cam_xpos`` / ``cam_xmat``, so agent masks see the moved camera too."""
+"""Camera distraction: the camera moved and rolled within the suite's ranges (docs/envs.md), agent masks included."""
 
 from __future__ import annotations
 
@@ -73,7 +72,7 @@ class CameraDistraction:
         self.camera = camera
         self.settings = settings
         self._tracking = mode == mujoco.mjtCamLight.mjCAMLIGHT_TRACKCOM
-        # The episode's ranges and state, set by reset(): spherical bounds and position, Cartesian velocity.
+        # Set by reset(): spherical bounds and position, Cartesian velocity.
         self._low, self._high, self._sphere = np.zeros(3), np.zeros(3), np.zeros(3)
         self._velocity, self._target = np.zeros(3), np.zeros(3)
         self._roll = self._roll_velocity = self._velocity_scale = 0.0

@@ -9,8 +9,7 @@ from sb3_ef.envs.distracting.settings import ColorSettings
 
 
 class ColorDistraction:
-    """Each material's RGB uniform within ``max_delta`` of its own at reset and, when dynamic, a Gaussian step of
-    ``step_std`` per simulator step."""
+    """Each material's RGB within ``max_delta`` of its own at reset, moving by ``step_std`` per step when dynamic."""
 
     def __init__(self, model: mujoco.MjModel, settings: ColorSettings) -> None:
         original = model.mat_rgba[:, :3].copy()

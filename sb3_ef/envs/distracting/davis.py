@@ -1,5 +1,4 @@
-"""DAVIS 2017 videos for the background distraction: the suite's train / val lists, folder checks, frame loading
-(see docs/envs.md "The DAVIS videos")."""
+"""DAVIS 2017 videos for the background distraction: video lists, folder checks, frame loading (docs/envs.md)."""
 
 from __future__ import annotations
 
@@ -31,10 +30,8 @@ DAVIS_VALIDATION_VIDEOS: tuple[str, ...] = (
     "paragliding-launch", "parkour", "pigs", "scooter-black", "shooting", "soapbox",
 )  # fmt: skip
 
-#: Names accepted for ``background_videos`` besides a list of video names.
 VIDEO_LISTS: dict[str, tuple[str, ...]] = {"train": DAVIS_TRAIN_VIDEOS, "val": DAVIS_VALIDATION_VIDEOS}
 
-#: Environment variable read when ``background_dir`` is not given.
 DAVIS_DIR_VARIABLE = "SB3_EF_DAVIS_DIR"
 
 DAVIS_DOWNLOAD_HINT = (
@@ -128,8 +125,7 @@ def _frame_error(path: Path, error: OSError) -> ValueError:
 
 
 def check_frames(folders: Sequence[Path]) -> None:
-    """Decode every frame of ``folders`` (at an eighth of its size) so that a damaged one is named when the env is
-    made; unchanged folders that decoded before are skipped."""
+    """Decode every frame of ``folders`` (small), so that a damaged one is named when the env is made."""
     for folder in folders:
         files = frame_files(folder)
         signature = tuple((path.name, path.stat().st_size, path.stat().st_mtime_ns) for path in files)

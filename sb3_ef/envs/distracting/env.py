@@ -1,5 +1,4 @@
-"""Distracting Control Suite tasks (Stone et al., 2021): DMC pixel envs whose background, colours and camera change
-after each reset and simulator step, drawn from a generator seeded at every reset from ``np_random``."""
+"""Distracting Control Suite tasks: DMC pixel envs whose background, colours and camera change (docs/envs.md)."""
 
 from __future__ import annotations
 
@@ -38,8 +37,7 @@ class Distraction(Protocol):
 
 
 class DistractingDMCPixelEnv(DMCPixelEnv):
-    """A Distracting Control task (:data:`~sb3_ef.envs.tasks.DISTRACTING_TASKS`); the other arguments are
-    :class:`~sb3_ef.envs.dmc.DMCPixelEnv`'s. See docs/envs.md "Distracting Control".
+    """A Distracting Control task; the other arguments are :class:`~sb3_ef.envs.dmc.DMCPixelEnv`'s.
 
     :param distraction: ``"background"``, ``"camera"``, ``"color"`` or a list of them (default: all three).
     :param difficulty: ``"easy"``, ``"medium"`` or ``"hard"`` (ranges scaled by 0.1, 0.2, 0.3).

@@ -1,5 +1,4 @@
-"""The Distracting Control Suite's settings, the numbers of its reference code (``suite_utils.py``): see docs/envs.md
-"What each distraction does". No MuJoCo import: ``make_env`` checks these options first."""
+"""The Distracting Control Suite's settings, the numbers of its reference code (docs/envs.md); no MuJoCo import."""
 
 from __future__ import annotations
 
@@ -33,8 +32,7 @@ class ColorSettings:
 
 @dataclass(frozen=True)
 class CameraSettings:
-    """Camera distraction ranges (radians, fractions of the distance, units per step at distance 4);
-    ``upper_quadrant`` keeps the camera above the ground on the front side, without roll."""
+    """Camera distraction ranges; ``upper_quadrant`` keeps the camera above the ground on the front, without roll."""
 
     horizontal_delta: float
     vertical_delta: float
