@@ -1,5 +1,4 @@
-"""sb3-ef: Ego-Foresight for Stable-Baselines3. Public names are imported lazily, so that ``import sb3_ef`` stays
-cheap (no MuJoCo) and registers the pixel environments with gymnasium."""
+"""sb3-ef: Ego-Foresight for Stable-Baselines3 (names imported lazily; importing registers the pixel envs)."""
 
 from __future__ import annotations
 

@@ -10,8 +10,7 @@ from torch import nn
 
 @contextmanager
 def running_stats_kept(module: nn.Module) -> Iterator[None]:
-    """Within the block, ``module``'s batch-norm layers keep their running statistics: for forwards that are not the
-    host's own (an auxiliary loss on a shared encoder)."""
+    """Within the block, ``module``'s batch-norm layers keep their running statistics (for auxiliary forwards)."""
     layers = [
         layer
         for layer in module.modules()

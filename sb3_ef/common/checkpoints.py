@@ -1,6 +1,5 @@
-"""Resumable checkpoints (model zip written last, replay buffer, random states), each file written atomically,
-saved between two iterations of ``learn`` so that a resumed run repeats the uninterrupted one at episode
-boundaries (see docs/zoo.md)."""
+"""Resumable checkpoints (model, replay buffer, random states) with which a resumed run repeats the uninterrupted
+one at episode boundaries (see docs/zoo.md)."""
 
 from __future__ import annotations
 
@@ -27,7 +26,6 @@ from sb3_ef.common.validation import is_intact
 
 ModelType = TypeVar("ModelType", bound=BaseAlgorithm)
 
-#: Version of the random-state file's layout.
 RNG_FORMAT = 1
 
 
@@ -51,7 +49,6 @@ def _paths(folder: str | os.PathLike, name_prefix: str, step: int) -> tuple[Path
 
 
 def _checkpoint_step(file_name: str, name_prefix: str) -> int | None:
-    """The step of a ``<prefix>_<step>_steps.zip`` file name, else ``None``."""
     match = re.fullmatch(rf"{re.escape(name_prefix)}_(\d+)_steps\.zip", file_name)
     return None if match is None else int(match.group(1))
 

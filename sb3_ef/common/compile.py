@@ -1,5 +1,4 @@
-"""The algorithms' ``compile`` option, ``torch.compile`` of an update's parts: ``False`` (eager), ``True``, a mode
-name or a dict of ``torch.compile`` arguments."""
+"""The algorithms' ``compile`` option: ``False``, ``True``, a mode name or a dict of ``torch.compile`` arguments."""
 
 from __future__ import annotations
 

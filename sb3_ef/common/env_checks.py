@@ -1,5 +1,4 @@
-"""What the algorithms check about their env and replay buffer: stacked RGB frames, Box actions, a sequence buffer,
-and the episode length the env announces."""
+"""What the algorithms check about their env and replay buffer."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""Evaluations reseeded from the run's seed and the agent step, so a resumed run records the same curve as the
-uninterrupted one."""
+"""Evaluations reseeded from the run's seed and the step, so a resumed run records the uninterrupted curve."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""Action selection: of algorithms that explore their own way (DrQ-v2's scheduled noise, TD-MPC2's planner), and
-the hook through which motor babbling takes the actions over."""
+"""Action selection of algorithms that explore their own way, and the hook motor babbling takes actions over by."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""Files written whole or not at all: to a temporary file beside the target, flushed and renamed over it, so a full
-disk, a kill or Ctrl-C leaves the previous file, never a cut one."""
+"""Files written whole or not at all: a temporary file beside the target, flushed and renamed over it."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""Ctrl-C: a command saves its work and raises :class:`Interrupted` saying what was kept, which ``sb3-ef`` prints on
-one line before exiting with :data:`INTERRUPTED_STATUS`; :func:`sigint_deferred` keeps Ctrl-C out of atomic steps."""
+"""Ctrl-C: a command saves its work and raises :class:`Interrupted`; :func:`sigint_deferred` keeps it out of a block."""
 
 from __future__ import annotations
 
@@ -52,8 +51,7 @@ def _deliver(handler: Any) -> None:
 
 @contextmanager
 def progress_bar_callback(callback: MaybeCallback, progress_bar: bool) -> Iterator[MaybeCallback]:
-    """``callback`` with SB3's progress bar added when ``progress_bar``, closed however the block ends (one left open
-    prints a second traceback at exit)."""
+    """``callback`` with SB3's progress bar added when ``progress_bar``, closed however the block ends."""
     if not progress_bar:
         yield callback
         return

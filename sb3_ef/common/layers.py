@@ -45,8 +45,7 @@ def mlp(
     output_activation: nn.Module | None = None,
     dropout: float = 0.0,
 ) -> nn.Sequential:
-    """An MLP of :class:`NormedLinear` blocks and a plain (or ``output_activation``-normed) output layer;
-    ``dropout`` on the first hidden layer only, as in TD-MPC2's Q heads."""
+    """An MLP of :class:`NormedLinear` blocks; ``dropout`` on the first hidden layer only, as in TD-MPC2's Q heads."""
     dims = [in_dim, *hidden_dims]
     layers: list[nn.Module] = [
         NormedLinear(dims[i], dims[i + 1], dropout=dropout if i == 0 else 0.0) for i in range(len(dims) - 1)

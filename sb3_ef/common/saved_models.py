@@ -1,5 +1,4 @@
-"""Saved model files: written whole or not at all, and which algorithm saved one before SB3 loads it; no torch
-import, for the command line."""
+"""Saved model files: written atomically, and which algorithm saved one (no torch import, for the command line)."""
 
 from __future__ import annotations
 

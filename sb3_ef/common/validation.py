@@ -1,5 +1,4 @@
-"""Checks of user input shared by every algorithm and command, with close-match suggestions for mistyped names;
-imports no torch at load time (the command line uses it first)."""
+"""Checks of user input shared by every algorithm and command; no torch import at load time (for the CLI)."""
 
 from __future__ import annotations
 
@@ -219,8 +218,7 @@ def _check_policy_fits_observations(name: str, policy: Any, env: Any, aliases: M
 
 
 def check_algorithm_arguments(algo_class: type, arguments: Mapping[str, Any]) -> None:
-    """Check an sb3-ef algorithm's constructor arguments (its ``locals()``, first thing in ``__init__``): names,
-    values, the policy and ``policy_kwargs``, and the device."""
+    """Check an sb3-ef algorithm's constructor arguments (its ``locals()``, first thing in ``__init__``)."""
     values = {key: value for key, value in arguments.items() if key not in ("self", "kwargs", "__class__")}
     forwarded = arguments.get("kwargs") or {}
     values.update(forwarded)
