@@ -6,7 +6,7 @@ import os
 import zipfile
 import zlib
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -128,16 +128,17 @@ def episode_file_shapes(path: str, source: str) -> tuple[tuple[int, ...], tuple[
 def _open_episode_file(path: str, source: str) -> Iterator[Any]:
     """The open ``.npz`` or HDF5 file holding ``frames`` and ``actions``."""
     try:
-        if path.endswith(NPZ_SUFFIXES):
-            with open(path, "rb") as handle:
+        with ExitStack() as stack:  # the handle is closed even when numpy cannot read the archive
+            if path.endswith(NPZ_SUFFIXES):
+                handle = stack.enter_context(open(path, "rb"))
                 if handle.read(6) == b"\x93NUMPY":
                     raise EpisodeError(f"{source}: a single .npy array, not an .npz archive of 'frames' and 'actions'")
-            file = np.load(path, allow_pickle=False)
-        else:
-            import h5py
+                handle.seek(0)
+                file = stack.enter_context(np.load(handle, allow_pickle=False))
+            else:
+                import h5py
 
-            file = h5py.File(path, "r")
-        with file:
+                file = stack.enter_context(h5py.File(path, "r"))
             _check_keys(source, list(file))
             yield file
     except EpisodeError:
