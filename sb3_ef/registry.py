@@ -13,7 +13,7 @@ from sb3_ef.envs.factory import SUITE_OPTIONS
 #: Name prefixes of the suites :func:`sb3_ef.make_env` builds (it repeats actions); other ids go through ``gym.make``.
 MAKE_ENV_SUITES = tuple(f"{suite}/" for suite in SUITE_OPTIONS)
 #: The grid run function and row check of the algorithms SB3's ``learn`` trains.
-SB3_GRID_RUN = "sb3_ef.grid.run:execute_sb3_run"
+SB3_GRID_RUN = "sb3_ef.grid.run:train_sb3"
 SB3_GRID_CHECK = "sb3_ef.grid.checks:check_sb3_row"
 
 
@@ -33,7 +33,7 @@ class AlgorithmEntry:
     :param ef: trains Ego-Foresight: ``sb3-ef analyze model`` shows its predictions and saliency.
     :param own_exploration: explores with its own noise (rl-zoo3's SB3 action-noise keys are refused).
     :param sampler: its Optuna sampler for ``sb3-ef optimize`` (``"module:function"``), if it has one.
-    :param grid_run: the function that trains one ``sb3-ef benchmark`` row (as :func:`sb3_ef.grid.run.execute_run`).
+    :param grid_run: the function that trains one ``sb3-ef benchmark`` row (as :func:`sb3_ef.grid.run.train_sb3`).
     :param grid_check: the function that checks one row before anything trains (as ``check_sb3_row``).
     :param zoo_run: the ``train`` and ``enjoy`` functions of an algorithm rl-zoo3 cannot train; ``None``: rl-zoo3's.
     :param warm_start: an offline-pretrained encoder and EF can be copied into it; ``sb3-ef collect`` acts with it.
@@ -89,7 +89,7 @@ ALGORITHMS: dict[str, AlgorithmEntry] = {entry.key: entry for entry in (
     AlgorithmEntry("tqc_ef", "sb3_ef.sb3_hosts:TQCEF", ef=True, legacy_policy_module="sb3_contrib.tqc.policies"),
     AlgorithmEntry(
         "dreamerv3", "sb3_ef.dreamerv3:DreamerV3", paper=True, own_exploration=True,
-        grid_run="sb3_ef.dreamerv3.grid_run:execute_dreamerv3_run",
+        grid_run="sb3_ef.dreamerv3.grid_run:train_dreamerv3",
         grid_check="sb3_ef.dreamerv3.grid_run:check_dreamerv3_row",
         zoo_run=("sb3_ef.zoo.sheeprl_run:train_main", "sb3_ef.zoo.sheeprl_run:enjoy_main"),
     ),

@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import os
 import shutil
 import tempfile
-import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -13,10 +11,7 @@ from sb3_ef.common.evaluation import EVAL_SEED_OFFSET
 from sb3_ef.grid.grid import RunSpec, constructor_kwargs
 from sb3_ef.grid.run import (
     RunPaths,
-    RunResult,
     build_env,
-    finish_run,
-    read_result,
     truncate_records,
 )
 
@@ -27,24 +22,6 @@ if TYPE_CHECKING:
 
 #: The zoo keys the runner sets itself.
 RUNNER_SET = ("work_dir", "seed", "device")
-
-
-def execute_dreamerv3_run(
-    spec: RunSpec,
-    out: str | os.PathLike,
-    threads: int = 1,
-    device: str = "auto",
-    keep_checkpoints: int | None = 2,
-    node: str | None = None,
-) -> RunResult:
-    """:func:`sb3_ef.grid.run.execute_run` for ``dreamerv3``."""
-    paths = RunPaths.of(out, spec)
-    finished = read_result(paths)
-    if finished is not None:
-        return finished
-    start = time.perf_counter()
-    steps, resumed_from = train_dreamerv3(spec, paths, threads, device, keep_checkpoints)
-    return finish_run(spec, paths, steps, start, resumed_from, node, keep_checkpoints)
 
 
 def new_dreamerv3(spec: RunSpec, env: gym.Env, device: str, work_dir: Path) -> DreamerV3:

@@ -151,31 +151,29 @@ def execute_run(
     keep_checkpoints: int | None = 2,
     node: str | None = None,
 ) -> RunResult:
-    """Train and record one run with the registry's run function of ``spec.algo`` (finished: ``skipped``)."""
-    run = import_target(registry.entry(spec.algo, "RunSpec.algo").grid_run)
-    return run(spec, out, threads, device, keep_checkpoints, node)
+    """Train and record one run with the registry's training function of ``spec.algo``, or return the stored result
+    of a finished one."""
+    paths = RunPaths.of(out, spec)
+    finished = read_result(paths)
+    if finished is not None:
+        return finished
+    train = import_target(registry.entry(spec.algo, "RunSpec.algo").grid_run)
+    start = time.perf_counter()
+    steps, resumed_from = train(spec, paths, threads, device, keep_checkpoints)
+    return finish_run(spec, paths, steps, start, resumed_from, node, keep_checkpoints)
 
 
-def execute_sb3_run(
-    spec: RunSpec,
-    out: str | os.PathLike,
-    threads: int = 1,
-    device: str = "auto",
-    keep_checkpoints: int | None = 2,
-    node: str | None = None,
-) -> RunResult:
-    """:func:`execute_run` for an algorithm SB3's ``learn`` trains."""
+def train_sb3(
+    spec: RunSpec, paths: RunPaths, threads: int, device: str, keep_checkpoints: int | None
+) -> tuple[int, int | None]:
+    """The grid's training of an algorithm SB3's ``learn`` trains: from scratch or its latest checkpoint to
+    ``spec.n_timesteps``; returns the steps reached and the step it resumed from (``None``: from scratch)."""
     import torch as th
 
     from sb3_ef.common.checkpoints import ResumableCheckpointCallback, latest_checkpoint, load_checkpoint
     from sb3_ef.zoo.progress import ProgressLogCallback
 
-    paths = RunPaths.of(out, spec)
-    finished = read_result(paths)
-    if finished is not None:
-        return finished
     th.set_num_threads(threads)
-    start = time.perf_counter()
     env = build_env(spec, seed=spec.seed)
     eval_env = build_eval_env(spec, spec.seed)
     algo_class = registry.entry(spec.algo).algorithm_class
@@ -209,7 +207,7 @@ def execute_sb3_run(
     model.save(paths.model)  # without the replay buffer (SB3 excludes it)
     env.close()
     eval_env.close()
-    return finish_run(spec, paths, model.num_timesteps, start, resumed_from, node, keep_checkpoints)
+    return model.num_timesteps, resumed_from
 
 
 def finish_run(
