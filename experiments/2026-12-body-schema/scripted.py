@@ -17,7 +17,7 @@ Scenarios (:data:`SCENARIOS`):
   babbles from there (the door moves only where the gripper pushes or pulls it).
 - ``hammer-distractor``: the robot babbles from its start pose while the hammer walks on the table by itself.
 
-Recorded per frame: the frame, the masks of the agent and of the scenario's object (:mod:`sb3_ef.envs.geom_masks`),
+Recorded per frame: the frame, the masks of the agent and of the scenario's object (:mod:`geom_masks`),
 the hand and object positions (Meta-World's state vector) and whether the object is *attached*: its offset from
 the hand is within ``attach_tolerance`` of the offset at the first recorded frame. An episode is a deterministic
 function of (scenario, seed, index): the env is reset with ``seed + index`` and the babbling draws from a
@@ -33,11 +33,11 @@ from typing import Any
 
 import mujoco
 import numpy as np
+from geom_masks import AGENT, PartMasks
 
 from sb3_ef.analysis.prediction import figure_eight_actions
 from sb3_ef.common.env_checks import FRAME_CHANNELS
 from sb3_ef.envs import make_env
-from sb3_ef.envs.geom_masks import AGENT, PartMasks
 
 
 @dataclass(frozen=True)
@@ -45,7 +45,7 @@ class Scenario:
     """How one kind of scripted episode is made.
 
     :param task: Meta-World task name.
-    :param part: name of the measured object and its bodies (:class:`~sb3_ef.envs.geom_masks.PartMasks` format).
+    :param part: name of the measured object and its bodies (:class:`~geom_masks.PartMasks` format).
     :param prefix: scripted-policy class name in ``metaworld.policies`` run before babbling, or None.
     :param prefix_done: ``(state, start_state) -> bool`` on Meta-World's state vector: when the prefix ends.
     :param distractor_step: metres per agent step of the object's random walk (0: no distractor).

@@ -150,7 +150,7 @@ class PixelEnv(gym.Env[np.ndarray, np.ndarray]):
         return self._frame_renderer().agent_mask(self._physics()[1])
 
     def segmentation(self) -> np.ndarray:
-        """``(size, size)`` ids of the geom seen at each pixel now, -1 where none (:mod:`sb3_ef.envs.geom_masks`)."""
+        """``(size, size)`` ids of the geom seen at each pixel now, -1 where none."""
         return self._frame_renderer().geom_ids(self._physics()[1])
 
     @property

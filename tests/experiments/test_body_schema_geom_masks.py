@@ -4,9 +4,9 @@ mask is exactly where the named part is drawn."""
 import mujoco
 import numpy as np
 import pytest
+from geom_masks import AGENT, PartMasks, part_geoms, part_mask
 
 from sb3_ef.envs import make_env
-from sb3_ef.envs.geom_masks import AGENT, PartMasks, part_geoms, part_mask
 from sb3_ef.envs.meta_world import FLIPPED_CAMERAS
 from sb3_ef.envs.renderer import FrameRenderer
 
