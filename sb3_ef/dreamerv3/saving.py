@@ -9,8 +9,7 @@ import zipfile
 from pathlib import Path
 from typing import IO, Any
 
-from sb3_ef.common.files import write_atomically
-from sb3_ef.common.saved_models import model_zip_path
+from sb3_ef.common.saved_models import save_model_atomically
 
 #: The entries of the zip: the settings (``data``, where SB3 keeps its own), sheeprl's configuration, the weights.
 DATA, CONFIG, WEIGHTS = "data", "config.yaml", "checkpoint.ckpt"
@@ -28,14 +27,7 @@ def write_model(path: PathOrFile, info: dict[str, Any], config: str, weights: by
             archive.writestr(CONFIG, config)
             archive.writestr(WEIGHTS, weights)
 
-    if not isinstance(path, (str, os.PathLike)):
-        write(path)
-        return
-    target = model_zip_path(path)
-    if target.is_dir():
-        raise IsADirectoryError(f"Cannot save the model to {str(path)!r}: it is a folder (give a file path)")
-    target.parent.mkdir(parents=True, exist_ok=True)
-    write_atomically(target, write)
+    save_model_atomically(lambda file, *_: write(file), path)  # type: ignore[arg-type]
 
 
 def read_model(path: PathOrFile) -> tuple[dict[str, Any], bytes, bytes]:
