@@ -24,10 +24,6 @@ def decoder_layers(size: int) -> tuple[tuple[int, int, int], ...]:
     raise ValueError(f"Unsupported frame size {size}: the decoder supports square frames of {SUPPORTED_SIZES_TEXT}")
 
 
-def _output_size(size: int, kernel: int, stride: int, padding: int) -> int:
-    return (size - 1) * stride - 2 * padding + kernel
-
-
 class FrameDecoder(nn.Module):
     """DCGAN-style transposed convolutions to a frame in [0, 1], with optional U-Net skips of an encoder map.
 
@@ -57,7 +53,7 @@ class FrameDecoder(nn.Module):
             tail = [nn.Sigmoid()] if last else [nn.BatchNorm2d(out_channels), nn.LeakyReLU(0.2)]
             blocks.append(nn.Sequential(conv, *tail))
             self.input_sizes.append(size)
-            size = _output_size(size, kernel, stride, padding)
+            size = (size - 1) * stride - 2 * padding + kernel  # a transposed convolution's output size
         self.blocks = nn.ModuleList(blocks)
         self.apply(_dcgan_init)
 
