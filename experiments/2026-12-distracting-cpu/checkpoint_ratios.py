@@ -28,13 +28,14 @@ def main() -> None:
     parser.add_argument("results", type=Path, help="a grid's results folder (its runs' checkpoints below it)")
     parser.add_argument("--batches", type=int, default=4)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--steps", type=int, nargs="*", help="only the checkpoints of these steps (default: all)")
     args = parser.parse_args()
     th.set_num_threads(1)
     by_step: dict[int, list[float]] = defaultdict(list)
     print("run\tstep\taux_grad_ratio mean [min, max]\tcritic norm\tEF norm")
     for folder in sorted(args.results.glob("*/*/checkpoints")):
         for checkpoint in list_checkpoints(folder):
-            if checkpoint.replay_buffer_path is None:
+            if checkpoint.replay_buffer_path is None or (args.steps and checkpoint.step not in args.steps):
                 continue
             model = DrQv2EF.load(checkpoint.model_path, device="cpu")
             model.load_replay_buffer(checkpoint.replay_buffer_path)
