@@ -1,4 +1,4 @@
-"""``sb3_ef.offline``'s public names, imported lazily (tests/test_import_layers.py holds the package-wide import rules)."""
+"""``sb3_ef.offline``'s public names, imported lazily (tests/test_import_layers.py: the import rules)."""
 
 from __future__ import annotations
 
