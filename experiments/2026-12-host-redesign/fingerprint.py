@@ -15,17 +15,17 @@ import torch as th
 from stable_baselines3.common.logger import configure
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-from tests.helpers.drqv2 import TINY_ALGO, TINY_POLICY, make_cue_env  # noqa: E402
-from tests.helpers.tdmpc2 import TINY_EF_POLICY  # noqa: E402
-from tests.helpers.tdmpc2 import TINY_POLICY as TDMPC2_TINY  # noqa: E402
-
-import sb3_ef  # noqa: E402
-from sb3_ef.envs.toy import ToyAgentEnv  # noqa: E402
+import sb3_ef
+from sb3_ef.envs.toy import ToyAgentEnv
+from tests.helpers.drqv2 import TINY_ALGO, TINY_POLICY, make_cue_env
+from tests.helpers.tdmpc2 import TINY_EF_POLICY
+from tests.helpers.tdmpc2 import TINY_POLICY as TDMPC2_TINY
 
 STEPS = 60
 PLAIN_POLICY = {key: value for key, value in TINY_POLICY.items() if key not in ("agent_dim", "ef_kwargs")}
 SB3_COMMON = {"buffer_size": 500, "batch_size": 8, "learning_starts": 16, "train_freq": 1}
 SB3_POLICY = {"net_arch": [32, 32], "features_extractor_kwargs": {"features_dim": 64}}
+SB3_EF_KWARGS = {"rollout_hidden_dims": (16,), "decoder_channels": 8}
 EF_ARGS = {"ef_horizon": 3, "babbling_steps": 8, "beta": 0.7}
 
 
@@ -40,19 +40,22 @@ def cases() -> dict[str, tuple[type, dict, object]]:
                     make_cue_env),
         "DrQv2EF-latent": (sb3_ef.DrQv2EF, dict(drqv2, policy_kwargs=latent, beta=0.7, babbling_steps=0),
                            make_cue_env),
-        "SEAR": (sb3_ef.SEAR, dict(buffer_size=500, batch_size=8, learning_starts=16, train_freq=1,
-                                   policy_kwargs={**PLAIN_POLICY, "features_dim": 64}), toy),
+        "SEAR": (sb3_ef.SEAR, {"buffer_size": 500, "batch_size": 8, "learning_starts": 16, "train_freq": 1,
+                                   "policy_kwargs": {**PLAIN_POLICY, "features_dim": 64}}, toy),
         "CURL": (sb3_ef.CURL, dict(SB3_COMMON, crop_size=28, policy_kwargs={"net_arch": [32, 32]}), make_cue_env),
         "SACEF": (sb3_ef.SACEF, dict(SB3_COMMON, policy_kwargs=SB3_POLICY, agent_dim=8, **EF_ARGS,
-                                     ef_kwargs={"rollout_hidden_dims": (16,), "decoder_channels": 8}), lambda: make_cue_env(size=64)),
+                                     ef_kwargs={"rollout_hidden_dims": (16,), "decoder_channels": 8}),
+                  lambda: make_cue_env(size=64)),
         "TD3EF": (sb3_ef.TD3EF, dict(SB3_COMMON, policy_kwargs=SB3_POLICY, agent_dim=8, **EF_ARGS,
-                                     ef_kwargs={"rollout_hidden_dims": (16,), "decoder_channels": 8}), lambda: make_cue_env(size=64)),
+                                     ef_kwargs={"rollout_hidden_dims": (16,), "decoder_channels": 8}),
+                  lambda: make_cue_env(size=64)),
         "TQCEF": (sb3_ef.TQCEF, dict(SB3_COMMON, policy_kwargs=SB3_POLICY, agent_dim=8, **EF_ARGS,
-                                     ef_kwargs={"rollout_hidden_dims": (16,), "decoder_channels": 8}), lambda: make_cue_env(size=64)),
-        "TDMPC2": (sb3_ef.TDMPC2, dict(buffer_size=500, batch_size=8, learning_starts=16,
-                                       policy_kwargs=TDMPC2_TINY), lambda: make_cue_env(size=64)),
-        "TDMPC2EF": (sb3_ef.TDMPC2EF, dict(buffer_size=500, batch_size=8, learning_starts=16, ef_horizon=3,
-                                           babbling_steps=8, beta=0.7, policy_kwargs=TINY_EF_POLICY),
+                                     ef_kwargs={"rollout_hidden_dims": (16,), "decoder_channels": 8}),
+                  lambda: make_cue_env(size=64)),
+        "TDMPC2": (sb3_ef.TDMPC2, {"buffer_size": 500, "batch_size": 8, "learning_starts": 16,
+                                       "policy_kwargs": TDMPC2_TINY}, lambda: make_cue_env(size=64)),
+        "TDMPC2EF": (sb3_ef.TDMPC2EF, {"buffer_size": 500, "batch_size": 8, "learning_starts": 16, "ef_horizon": 3,
+                                           "babbling_steps": 8, "beta": 0.7, "policy_kwargs": TINY_EF_POLICY},
                      lambda: make_cue_env(size=64)),
     }
 
@@ -108,7 +111,7 @@ def main() -> None:
                     diffs[key] = f"shape {tuple(old[key].shape)} -> {tuple(state[key].shape)}"
                 elif not th.equal(state[key], old[key]):
                     diffs[key] = f"max diff {(state[key].double() - old[key].double()).abs().max().item():.3g}"
-            print(f"{name}: {'bit for bit equal' if not diffs else diffs}")
+            print(f"{name}: {diffs if diffs else 'bit for bit equal'}")
 
 
 if __name__ == "__main__":

@@ -148,10 +148,10 @@ def gradients(args: argparse.Namespace) -> None:
     encoder = {id(param) for param in model.world_model.encoder.parameters()}
     rows = []
     for _ in range(args.batches):
-        losses, _, _ = model.losses(model.replay_buffer.sample(model.batch_size))
+        losses, (auxiliary_loss, _), _, _ = model.losses(model.replay_buffer.sample(model.batch_size))
         host = model._host_loss(losses)
         host_grads = th.autograd.grad(host, host_params, retain_graph=True, allow_unused=True)
-        ef_grads = th.autograd.grad(losses["auxiliary_loss"], ef_params, allow_unused=True)
+        ef_grads = th.autograd.grad(auxiliary_loss, ef_params, allow_unused=True)
         host_total, ef_total = _norm(host_grads, host_params), _norm(ef_grads, ef_params)
         host_encoder, ef_encoder = _norm(host_grads, host_params, encoder), _norm(ef_grads, ef_params, encoder)
         host_scale, ef_scale = min(1.0, model.max_grad_norm / host_total), min(1.0, model.max_grad_norm / ef_total)

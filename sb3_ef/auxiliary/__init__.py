@@ -2,6 +2,5 @@
 
 from sb3_ef.auxiliary.host import AuxiliaryHostMixin
 from sb3_ef.auxiliary.loss import AuxiliaryLoss, CarriesAuxiliary
-from sb3_ef.auxiliary.step import AuxiliaryStepMixin
 
-__all__ = ["AuxiliaryHostMixin", "AuxiliaryLoss", "AuxiliaryStepMixin", "CarriesAuxiliary"]
+__all__ = ["AuxiliaryHostMixin", "AuxiliaryLoss", "CarriesAuxiliary"]

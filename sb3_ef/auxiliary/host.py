@@ -4,14 +4,12 @@ from __future__ import annotations
 
 import io
 import pathlib
-import warnings
 from collections.abc import Iterable
 from typing import Any, TypeVar
 
 import numpy as np
 import torch as th
 from gymnasium import spaces
-from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback
 from stable_baselines3.common.vec_env import VecEnv
@@ -19,16 +17,18 @@ from torch import nn
 
 from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.common.augmentation import random_shift
-from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
-from sb3_ef.common.env_checks import FRAME_CHANNELS, check_sequence_buffer
+from sb3_ef.common.buffers import SequenceReplayBufferSamples
+from sb3_ef.common.env_checks import FRAME_CHANNELS
 from sb3_ef.common.exploration import ActionOverrideMixin
 from sb3_ef.common.interrupt import progress_bar_callback
 from sb3_ef.common.saved_models import check_saved_model, save_model_atomically, saved_data
 from sb3_ef.common.validation import check_learn, check_model_path, check_observation
 
 SelfHost = TypeVar("SelfHost", bound="AuxiliaryHostMixin")
-#: One update in this many computes ``train/aux_grad_ratio``.
+#: One update in this many measures the encoder-gradient ratio behind ``train/aux_grad_ratio``.
 AUX_GRAD_RATIO_EVERY = 100
+#: ``train/aux_grad_ratio`` is an exponential average of the measured ratios, the newest weighted this much.
+AUX_GRAD_RATIO_WEIGHT = 0.2
 
 
 def aux_grad_ratio_due(n_updates: int, every: int = AUX_GRAD_RATIO_EVERY) -> bool:
@@ -65,8 +65,15 @@ def _norm(grads: Iterable[th.Tensor | None], device: th.device) -> th.Tensor:
 
 
 class AuxiliaryHostMixin(ActionOverrideMixin):
-    """Mixed in first by every host algorithm (``class DrQv2(AuxiliaryHostMixin, OffPolicyAlgorithm)``); the hooks
-    and the order the host calls them in are in docs/architecture.md, "Auxiliary losses"."""
+    """What every host shares, whatever its update (``class DrQv2(AuxiliaryHostMixin, OffPolicyAlgorithm)``).
+
+    The host owns its update: its ``_setup_model`` builds the auxiliary loss (:meth:`_build_auxiliary`, ``None`` for
+    the plain algorithm) and gives its parameters to one of its optimisers; its ``train`` calls the loss's
+    ``prepare``, ``forward`` and ``after_update`` (:class:`~sb3_ef.auxiliary.loss.AuxiliaryLoss`) around its own
+    steps. This class keeps what is the same for every host: the model's draws for the loss, ``encode``,
+    ``frame_shape``, the finite-loss check, the logs of an update, and SB3's ``learn`` / ``predict`` / ``save`` /
+    ``load`` with the package's checks.
+    """
 
     policy: Any
     env: VecEnv | None
@@ -76,8 +83,6 @@ class AuxiliaryHostMixin(ActionOverrideMixin):
     num_timesteps: int
     observation_space: spaces.Space
     action_space: spaces.Space
-    replay_buffer_class: type[ReplayBuffer] | None
-    replay_buffer_kwargs: dict[str, Any]
     _n_updates: int
 
     #: The class name, saved with the model: ``load`` refuses a file saved by another algorithm.
@@ -85,44 +90,25 @@ class AuxiliaryHostMixin(ActionOverrideMixin):
     check_finite_losses: bool = False
     # The auxiliary loss's draws, saved with the model so that a resumed run continues its stream.
     _auxiliary_generator: th.Generator | None = None
+    # The exponential average of the measured ``aux_grad_ratio`` values (a diagnostic, not saved).
+    _aux_grad_ratio_average: th.Tensor | None = None
 
     def _build_auxiliary(self) -> AuxiliaryLoss | None:
         """The auxiliary loss on this host's encoder, built after the policy (``None``: the plain algorithm)."""
         return None
 
     def _auxiliary_horizon(self) -> int:
-        """Steps after t of each replay sample that the auxiliary loss reads (the buffer's window); 0 for none."""
+        """Steps after t of each sample that the auxiliary loss reads (the buffer's window); 0 for none."""
         return 0
 
-    def _optimise_auxiliary(self, auxiliary: AuxiliaryLoss) -> None:
-        """Give the auxiliary module's parameters to the optimiser that trains them (each host decides)."""
-        raise NotImplementedError(f"{type(self).__name__} does not say which optimiser trains its auxiliary loss")
-
-    def _use_sequence_buffer(self, why: str, horizon: int, **defaults: Any) -> None:
-        """Make SB3 build a :class:`SequenceReplayBuffer`; ``why`` is the error message for another buffer class."""
-        check_sequence_buffer(self.replay_buffer_class, why)
-        if self.replay_buffer_class is None:
-            self.replay_buffer_class = SequenceReplayBuffer
-        self.replay_buffer_kwargs = {**defaults, **self.replay_buffer_kwargs, "horizon": horizon}
-
     def _setup_model(self) -> None:
-        """SB3's ``_setup_model`` (its ``n_steps`` warning silenced: the buffer takes them), then the auxiliary loss."""
+        """SB3's ``_setup_model``, then the auxiliary loss's random generator (seeded from ``seed``)."""
         self.algorithm = type(self).__name__
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", message=r"`n_steps=\d+` is ignored because a custom")
-            super()._setup_model()  # type: ignore[misc]
-        auxiliary = self._build_auxiliary()
-        if auxiliary is not None:
-            self._keep_auxiliary(auxiliary.to(self.device))
-            self._optimise_auxiliary(auxiliary)
+        super()._setup_model()  # type: ignore[misc]
         if self._auxiliary_generator is None:
             # On the CPU, so that a saved model loads on any device.
             self._auxiliary_generator = th.Generator()
             self._auxiliary_generator.manual_seed(int(np.random.randint(2**31)) if self.seed is None else self.seed)
-
-    def _keep_auxiliary(self, auxiliary: AuxiliaryLoss) -> None:
-        """Keep the auxiliary module where it is saved with the model: ``policy.auxiliary``."""
-        self.policy.auxiliary = auxiliary
 
     @property
     def auxiliary(self) -> AuxiliaryLoss | None:
@@ -154,20 +140,12 @@ class AuxiliaryHostMixin(ActionOverrideMixin):
             if not bool(th.isfinite(loss).all()):
                 raise ValueError(f"{name} is {loss.item()} at update {self._n_updates}")
 
-    def _train_round(self, gradient_steps: int, batch_size: int, optimizers: Iterable[th.optim.Optimizer]) -> None:
-        """A ``train`` round: the learning rate (times each group's ``lr_scale``), the updates and their logs."""
-        self.policy.set_training_mode(True)
-        learning_rate = self.lr_schedule(self._current_progress_remaining)  # type: ignore[attr-defined]
-        self.logger.record("train/learning_rate", learning_rate)
-        for optimizer in optimizers:
-            for group in optimizer.param_groups:
-                group["lr"] = learning_rate * group.get("lr_scale", 1.0)
-        updates = []
-        for _ in range(gradient_steps):
-            self._n_updates += 1
-            batch = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[attr-defined]
-            updates.append(self._update(batch))  # type: ignore[attr-defined]
-        self._record_updates(updates)
+    def _averaged_aux_grad_ratio(self, ratio: th.Tensor) -> th.Tensor:
+        """The exponential average of the ratios measured so far, ``ratio`` weighted :data:`AUX_GRAD_RATIO_WEIGHT`."""
+        previous = self._aux_grad_ratio_average
+        average = ratio if previous is None else previous + AUX_GRAD_RATIO_WEIGHT * (ratio - previous)
+        self._aux_grad_ratio_average = average.detach()
+        return self._aux_grad_ratio_average
 
     def _record_updates(self, updates: list[dict[str, th.Tensor]]) -> None:
         """Log each scalar of the updates as ``train/<key>``, averaged over the updates that computed it."""

@@ -1,5 +1,4 @@
-"""The loss side of the auxiliary-loss interface: per update ``prepare``, the host's encoder, ``forward``, then
-``after_update`` (docs/architecture.md, "Auxiliary losses")."""
+"""The loss side of the auxiliary-loss interface (EF, SEAR, CURL, yours), and the policies that carry one."""
 
 from __future__ import annotations
 
@@ -13,7 +12,28 @@ from torch import nn
 
 
 class AuxiliaryLoss(nn.Module, ABC):
-    """Base class of the auxiliary representation losses (see the module docstring for the calling protocol)."""
+    """An auxiliary representation loss: a component its host holds and calls, in this order, in each update.
+
+    1. ``observations, targets = loss.prepare(batch, pad, generator)``: the augmented observations the host encodes
+       and what the loss compares against, augmented consistently; the loss's own draws come from ``generator``.
+    2. ``features = <the host's encoder>(observations)``; the host computes its own loss on them.
+    3. ``weighted, logs = loss(features, targets)``: the loss already weighted by its coefficients, and its
+       detached, unweighted parts, which the host logs as ``train/<name>``.
+    4. The host adds ``weighted`` to its own loss (or steps it apart) and steps the optimiser that holds this
+       module's parameters: which one is the host's choice, made visibly in its ``_setup_model``.
+    5. ``loss.after_update(encoder)``: after the optimiser steps (a momentum target follows ``encoder``).
+
+    Coefficients (EF's ``beta``, SEAR's weights) live once, here, as registered buffers
+    (:meth:`register_coefficient`): saved with the module's state, read and set through the module
+    (``loss.beta.fill_(0.5)``), and a state saved before a coefficient existed loads with its constructed value.
+    """
+
+    _coefficients: tuple[str, ...] = ()
+
+    def register_coefficient(self, name: str, value: float) -> None:
+        """Keep the loss weight ``name`` as a float buffer of this module."""
+        self.register_buffer(name, th.tensor(float(value)))
+        self._coefficients = (*self._coefficients, name)
 
     @abstractmethod
     def prepare(self, batch: Any, pad: int, generator: th.Generator | None = None) -> tuple[th.Tensor, Any]:
@@ -25,6 +45,23 @@ class AuxiliaryLoss(nn.Module, ABC):
 
     def after_update(self, encoder: nn.Module) -> None:
         """Called after the optimiser steps of each update; nothing by default."""
+
+    def _load_from_state_dict(
+        self,
+        state_dict: dict[str, Any],
+        prefix: str,
+        local_metadata: dict[str, Any],
+        strict: bool,
+        missing_keys: list[str],
+        unexpected_keys: list[str],
+        error_msgs: list[str],
+    ) -> None:
+        super()._load_from_state_dict(
+            state_dict, prefix, local_metadata, strict, missing_keys, unexpected_keys, error_msgs
+        )
+        for name in self._coefficients:
+            if prefix + name in missing_keys:
+                missing_keys.remove(prefix + name)
 
 
 class CarriesAuxiliary:

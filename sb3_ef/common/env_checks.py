@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import math
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
@@ -54,6 +58,27 @@ def check_sequence_buffer(replay_buffer_class: type[ReplayBuffer] | None, why: s
         raise ValueError(
             f"{why}: replay_buffer_class must be a SequenceReplayBuffer (sub)class, got {replay_buffer_class.__name__}"
         )
+
+
+def sequence_buffer(
+    replay_buffer_class: type[ReplayBuffer] | None,
+    replay_buffer_kwargs: dict[str, Any],
+    why: str,
+    horizon: int,
+    **defaults: Any,
+) -> tuple[type[ReplayBuffer], dict[str, Any]]:
+    """An off-policy host's buffer class and arguments: a :class:`SequenceReplayBuffer` (checked, ``why`` says what
+    it samples) with the window ``horizon`` and ``defaults`` (such as ``n_steps``, ``gamma``) under the user's."""
+    check_sequence_buffer(replay_buffer_class, why)
+    return replay_buffer_class or SequenceReplayBuffer, {**defaults, **replay_buffer_kwargs, "horizon": horizon}
+
+
+@contextmanager
+def n_steps_given_to_buffer() -> Iterator[None]:
+    """Silence SB3's warning that ``n_steps`` is ignored with a custom buffer: the sequence buffer takes them."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=r"`n_steps=\d+` is ignored because a custom")
+        yield
 
 
 def episode_steps(env: VecEnv) -> int | None:

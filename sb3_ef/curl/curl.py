@@ -14,12 +14,12 @@ from torch.nn import functional as F
 
 from sb3_ef.auxiliary.host import aux_grad_ratio_due, gradient_norm, gradient_norm_ratio
 from sb3_ef.auxiliary.momentum import momentum_update
-from sb3_ef.auxiliary.step import AuxiliaryStepMixin
 from sb3_ef.common.buffers import SequenceReplayBufferSamples
 from sb3_ef.common.layers import frozen
 from sb3_ef.curl.crop import check_crop_size, random_crops
 from sb3_ef.curl.loss import CURLLoss
 from sb3_ef.curl.policies import CURLActor, CURLPolicy
+from sb3_ef.sb3_hosts.step import AuxiliaryStepMixin
 
 
 class CURLBatch(NamedTuple):
@@ -131,8 +131,13 @@ class CURL(AuxiliaryStepMixin, SAC):
                 raise ValueError(f"CURL's {name} must be a number {expected}, got {value!r}")
 
     def _setup_model(self) -> None:
+        """SAC's setup with the authors' optimisers of CURL's step: the encoder's own Adam, and an Adam over W with
+        the encoder (``auxiliary_optimizer``, made by the SB3 hosts' auxiliary step); the temperature's Adam."""
         self._check_curl_arguments()
         super()._setup_model()
+        self.encoder_optimizer = th.optim.Adam(
+            self.critic.features_extractor.parameters(), lr=self.auxiliary_optimizer.defaults["lr"]
+        )
         if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
             self.ent_coef_optimizer = th.optim.Adam(
                 [self.log_ent_coef], lr=self.alpha_learning_rate, betas=(self.alpha_beta, 0.999)
@@ -144,13 +149,6 @@ class CURL(AuxiliaryStepMixin, SAC):
             return CURLLoss(
                 self.critic.features_extractor, self.crop_size, key_encoder=self.critic_target.features_extractor
             )
-
-    def _optimise_auxiliary(self, auxiliary: CURLLoss) -> None:  # type: ignore[override]
-        """The authors' two Adams of CURL's step: one over the critic's encoder, one over W and that encoder."""
-        learning_rate = self.auxiliary_learning_rate or self.lr_schedule(1)
-        encoder = list(self.critic.features_extractor.parameters())
-        self.encoder_optimizer = th.optim.Adam(encoder, lr=learning_rate)
-        self.auxiliary_optimizer = th.optim.Adam([*auxiliary.parameters(), *encoder], lr=learning_rate)
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         self.policy.set_training_mode(True)
@@ -243,7 +241,8 @@ class CURL(AuxiliaryStepMixin, SAC):
         self.auxiliary_optimizer.zero_grad()
         loss.backward()
         if host_norm is not None:
-            logs["aux_grad_ratio"] = gradient_norm_ratio(self.critic.features_extractor.parameters(), host_norm)
+            ratio = gradient_norm_ratio(self.critic.features_extractor.parameters(), host_norm)
+            logs["aux_grad_ratio"] = self._averaged_aux_grad_ratio(ratio)
         self.encoder_optimizer.step()
         self.auxiliary_optimizer.step()
         self.auxiliary.after_update(self.critic.features_extractor)

@@ -13,15 +13,19 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import polyak_update
-from torch import nn
 from torch.nn import functional as F
 
 from sb3_ef.auxiliary.host import AuxiliaryHostMixin, aux_grad_ratio_due, encoder_gradient_ratio
-from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
 from sb3_ef.common.compile import CompileOption, compile_kwargs, maybe_compile
-from sb3_ef.common.env_checks import check_box_actions, check_stacked_frames, policy_observation_space
+from sb3_ef.common.env_checks import (
+    check_box_actions,
+    check_stacked_frames,
+    n_steps_given_to_buffer,
+    policy_observation_space,
+    sequence_buffer,
+)
 from sb3_ef.common.exploration import OwnExplorationMixin
 from sb3_ef.common.forwarding import base_arguments
 from sb3_ef.common.layers import frozen
@@ -29,6 +33,7 @@ from sb3_ef.common.schedules import StepSchedule, get_step_schedule
 from sb3_ef.common.validation import check_algorithm_arguments
 from sb3_ef.drqv2.policies import DrQv2Actor, DrQv2Critic, DrQv2EFPolicy, DrQv2Policy
 from sb3_ef.ef.host import EFMixin
+from sb3_ef.ef.losses import ForesightLoss
 
 SHIFT_PAD = 4
 # Keeps sampled actions strictly inside the action bounds, as DrQ-v2's truncated normal does.
@@ -69,7 +74,7 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     actor: DrQv2Actor
     critic: DrQv2Critic
     critic_target: DrQv2Critic
-    replay_buffer: SequenceReplayBuffer | None  # _use_sequence_buffer makes SB3 build one
+    replay_buffer: SequenceReplayBuffer | None  # _setup_model makes SB3 build one
 
     def __init__(
         self,
@@ -124,21 +129,27 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
             self._setup_model()
 
     def _setup_model(self) -> None:
-        """SB3's setup with a sequence replay buffer (n-step returns), the exploration schedule, compiled losses."""
-        self._use_sequence_buffer(
+        """SB3's setup with a sequence replay buffer (n-step returns); the auxiliary loss joins the critic's Adam."""
+        self.replay_buffer_class, self.replay_buffer_kwargs = sequence_buffer(
+            self.replay_buffer_class,
+            self.replay_buffer_kwargs,
             "DrQ-v2 samples n-step discounts (and DrQv2-EF its windows)",
             horizon=max(1, self._auxiliary_horizon()),
             n_steps=self.n_steps,
             gamma=self.gamma,
         )
-        super()._setup_model()
-        self.exploration_schedule = get_step_schedule(self.exploration_std)
+        with n_steps_given_to_buffer():
+            super()._setup_model()
         self._create_aliases()
+        auxiliary = self._build_auxiliary()
+        if auxiliary is not None:
+            self.policy.auxiliary = auxiliary.to(self.device)
+            # The auxiliary loss is added to the critic's, so its modules step with the encoder and the critic:
+            # one more parameter group in the critic's Adam, at the same learning rate (the EF authors' setting).
+            self.critic.optimizer.add_param_group({"params": list(auxiliary.parameters())})
+        self.exploration_schedule = get_step_schedule(self.exploration_std)
         self._critic_and_auxiliary_loss = maybe_compile(self._critic_and_auxiliary_loss, self.compile)  # type: ignore[method-assign]
         self._actor_loss = maybe_compile(self._actor_loss, self.compile)  # type: ignore[method-assign]
-
-    def _optimise_auxiliary(self, auxiliary: AuxiliaryLoss) -> None:
-        self.policy.critic.optimizer.add_param_group({"params": list(auxiliary.parameters())})
 
     def _create_aliases(self) -> None:
         self.actor = self.policy.actor
@@ -146,11 +157,30 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         self.critic_target = self.policy.critic_target
 
     def train(self, gradient_steps: int, batch_size: int = 256) -> None:
-        self._train_round(gradient_steps, batch_size, [self.actor.optimizer, self.critic.optimizer])
+        """``gradient_steps`` updates on replay batches, at the learning rate of the schedule."""
+        self.policy.set_training_mode(True)
+        self._update_learning_rate([self.actor.optimizer, self.critic.optimizer])
+        updates = []
+        for _ in range(gradient_steps):
+            self._n_updates += 1
+            batch = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
+            updates.append(self._update(batch))
+        self._record_updates(updates)
         self.logger.record("train/exploration_std", self.exploration_schedule(self.num_timesteps))
 
     def _update(self, batch: SequenceReplayBufferSamples) -> dict[str, th.Tensor]:
-        """Critic (+ auxiliary), actor and target steps; the std is a tensor so that its schedule does not recompile."""
+        """One DrQ-v2 update (``DrQV2Agent.update``), plus the auxiliary loss in the critic's step.
+
+        1. Shift the observations at t and t+n by up to 4 pixels (the auxiliary loss shifts its targets with t).
+        2. Critic: the encoder is trained by the critic only (and the auxiliary loss): ``h = encoder(obs)``, and
+           ``h' = encoder(next_obs)`` without gradient (no target encoder). Clipped double Q against
+           ``r_n + (1 - done) * gamma^n * min(Q1', Q2')(h', a')``, ``a'`` the actor's mean plus clipped noise of
+           the scheduled std; the n-step sum, discount and terminal flag come from the buffer.
+        3. One step of the critic's Adam (encoder, critic and the auxiliary module) on ``critic + auxiliary``.
+        4. Actor on detached features: ``-min(Q1, Q2)(h, a)``, the critic frozen; its own Adam.
+        5. Polyak update of the critic target (``tau``); the auxiliary's ``after_update``.
+        The std is a tensor so that its schedule does not recompile a compiled loss.
+        """
         compiled = self.compile is not False
         if compiled:
             th.compiler.cudagraph_mark_step_begin()
@@ -160,8 +190,8 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
             observations, next_observations, targets, batch, std
         )
         if auxiliary_loss is not None and not compiled and aux_grad_ratio_due(self._n_updates):
-            encoder = self.policy.encoder.parameters()
-            logs["aux_grad_ratio"] = encoder_gradient_ratio(auxiliary_loss, critic_loss, encoder)
+            ratio = encoder_gradient_ratio(auxiliary_loss, critic_loss, self.policy.encoder.parameters())
+            logs["aux_grad_ratio"] = self._averaged_aux_grad_ratio(ratio)
         self._check_finite(**logs)
         self.critic.optimizer.zero_grad()
         (critic_loss if auxiliary_loss is None else critic_loss + auxiliary_loss).backward()
@@ -182,7 +212,7 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         return {name: value.clone() for name, value in logs.items()} if compiled else logs
 
     def _augment(self, batch: SequenceReplayBufferSamples) -> tuple[th.Tensor, th.Tensor, Any]:
-        """Random-shift the next observations, then the observations (by the auxiliary loss, with its targets)."""
+        """Shift the next observations, then the observations: by the auxiliary loss, with its targets, if any."""
         (next_observations,) = random_shift(batch.next_observations, pad=SHIFT_PAD)
         observations, targets = self._augment_observations(batch, pad=SHIFT_PAD)
         return observations, next_observations, targets
@@ -306,6 +336,10 @@ class DrQv2EF(EFMixin, DrQv2):
         if _init_setup_model:
             self._setup_model()
 
-    def _ef_encoder(self) -> tuple[nn.Module, int, tuple[float, float]]:
-        encoder = self.policy.encoder  # scales the uint8 frames itself
-        return encoder, encoder.features_dim, (1.0, 0.0)
+    def _build_auxiliary(self) -> ForesightLoss:
+        """EF on the encoder the critic trains, sized by the EF policy (the encoder takes the uint8 frames)."""
+        policy = self._ef_policy()
+        encoder = policy.encoder
+        return self._foresight_loss(
+            encoder, encoder.features_dim, policy.agent_dim, policy.ef_kwargs, policy.channels_last
+        )

@@ -2,8 +2,9 @@
 
 from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.ef.decoder import FrameDecoder, decoder_layers
-from sb3_ef.ef.foresight import EgoForesight, ForesightLoss, ForesightTargets, RolloutBlock, draw_rollout_steps
+from sb3_ef.ef.foresight import EgoForesight, RolloutBlock, draw_rollout_steps
 from sb3_ef.ef.latent import TARGETS, LatentHead, MomentumTarget
+from sb3_ef.ef.losses import ForesightLoss, ForesightTargets, LatentForesightLoss, foresight_loss
 from sb3_ef.ef.probe import fit_probe
 
 __all__ = [
@@ -13,10 +14,12 @@ __all__ = [
     "ForesightLoss",
     "ForesightTargets",
     "FrameDecoder",
+    "LatentForesightLoss",
     "LatentHead",
     "MomentumTarget",
     "RolloutBlock",
     "decoder_layers",
     "draw_rollout_steps",
     "fit_probe",
+    "foresight_loss",
 ]

@@ -2,32 +2,26 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING
 
 import torch as th
 from torch import nn
 
-from sb3_ef.auxiliary.loss import AuxiliaryLoss
-from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.layers import mlp
 from sb3_ef.ef.decoder import FrameDecoder
 from sb3_ef.ef.latent import (
     DEFAULT_HEAD_HIDDEN_DIM,
     DEFAULT_LOSS_SCALE,
     DEFAULT_PROJECTION_DIM,
-    DEFAULT_TARGET_TAU,
     DEFAULT_TEMPERATURE,
     LatentHead,
-    LatentTargets,
-    MomentumTarget,
     check_loss_scale,
     check_target,
     info_nce,
-    latent_targets,
 )
 
 if TYPE_CHECKING:
-    from sb3_ef.common.buffers import SequenceReplayBufferSamples
+    pass
 
 STEP_SAMPLINGS = ("batch", "sample")
 
@@ -340,115 +334,9 @@ class EgoForesight(nn.Module):
         return target
 
 
-class ForesightTargets(NamedTuple):
-    """What EF's loss compares against for one replay batch."""
-
-    steps: th.Tensor  # (B,) rollout lengths k
-    target: th.Tensor  # (B, 3, h, w) uint8 frame t+k, shifted together with the observation at t
-    valid: th.Tensor  # (B,) bool: step t+k lies inside the episode
-    actions: th.Tensor  # (B, H, action_dim) actions t .. t+H-1
-
-
-class ForesightLoss(AuxiliaryLoss):
-    """Ego-Foresight as an auxiliary loss of a host's encoder, weighted by ``beta`` (docs/ef.md).
-
-    :param feature_dim: size of the host encoder's features h.
-    :param action_dim: size of one action.
-    :param frame_shape: (3, h, w) of one frame.
-    :param agent_dim: size of h_agent, the first features of h (scene features must remain).
-    :param horizon: H, the largest rollout length k.
-    :param beta: weight of the loss.
-    :param ef_kwargs: extra arguments of :class:`EgoForesight`, and latent EF's ``target_tau``.
-    :param channels_last: keep the decoder's conv weights channels-last (same maths, faster convolutions).
-    :param encoder: the host's online encoder (not stored); latent EF's target encoder is a momentum copy of it.
-    :param encoder_input: ``(divisor, offset)``: the host feeds ``encoder`` with ``obs.float() / divisor - offset``.
-    """
-
-    def __init__(
-        self,
-        feature_dim: int,
-        action_dim: int,
-        frame_shape: tuple[int, int, int],
-        agent_dim: int,
-        horizon: int,
-        beta: float = 1.0,
-        ef_kwargs: dict[str, Any] | None = None,
-        channels_last: bool = False,
-        encoder: nn.Module | None = None,
-        encoder_input: tuple[float, float] = (1.0, 0.0),
-    ):
-        super().__init__()
-        if feature_dim <= agent_dim:
-            raise ValueError(
-                f"Ego-Foresight needs features_dim > agent_dim (scene features must remain), "
-                f"got features_dim={feature_dim}, agent_dim={agent_dim}"
-            )
-        self.beta = beta
-        options = dict(ef_kwargs or {})
-        target_tau = options.pop("target_tau", None)
-        self.ef = EgoForesight(
-            feature_dim, action_dim, frame_shape=frame_shape, agent_dim=agent_dim, horizon=horizon, **options
-        )
-        self.target_encoder = momentum_target(self.ef, encoder, target_tau, encoder_input)
-        if channels_last:
-            self.ef.to(memory_format=th.channels_last)  # type: ignore[call-overload]
-
-    def prepare(
-        self, batch: SequenceReplayBufferSamples, pad: int, generator: th.Generator | None = None
-    ) -> tuple[th.Tensor, ForesightTargets | LatentTargets]:
-        """Draw k from ``generator`` and shift the observations at t together with the targets."""
-        steps = self.ef.draw_steps(batch.future_mask, generator=generator)
-        rows = th.arange(steps.shape[0], device=steps.device)
-        valid = batch.future_mask[rows, steps - 1]
-        if self.target_encoder is not None:
-            return latent_targets(batch, steps, valid, self.ef.horizon, pad, generator)
-        observations, target = random_shift(batch.observations, batch.future_frames[rows, steps - 1], pad=pad)
-        return observations, ForesightTargets(steps, target, valid, batch.future_actions)
-
-    def forward(
-        self, features: th.Tensor, targets: ForesightTargets | LatentTargets
-    ) -> tuple[th.Tensor, dict[str, th.Tensor]]:
-        """The weighted EF loss on ``features``; logs the unweighted ``ef_loss``."""
-        if isinstance(targets, LatentTargets):
-            if self.target_encoder is None:
-                raise ValueError("LatentTargets need a ForesightLoss built with ef_kwargs target='latent'")
-            future = targets.observations
-            if targets.negatives is not None:
-                future = th.cat([future, targets.negatives])
-            target = self.target_encoder(future)
-            loss = self.ef.latent_loss(
-                features, targets.actions, targets.steps, target, targets.valid, targets.candidates_valid()
-            )
-        else:
-            loss = self.ef.loss(features, targets.actions, targets.steps, targets.target, targets.valid)
-        return self.beta * self.ef.loss_scale * loss, {"ef_loss": loss.detach()}
-
-    def after_update(self, encoder: nn.Module) -> None:
-        """Latent EF: the target encoder and projection follow the online ones (pixel EF: nothing)."""
-        if self.target_encoder is not None:
-            self.target_encoder.update(encoder, self.ef.head.projection)
-
-
 def _weighted_mean(per_sample: th.Tensor, valid: th.Tensor | None) -> th.Tensor:
     """Mean of per-sample losses weighted by ``valid``; 0 when no sample is valid."""
     if valid is None:
         return per_sample.mean()
     weights = valid.to(per_sample.dtype)
     return (per_sample * weights).sum() / weights.sum().clamp(min=1.0)
-
-
-def momentum_target(
-    ef: EgoForesight,
-    encoder: nn.Module | None,
-    target_tau: float | None = None,
-    encoder_input: tuple[float, float] = (1.0, 0.0),
-) -> MomentumTarget | None:
-    """Latent EF's target encoder for ``ef`` on ``encoder``; ``None`` for pixel EF."""
-    if ef.target == "latent":
-        if encoder is None:
-            raise ValueError("target='latent' predicts the features of the host's encoder: pass encoder=")
-        tau = DEFAULT_TARGET_TAU if target_tau is None else target_tau
-        return MomentumTarget(encoder, ef.head.projection, tau, encoder_input)
-    if target_tau is not None:
-        raise ValueError("ef_kwargs target_tau applies to target='latent' only, got it with target='pixel'")
-    return None

@@ -6,8 +6,8 @@ import numbers
 from typing import Any
 
 import numpy as np
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.type_aliases import MaybeCallback
 from torch import nn
 
@@ -15,7 +15,9 @@ from sb3_ef.auxiliary.host import AuxiliaryHostMixin
 from sb3_ef.common.env_checks import episode_steps
 from sb3_ef.common.validation import check_algorithm_arguments
 from sb3_ef.ef.babbling import MotorBabblingCallback, check_babbling, with_babbling
-from sb3_ef.ef.foresight import EgoForesight, ForesightLoss
+from sb3_ef.ef.foresight import EgoForesight
+from sb3_ef.ef.latent import feed_encoder
+from sb3_ef.ef.losses import Encode, ForesightLoss, foresight_loss
 
 
 def check_ef_arguments(
@@ -57,32 +59,39 @@ class EFPolicyMixin:
 
 
 class EFMixin(AuxiliaryHostMixin):
-    """Mixed in before a plain host to make its Ego-Foresight variant: ``class DrQv2EF(EFMixin, DrQv2)``."""
+    """Mixed in before a plain host to make its Ego-Foresight variant (``class DrQv2EF(EFMixin, DrQv2)``): EF's
+    arguments and their one check, ``model.beta`` and ``model.ef`` (read through to the loss), the babbling callback.
+    The variant's ``_build_auxiliary`` builds the loss with :meth:`_foresight_loss` on the encoder EF trains; the
+    host's ``_setup_model`` gives it to an optimiser and its ``train`` calls it, as for any auxiliary loss."""
 
     ef_horizon: int
-    _beta: float
     babbling_steps: int = 0
     babbling_mode: str = "sign"
     babbling_in_eval: bool = False
+    # ``beta`` as given to the constructor, until the loss that keeps it is built.
+    _beta: float
 
     @property
     def beta(self) -> float:
-        """Weight of EF's loss; setting it changes the next updates."""
-        return self._beta
+        """Weight of EF's loss, kept once, as a buffer of the loss module; setting it changes the next updates."""
+        auxiliary = self.auxiliary
+        return float(auxiliary.beta) if isinstance(auxiliary, ForesightLoss) else self._beta
 
     @beta.setter
     def beta(self, value: float) -> None:
-        self._beta = value
-        if isinstance(self.auxiliary, ForesightLoss):
-            self.auxiliary.beta = value
+        auxiliary = self.auxiliary
+        if isinstance(auxiliary, ForesightLoss):
+            auxiliary.beta.fill_(value)
+        else:
+            self._beta = value
 
     def _init_ef(
         self, beta: float, ef_horizon: int, babbling_steps: int, babbling_mode: str, babbling_in_eval: bool
     ) -> None:
         check_algorithm_arguments(type(self), {"ef_horizon": ef_horizon, "babbling_steps": babbling_steps})
-        plain = next(c for c in type(self).__mro__ if issubclass(c, OffPolicyAlgorithm) and not issubclass(c, EFMixin))
+        plain = next(c for c in type(self).__mro__ if issubclass(c, BaseAlgorithm) and not issubclass(c, EFMixin))
         check_ef_arguments(beta, ef_horizon, babbling_steps, babbling_mode, plain.__name__)
-        self.beta = beta
+        self._beta = beta
         self.ef_horizon = ef_horizon
         self.babbling_steps = babbling_steps
         self.babbling_mode = babbling_mode
@@ -111,41 +120,29 @@ class EFMixin(AuxiliaryHostMixin):
             check_horizon_fits_episodes(self.ef_horizon, episode_steps(self.env))
         super()._setup_model()
 
-    def _build_auxiliary(self) -> ForesightLoss:
-        """EF's loss on :meth:`_ef_encoder`, sized by the host's EF policy."""
+    def _ef_policy(self) -> Any:
+        """The policy, checked to be the host's EF policy (it carries ``agent_dim`` and ``ef_kwargs``)."""
         policy, expected = self.policy, self.policy_aliases["CnnPolicy"]  # type: ignore[attr-defined]
         if not isinstance(policy, expected):
             name = type(self).__name__
             raise TypeError(f"{name} needs a {expected.__name__} (EF's sizes), got {type(policy).__name__}")
-        encoder, feature_dim, encoder_input = self._ef_encoder()
-        return self._foresight(
-            feature_dim, policy.agent_dim, policy.ef_kwargs, policy.channels_last, encoder, encoder_input
-        )
+        return policy
 
-    def _ef_encoder(self) -> tuple[nn.Module, int, tuple[float, float]]:
-        """The encoder EF trains, its feature size and its input ``(divisor, offset)`` (see :meth:`_foresight`)."""
-        raise NotImplementedError
-
-    def _foresight(
+    def _foresight_loss(
         self,
+        encoder: nn.Module,
         feature_dim: int,
         agent_dim: int,
         ef_kwargs: dict[str, Any] | None,
-        channels_last: bool,
-        encoder: nn.Module,
-        encoder_input: tuple[float, float],
+        channels_last: bool = False,
+        encode: Encode = feed_encoder,
     ) -> ForesightLoss:
-        """EF's loss on ``encoder`` (the module the host passes to ``after_update``)."""
+        """EF's loss (pixel or latent, as ``ef_kwargs`` says) on ``encoder``, fed as ``encode`` says; it takes
+        ``beta`` over from the constructor's argument and keeps it from then on."""
         action_dim = int(np.prod(self.action_space.shape))  # type: ignore[arg-type]
-        return ForesightLoss(
-            feature_dim,
-            action_dim,
-            self.frame_shape,
-            agent_dim,
-            self.ef_horizon,
-            self.beta,
-            ef_kwargs,
-            channels_last,
-            encoder=encoder,
-            encoder_input=encoder_input,
-        )
+        loss = foresight_loss(
+            feature_dim, action_dim, self.frame_shape, agent_dim, self.ef_horizon, self._beta, ef_kwargs,
+            channels_last, encoder, encode,
+        )  # fmt: skip
+        del self._beta
+        return loss

@@ -5,6 +5,8 @@ space")."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from functools import partial
 from typing import TYPE_CHECKING, NamedTuple
 
 import torch as th
@@ -175,13 +177,23 @@ class LatentHead(nn.Module):
         return self.prediction(self.projection(features))
 
 
+def feed_encoder(encoder: nn.Module, observations: th.Tensor) -> th.Tensor:
+    """The default ``encode``: the encoder takes the uint8 stacked observations as they are."""
+    return encoder(observations)
+
+
+def _scaled_input(divisor: float, offset: float, encoder: nn.Module, observations: th.Tensor) -> th.Tensor:
+    return encoder(observations.float() / divisor - offset)
+
+
 class MomentumTarget(nn.Module):
     """Latent EF's target: momentum copies (buffers, always in eval mode) of the host's encoder and the projection.
 
     :param encoder: the host's online encoder, the module the host passes to ``after_update``.
     :param projection: the online projection (:attr:`LatentHead.projection`).
     :param tau: the momentum update's step, in (0, 1].
-    :param input_scaling: ``(divisor, offset)``: the host feeds its encoder ``obs.float() / divisor - offset``.
+    :param encode: how the host computes features from its encoder and uint8 observations,
+        ``encode(encoder, observations)`` (a module-level function, so that the loss pickles); the copy is run so.
     """
 
     def __init__(
@@ -189,20 +201,25 @@ class MomentumTarget(nn.Module):
         encoder: nn.Module,
         projection: nn.Module,
         tau: float = DEFAULT_TARGET_TAU,
-        input_scaling: tuple[float, float] = (1.0, 0.0),
+        encode: Callable[[nn.Module, th.Tensor], th.Tensor] = feed_encoder,
     ):
         super().__init__()
         if isinstance(tau, bool) or not isinstance(tau, (int, float)) or not 0.0 < tau <= 1.0:
             raise ValueError(f"target_tau must be a number in (0, 1], got {tau!r}")
         if not isinstance(encoder, nn.Module):
             raise ValueError(f"target='latent' needs the host's encoder (an nn.Module), got {encoder!r}")
-        divisor, offset = input_scaling
-        if not divisor > 0:
-            raise ValueError(f"input_scaling's divisor must be positive, got {input_scaling!r}")
+        if not callable(encode):
+            raise ValueError(f"encode must be a callable encode(encoder, observations), got {encode!r}")
         self.tau = float(tau)
-        self.divisor, self.offset = float(divisor), float(offset)
+        self.encode = encode
         self.encoder = momentum_copy(encoder)
         self.projection = momentum_copy(projection)
+
+    def __setstate__(self, state: dict[str, object]) -> None:
+        """A target pickled by an earlier version (policy files) fed its encoder ``obs / divisor - offset``."""
+        if "encode" not in state:
+            state["encode"] = partial(_scaled_input, float(state.pop("divisor")), float(state.pop("offset")))  # type: ignore[arg-type]
+        super().__setstate__(state)
 
     def train(self, mode: bool = True) -> MomentumTarget:
         """The copies stay in eval mode."""
@@ -211,7 +228,7 @@ class MomentumTarget(nn.Module):
     @th.no_grad()
     def features(self, observations: th.Tensor) -> th.Tensor:
         """The target encoder's features (its first output if several) of uint8 stacked observations."""
-        output = self.encoder(observations.float() / self.divisor - self.offset)
+        output = self.encode(self.encoder, observations)
         return output[0] if isinstance(output, tuple) else output
 
     @th.no_grad()

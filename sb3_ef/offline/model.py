@@ -12,7 +12,7 @@ import torch as th
 from torch import nn
 
 from sb3_ef.ef import EgoForesight
-from sb3_ef.ef.foresight import momentum_target
+from sb3_ef.ef.latent import DEFAULT_TARGET_TAU, MomentumTarget
 from sb3_ef.offline.encoders import build_encoder
 
 
@@ -43,6 +43,8 @@ class OfflineEF(nn.Module):
         )
         options = dict(config.ef_kwargs)
         target_tau = options.pop("target_tau", None)
+        if target_tau is not None and options.get("target", "pixel") != "latent":
+            raise ValueError("ef_kwargs target_tau applies to target='latent' only, got it with target='pixel'")
         self.ef = EgoForesight(
             self.encoder.features_dim,
             config.action_dim,
@@ -53,7 +55,11 @@ class OfflineEF(nn.Module):
             **options,
         )
         # Latent EF (ef_kwargs target="latent"): the momentum copy of the encoder whose features it predicts.
-        self.target_encoder = momentum_target(self.ef, self.encoder, target_tau)
+        self.target_encoder = (
+            MomentumTarget(self.encoder, self.ef.head.projection, target_tau or DEFAULT_TARGET_TAU)
+            if self.ef.target == "latent"
+            else None
+        )
 
     def features(self, observations: th.Tensor) -> tuple[th.Tensor, th.Tensor | None]:
         return self.encoder(observations)

@@ -9,6 +9,7 @@ import torch as th
 from torch import nn
 
 from sb3_ef import registry
+from sb3_ef.ef.losses import LatentForesightLoss
 from sb3_ef.offline.encoders import HostEncoder
 from sb3_ef.offline.model import OfflineEF, load_pretrained
 
@@ -73,7 +74,7 @@ def load_ef(model: Any, pretrained: str | os.PathLike | OfflineEF) -> Any:
     with th.no_grad():
         encoder.load_state_dict(pretrained_net.state_dict())
         model.ef.load_state_dict(source.ef.state_dict())
-    target = model.auxiliary.target_encoder
-    if target is not None:  # latent EF: its momentum target restarts from the warm-started encoder and projection
-        target.copy_from(encoder, model.ef.head.projection)
+    if isinstance(model.auxiliary, LatentForesightLoss):
+        # Latent EF: its momentum target restarts from the warm-started encoder and projection.
+        model.auxiliary.target_encoder.copy_from(encoder, model.ef.head.projection)
     return model

@@ -1,7 +1,7 @@
 """SAC, TD3 and sb3-contrib's TQC from pixels with an auxiliary loss (Ego-Foresight) as a step of its own."""
 
-from sb3_ef.auxiliary.step import AuxiliaryStepMixin
 from sb3_ef.common.buffers import ShiftedSequenceReplayBuffer
 from sb3_ef.sb3_hosts.ef_hosts import SACEF, TD3EF, TQCEF, EFStepMixin
+from sb3_ef.sb3_hosts.step import AuxiliaryStepMixin
 
 __all__ = ["SACEF", "TD3EF", "TQCEF", "AuxiliaryStepMixin", "EFStepMixin", "ShiftedSequenceReplayBuffer"]

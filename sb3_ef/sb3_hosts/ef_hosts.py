@@ -8,10 +8,11 @@ import torch as th
 from sb3_contrib import TQC
 from stable_baselines3 import SAC, TD3
 from stable_baselines3.common.type_aliases import GymEnv
+from torch import nn
 
-from sb3_ef.auxiliary.step import AuxiliaryStepMixin
-from sb3_ef.ef.foresight import ForesightLoss
 from sb3_ef.ef.host import EFMixin
+from sb3_ef.ef.losses import ForesightLoss
+from sb3_ef.sb3_hosts.step import AuxiliaryStepMixin
 
 
 def with_use_sde(policy_kwargs: dict[str, Any], data: dict[str, Any]) -> dict[str, Any]:
@@ -65,8 +66,18 @@ class EFStepMixin(EFMixin, AuxiliaryStepMixin):
         """EF on the critic's encoder, built in a forked generator so that the host's draws stay as they are."""
         with th.random.fork_rng(devices=[]):
             encoder = self.critic.features_extractor  # fed SB3's preprocessed observations (extract_features)
-            scaling = (255.0 if self.critic.normalize_images else 1.0, 0.0)
-            return self._foresight(encoder.features_dim, self.agent_dim, self.ef_kwargs, False, encoder, scaling)
+            encode = normalized_features if self.critic.normalize_images else float_features
+            return self._foresight_loss(encoder, encoder.features_dim, self.agent_dim, self.ef_kwargs, encode=encode)
+
+
+def normalized_features(encoder: nn.Module, observations: th.Tensor) -> th.Tensor:
+    """An SB3 features extractor on uint8 images, scaled to [0, 1] as SB3's ``preprocess_obs`` does."""
+    return encoder(observations.float() / 255.0)
+
+
+def float_features(encoder: nn.Module, observations: th.Tensor) -> th.Tensor:
+    """An SB3 features extractor on images given as they are (``normalize_images=False``)."""
+    return encoder(observations.float())
 
 
 class SACEF(EFStepMixin, SAC):

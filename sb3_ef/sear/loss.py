@@ -54,6 +54,9 @@ class SEARLoss(AuxiliaryLoss):
     :param coefficients: a :data:`SEAR_COEFFICIENTS` name or a pair ``(reconstruction_coef, mask_coef)``.
     """
 
+    reconstruction_coef: th.Tensor
+    mask_coef: th.Tensor
+
     def __init__(
         self,
         features_dim: int,
@@ -71,7 +74,9 @@ class SEARLoss(AuxiliaryLoss):
             raise ValueError(
                 f"SEAR expects observations of shape (3 * frame_stack, height, width), got {observation_shape!r}"
             )
-        self.reconstruction_coef, self.mask_coef = resolve_coefficients(coefficients)
+        reconstruction_coef, mask_coef = resolve_coefficients(coefficients)
+        self.register_coefficient("reconstruction_coef", reconstruction_coef)
+        self.register_coefficient("mask_coef", mask_coef)
         self.features_dim = features_dim
         self.observation_shape: tuple[int, int, int] = shape
         self.frame_stack = shape[0] // FRAME_CHANNELS

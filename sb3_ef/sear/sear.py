@@ -14,6 +14,9 @@ from sb3_ef.drqv2.drqv2 import DrQv2
 from sb3_ef.drqv2.policies import DrQv2Policy
 from sb3_ef.sear.loss import SEAR_LATENT_DIM, SEARLoss, resolve_coefficients
 
+#: DrQv2EF's arguments, which SEAR refuses by name.
+EF_ARGUMENTS = frozenset({"beta", "ef_horizon", "babbling_steps", "babbling_mode", "babbling_in_eval"})
+
 
 class SEARPolicy(DrQv2Policy):
     """:class:`DrQv2Policy` whose encoder projects to SEAR's 4096 features (split by :class:`SEARLoss`)."""
@@ -64,6 +67,12 @@ class SEAR(DrQv2):
         _init_setup_model: bool = True,
         **kwargs: Any,
     ):
+        ef_arguments = sorted(set(kwargs) & EF_ARGUMENTS)
+        if ef_arguments:
+            raise TypeError(
+                f"SEAR takes no Ego-Foresight argument, got {ef_arguments}: SEAR is DrQ-v2 with SEAR's own frame and "
+                "agent-mask decoders (weighted by coefficients=...); for Ego-Foresight on DrQ-v2 use DrQv2EF"
+            )
         resolve_coefficients(coefficients)  # a bad preset or pair fails here, before anything is built
         store_masks = (replay_buffer_kwargs or {}).get("store_masks", True)
         if store_masks is not True:

@@ -16,10 +16,9 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 
 from sb3_ef.auxiliary.host import AuxiliaryHostMixin, aux_grad_ratio_due, encoder_gradient_ratio
-from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.common.buffers import SequenceReplayBuffer, SequenceReplayBufferSamples
 from sb3_ef.common.compile import CompileOption, compile_kwargs, maybe_compile
-from sb3_ef.common.env_checks import check_box_actions, policy_observation_space
+from sb3_ef.common.env_checks import check_box_actions, policy_observation_space, sequence_buffer
 from sb3_ef.common.exploration import OwnExplorationMixin
 from sb3_ef.common.forwarding import base_arguments
 from sb3_ef.common.layers import frozen
@@ -67,7 +66,7 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"CnnPolicy": TDMPC2Policy}
     policy: TDMPC2Policy
-    replay_buffer: SequenceReplayBuffer | None  # _use_sequence_buffer makes SB3 build one
+    replay_buffer: SequenceReplayBuffer | None  # _setup_model makes SB3 build one
 
     def __init__(
         self,
@@ -135,11 +134,24 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
             self._setup_model()
 
     def _setup_model(self) -> None:
-        """SB3's setup with a sequence replay buffer, the planner's horizon and discount, compiled losses."""
+        """SB3's setup with a sequence replay buffer, the planner's horizon and discount; the auxiliary loss joins the
+        world model's Adam; compiled losses."""
         self._derive_from_episode_length()
-        self._use_sequence_buffer("TD-MPC2 trains on consecutive steps", horizon=self.window, n_steps=1)
+        self.replay_buffer_class, self.replay_buffer_kwargs = sequence_buffer(
+            self.replay_buffer_class,
+            self.replay_buffer_kwargs,
+            "TD-MPC2 trains on consecutive steps",
+            horizon=self.window,
+            n_steps=1,
+        )
         with policy_built_with(self, horizon=self.horizon, gamma=self.gamma):
             super()._setup_model()
+        auxiliary = self._build_auxiliary()
+        if auxiliary is not None:
+            self.policy.auxiliary = auxiliary.to(self.device)
+            # The auxiliary loss is added to the world model's: its modules step in the world model's Adam, in a
+            # group of their own (named, so that their gradient is clipped apart: tdmpc2/gradients.py).
+            self.policy.optimizer.add_param_group({"name": "auxiliary", "params": list(auxiliary.parameters())})
         self._world_model_losses = maybe_compile(self._world_model_losses, self.compile)  # type: ignore[method-assign]
         self._policy_loss = maybe_compile(self._policy_loss, self.compile)  # type: ignore[method-assign]
 
@@ -149,9 +161,6 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
             self.gamma = discount_from_episode_length(known_episode_steps(self.env, "gamma"))
         if self.learning_starts is None:
             self.learning_starts = seed_steps_from_episode_length(known_episode_steps(self.env, "learning_starts"))
-
-    def _optimise_auxiliary(self, auxiliary: AuxiliaryLoss) -> None:
-        self.policy.optimizer.add_param_group({"name": "auxiliary", "params": list(auxiliary.parameters())})
 
     @property
     def window(self) -> int:
@@ -163,22 +172,58 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         return self.policy.world_model
 
     def train(self, gradient_steps: int, batch_size: int = 256) -> None:
-        optimizers = [self.policy.optimizer, self.policy.pi_optimizer]
-        self._train_round(self._with_seed_burst(gradient_steps), batch_size, optimizers)
-
-    def _with_seed_burst(self, gradient_steps: int) -> int:
-        """The first round runs ``learning_starts`` updates (TD-MPC2's pretraining on the seed data)."""
+        """``gradient_steps`` updates (the first round: ``learning_starts``, TD-MPC2's pretraining on the seed data)
+        at the learning rate of the schedule, the encoder's group at its ``lr_scale``."""
+        self.policy.set_training_mode(True)
+        learning_rate = self.lr_schedule(self._current_progress_remaining)
+        self.logger.record("train/learning_rate", learning_rate)
+        for optimizer in (self.policy.optimizer, self.policy.pi_optimizer):
+            for group in optimizer.param_groups:
+                group["lr"] = learning_rate * group.get("lr_scale", 1.0)
         if self.seed_burst and self._n_updates == 0:
-            return max(gradient_steps, self.learning_starts)
-        return gradient_steps
+            gradient_steps = max(gradient_steps, self.learning_starts)
+        updates = []
+        for _ in range(gradient_steps):
+            self._n_updates += 1
+            batch = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
+            updates.append(self._update(batch))
+        self._record_updates(updates)
 
     def _update(self, batch: SequenceReplayBufferSamples) -> dict[str, th.Tensor]:
-        """World model step, policy prior step on detached latents, target Q; returns the scalars to log."""
+        """One TD-MPC2 update (tdmpc2's ``_update``), with the auxiliary loss on the first latent.
+
+        1. The window, time-major, every observation shifted by up to 3 pixels (the one at t by the auxiliary loss,
+           with its targets); TD targets ``r + gamma * min`` of two random target Q heads at the prior's action on
+           the encodings of t+1..t+H, without gradient.
+        2. The latent rolled forward from ``z_t = encode(obs_t)`` with the actions: consistency (squared error to
+           the encodings), reward and value (two-hot cross-entropies), each weighted ``rho^t`` over the horizon.
+        3. The auxiliary loss (``beta`` times EF's) on ``z_t``.
+        4. One step of the world model's Adam (encoder at ``encoder_lr_scale``, auxiliary modules in their group):
+           ``20 consistency + 0.1 reward + 0.1 value`` clipped to ``max_grad_norm``, the auxiliary's gradient
+           clipped to it on its own and added (docs/tdmpc2.md).
+        5. The policy prior on the detached latents, the Q heads frozen: its own Adam and clip.
+        6. Soft update of the target Q heads; the auxiliary's ``after_update``.
+        """
         compiled = self.compile is not False
         if compiled:
             th.compiler.cudagraph_mark_step_begin()
-        losses, latents, valid = self.losses(batch)
-        logs = self._world_model_step(losses)
+        losses, auxiliary, latents, valid = self.losses(batch)
+        host_loss = (
+            self.consistency_coef * losses["consistency_loss"]
+            + self.reward_coef * losses["reward_loss"]
+            + self.value_coef * losses["value_loss"]
+        )
+        auxiliary_loss, auxiliary_logs = auxiliary if auxiliary is not None else (None, {})
+        self._check_finite(**losses, **({} if auxiliary_loss is None else {"auxiliary_loss": auxiliary_loss}))
+        logs = {**{key: value.detach() for key, value in losses.items()}, **auxiliary_logs}
+        logs["total_loss"] = (host_loss if auxiliary_loss is None else host_loss + auxiliary_loss).detach()
+        if auxiliary_loss is not None and not compiled and aux_grad_ratio_due(self._n_updates):
+            ratio = encoder_gradient_ratio(auxiliary_loss, host_loss, self.world_model.encoder.parameters())
+            logs["aux_grad_ratio"] = self._averaged_aux_grad_ratio(ratio)
+        self.policy.optimizer.zero_grad()
+        logs.update(clipped_world_model_gradients(self.policy.optimizer, host_loss, auxiliary_loss, self.max_grad_norm))
+        self.policy.optimizer.step()
+
         logs["pi_loss"] = self._policy_step(latents.detach(), valid)
         self.world_model.soft_update_target_q(self.tau)
         if self.auxiliary is not None:
@@ -186,25 +231,6 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         logs["q_scale"] = self.policy.q_scale.clone()
         # CUDA graph outputs are overwritten by the next replay: keep copies.
         return {name: value.clone() for name, value in logs.items()} if compiled else logs
-
-    def _world_model_step(self, losses: dict[str, th.Tensor]) -> dict[str, th.Tensor]:
-        """The world model's (and auxiliary module's) clipped step; returns the losses, total and gradient norms."""
-        self._check_finite(**losses)
-        auxiliary_loss = losses.pop("auxiliary_loss", None)
-        host_loss = (
-            self.consistency_coef * losses["consistency_loss"]
-            + self.reward_coef * losses["reward_loss"]
-            + self.value_coef * losses["value_loss"]
-        )
-        logs = {key: value.detach() for key, value in losses.items()}
-        logs["total_loss"] = (host_loss if auxiliary_loss is None else host_loss + auxiliary_loss).detach()
-        if auxiliary_loss is not None and self.compile is False and aux_grad_ratio_due(self._n_updates):
-            encoder = self.world_model.encoder.parameters()
-            logs["aux_grad_ratio"] = encoder_gradient_ratio(auxiliary_loss, host_loss, encoder)
-        self.policy.optimizer.zero_grad()
-        logs.update(clipped_world_model_gradients(self.policy.optimizer, host_loss, auxiliary_loss, self.max_grad_norm))
-        self.policy.optimizer.step()
-        return logs
 
     def _policy_step(self, latents: th.Tensor, valid: th.Tensor) -> th.Tensor:
         """The policy prior's step on :meth:`_policy_loss`, the Q-ensemble frozen; returns the detached loss."""
@@ -217,12 +243,13 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         self.policy.pi_optimizer.step()
         return pi_loss.detach()
 
-    def losses(self, batch: SequenceReplayBufferSamples) -> tuple[dict[str, th.Tensor], th.Tensor, th.Tensor]:
-        """Unweighted world-model losses (and weighted ``auxiliary_loss``), the latents ``(H+1, B, L)``, validity."""
+    def losses(self, batch: SequenceReplayBufferSamples) -> tuple[dict[str, th.Tensor], Any, th.Tensor, th.Tensor]:
+        """The unweighted world-model losses, the auxiliary's ``(weighted loss, logs)`` (``None`` without one), the
+        latents ``(H+1, B, L)`` and their validity."""
         augment_first = partial(self._augment_observations, pad=SHIFT_PAD)
         return self._world_model_losses(training_sequence(batch, self.horizon, augment_first))
 
-    def _world_model_losses(self, sequence: Sequence) -> tuple[dict[str, th.Tensor], th.Tensor, th.Tensor]:
+    def _world_model_losses(self, sequence: Sequence) -> tuple[dict[str, th.Tensor], Any, th.Tensor, th.Tensor]:
         next_latents, td_targets = self._td_targets(sequence)
         first_latent = self.world_model.encode(sequence.first)
         rollout, consistency_loss = self._rollout_and_consistency_loss(first_latent, sequence, next_latents)
@@ -231,11 +258,9 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
             "reward_loss": self._reward_loss(rollout, sequence),
             "value_loss": self._value_loss(rollout, sequence, td_targets),
         }
-        if self.auxiliary is not None:
-            auxiliary_loss, logs = self.auxiliary(first_latent, sequence.auxiliary_targets)
-            losses.update(auxiliary_loss=auxiliary_loss, **logs)
+        auxiliary = None if self.auxiliary is None else self.auxiliary(first_latent, sequence.auxiliary_targets)
         first_valid = th.ones_like(sequence.valid[:1])
-        return losses, rollout, th.cat([first_valid, sequence.valid])
+        return losses, auxiliary, rollout, th.cat([first_valid, sequence.valid])
 
     def _td_targets(self, sequence: Sequence) -> tuple[th.Tensor, th.Tensor]:
         """Encodings ``(H, B, L)`` of t+1..t+H and TD targets ``(H, B)`` from the min of two random target Q heads."""

@@ -8,13 +8,14 @@ import torch as th
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
-from torch import nn
 
 from sb3_ef.common.compile import CompileOption
 from sb3_ef.common.forwarding import base_arguments
 from sb3_ef.ef.host import EFMixin
+from sb3_ef.ef.losses import ForesightLoss
 from sb3_ef.tdmpc2.policies import TDMPC2EFPolicy
 from sb3_ef.tdmpc2.tdmpc2 import TDMPC2
+from sb3_ef.tdmpc2.world_model import encode_frames
 
 
 class TDMPC2EF(EFMixin, TDMPC2):
@@ -71,6 +72,10 @@ class TDMPC2EF(EFMixin, TDMPC2):
         if _init_setup_model:
             self._setup_model()
 
-    def _ef_encoder(self) -> tuple[nn.Module, int, tuple[float, float]]:
-        model = self.policy.world_model  # WorldModel.encode feeds its encoder obs / 255 - 0.5
-        return model.encoder, model.latent_dim, (255.0, 0.5)
+    def _build_auxiliary(self) -> ForesightLoss:
+        """EF on the world model's encoder, fed ``obs / 255 - 0.5`` as :meth:`WorldModel.encode` feeds it."""
+        policy = self._ef_policy()
+        model = policy.world_model
+        return self._foresight_loss(
+            model.encoder, model.latent_dim, policy.agent_dim, policy.ef_kwargs, policy.channels_last, encode_frames
+        )

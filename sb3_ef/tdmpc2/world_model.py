@@ -26,6 +26,11 @@ class PolicyOutput(NamedTuple):
     scaled_entropy: th.Tensor  # TD-MPC2's entropy term: -action_dim x the Gaussian (pre-tanh) log-prob, (...,)
 
 
+def encode_frames(encoder: nn.Module, observations: th.Tensor) -> th.Tensor:
+    """TD-MPC2's encoder on stacked frames in [0, 255], scaled to ``obs / 255 - 0.5``."""
+    return encoder(observations.float() / 255.0 - 0.5)
+
+
 class WorldModel(nn.Module):
     """TD-MPC2's heads ``encode``, ``next``, ``reward``, ``pi`` and ``q`` on a SimNorm latent (see docs/tdmpc2.md).
 
@@ -98,7 +103,7 @@ class WorldModel(nn.Module):
 
     def encode(self, observations: th.Tensor) -> th.Tensor:
         """Stacked frames ``(B, C, 64, 64)`` (uint8 or float in [0, 255]) -> SimNorm latent ``(B, latent_dim)``."""
-        return self.encoder(observations.float() / 255.0 - 0.5)
+        return encode_frames(self.encoder, observations)
 
     def next(self, z: th.Tensor, action: th.Tensor) -> th.Tensor:
         return self.dynamics(th.cat([z, action], dim=-1))

@@ -13,7 +13,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from sb3_ef.common.buffers import SequenceReplayBuffer
-from sb3_ef.ef import ForesightLoss
+from sb3_ef.ef import foresight_loss
 from sb3_ef.ef.latent import info_nce
 
 FEATURES, ACTIONS, AGENT, H, SIZE = 24, 2, 6, 4, 16
@@ -22,10 +22,14 @@ LATENT = {"target": "latent", "rollout_hidden_dims": (16,), "decoder_channels": 
 
 
 def conv_encoder() -> nn.Module:
-    """A small encoder of 9 x 16 x 16 uint8 observations (scaled by the caller, as ``encoder_input=(255, 0)``)."""
+    """A small encoder of 9 x 16 x 16 observations in [0, 1] (fed by :func:`scaled`)."""
     return nn.Sequential(
         nn.Conv2d(9, 16, 3, stride=2, padding=1), nn.ReLU(), nn.Flatten(), nn.Linear(16 * (SIZE // 2) ** 2, FEATURES)
     )  # fmt: skip
+
+
+def scaled(encoder: nn.Module, observations: th.Tensor) -> th.Tensor:
+    return encoder(observations.float() / 255.0)
 
 
 def test_info_nce_leaves_invalid_candidates_out_but_a_samples_own_positive_in():
@@ -58,8 +62,8 @@ def episodes_buffer(lengths: list[int]) -> SequenceReplayBuffer:
 def test_candidates_past_an_episodes_end_do_not_change_the_loss():
     th.manual_seed(0)
     encoder = conv_encoder()
-    loss_module = ForesightLoss(
-        FEATURES, ACTIONS, (3, SIZE, SIZE), AGENT, H, ef_kwargs=LATENT, encoder=encoder, encoder_input=(255.0, 0.0)
+    loss_module = foresight_loss(
+        FEATURES, ACTIONS, (3, SIZE, SIZE), AGENT, H, ef_kwargs=LATENT, encoder=encoder, encode=scaled
     )
     batch = episodes_buffer([2, 3, 1, 2, 3, 2]).sample(12)
     observations, targets = loss_module.prepare(batch, pad=0, generator=th.Generator().manual_seed(0))
@@ -102,9 +106,9 @@ def test_an_encoder_that_sees_only_the_shift_cannot_beat_chance():
     batch_size, pad = 16, 4
     th.manual_seed(seed)
     encoder = conv_encoder()
-    loss_module = ForesightLoss(
+    loss_module = foresight_loss(
         FEATURES, ACTIONS, (3, SIZE, SIZE), AGENT, H, ef_kwargs={**LATENT, "target_tau": 1.0}, encoder=encoder,
-        encoder_input=(255.0, 0.0),
+        encode=scaled,
     )  # fmt: skip
     optimizer = th.optim.Adam([*encoder.parameters(), *loss_module.parameters()], lr=1e-3)
     buffer, generator = constant_buffer(), th.Generator().manual_seed(seed)

@@ -42,7 +42,7 @@ def train_latent(data: dict[str, th.Tensor], updates: int) -> tuple[nn.Module, E
     ef = EgoForesight(FEATURES, 2, (3, SIZE, SIZE), agent_dim=AGENT_DIM, horizon=HORIZON, rollout_hidden_dims=(64, 64),
                       decoder_channels=32, step_sampling="sample", target="latent", projection_dim=32,
                       head_hidden_dim=64)  # fmt: skip
-    target = MomentumTarget(encoder, ef.head.projection, 0.01, (255.0, 0.5))
+    target = MomentumTarget(encoder, ef.head.projection, 0.01, encode)
     optimizer = th.optim.Adam([*encoder.parameters(), *ef.rollout_block.parameters(), *ef.head.parameters()], lr=1e-3)
     generator = th.Generator().manual_seed(0)
     mask = th.ones(BATCH, HORIZON, dtype=th.bool)

@@ -73,7 +73,8 @@ def test_each_loss_reaches_its_half_of_the_latent_the_encoder_and_nothing_of_the
         ((0.0, 1.0), model.auxiliary.mask_decoder, model.auxiliary.frame_decoder),
     ):
         model.policy.zero_grad(set_to_none=True)
-        model.auxiliary.reconstruction_coef, model.auxiliary.mask_coef = coefficients
+        model.auxiliary.reconstruction_coef.fill_(coefficients[0])
+        model.auxiliary.mask_coef.fill_(coefficients[1])
         observations, targets = model._augment_observations(batch, pad=4)
         features = model.policy.encoder(observations)
         features.retain_grad()

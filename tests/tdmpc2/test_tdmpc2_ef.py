@@ -66,8 +66,8 @@ def test_world_model_loss_decreases_on_a_fixed_batch():
 
     def evaluate():
         th.manual_seed(1)
-        losses, _, _ = model.losses(batch)
-        return host_loss(model, losses).item(), losses["ef_loss"].item()
+        losses, (_, logs), _, _ = model.losses(batch)
+        return host_loss(model, losses).item(), logs["ef_loss"].item()
 
     host_before, ef_before = evaluate()
     for _ in range(30):
@@ -88,8 +88,10 @@ def test_host_losses_are_identical_with_and_without_ef():
     for model in (with_ef, without_ef):
         model.policy.set_training_mode(True)
         th.manual_seed(5)
-        results.append(model.losses(batch)[0])
-    assert "ef_loss" in results[0] and "ef_loss" not in results[1]
+        losses, auxiliary, _, _ = model.losses(batch)
+        results.append((losses, auxiliary))
+    assert results[0][1] is not None and results[1][1] is None
+    results = [losses for losses, _ in results]
     for key in ("consistency_loss", "reward_loss", "value_loss"):
         th.testing.assert_close(results[0][key], results[1][key], rtol=0, atol=0)
 
@@ -98,8 +100,8 @@ def test_ef_loss_reaches_the_encoder_but_not_the_heads():
     model = make()
     batch = filled_batch(model)
     model.policy.set_training_mode(True)
-    losses, _, _ = model.losses(batch)
-    losses["auxiliary_loss"].backward()  # beta * ef_loss
+    _, (auxiliary_loss, _), _, _ = model.losses(batch)
+    auxiliary_loss.backward()  # beta * ef_loss
     assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in model.world_model.encoder.parameters())
     assert all(p.grad is None for p in model.world_model.q_heads.parameters())
     assert all(p.grad is None for p in model.world_model.dynamics.parameters())

@@ -1,20 +1,30 @@
-"""An auxiliary representation loss on an SB3 off-policy algorithm from pixels, as a step of its own after each of
-the host's updates (SB3's ``train()`` has no hook for an extra loss); the host's updates stay SB3's own."""
+"""An auxiliary representation loss on an SB3 off-policy algorithm from pixels (SAC, TD3, TQC), as a step of its own
+after each of the host's updates: SB3's ``train()`` has no place for an extra loss, so the host's updates stay SB3's
+own and the auxiliary loss trains the critic's encoder with an Adam of its own."""
 
 from __future__ import annotations
 
 import itertools
+from collections.abc import Iterable
 from typing import Any
 
 import torch as th
 from stable_baselines3.common.base_class import maybe_make_env
+from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.type_aliases import GymEnv
+from torch import nn
 
 from sb3_ef.auxiliary.host import AuxiliaryHostMixin, aux_grad_ratio_due, gradient_norm, gradient_norm_ratio
 from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.common.batch_norm import running_stats_kept
 from sb3_ef.common.buffers import SequenceReplayBufferSamples, ShiftedSequenceReplayBuffer
-from sb3_ef.common.env_checks import check_box_actions, check_stacked_frames, policy_observation_space
+from sb3_ef.common.env_checks import (
+    check_box_actions,
+    check_stacked_frames,
+    n_steps_given_to_buffer,
+    policy_observation_space,
+    sequence_buffer,
+)
 from sb3_ef.common.validation import check_algorithm_arguments
 
 
@@ -22,7 +32,7 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
     """Trains an auxiliary loss on the critic encoder of the SB3 algorithm it precedes; other arguments the host's.
 
     :param shift_pad: random shift (pixels) of the auxiliary step's batch (none with a ShiftedSequenceReplayBuffer).
-    :param auxiliary_learning_rate: learning rate of the auxiliary step's Adam (``None``: the host's).
+    :param auxiliary_learning_rate: learning rate (> 0) of the auxiliary step's Adam (``None``: the host's schedule).
     :param check_finite_losses: raise a ``ValueError`` when the auxiliary loss is NaN or infinite, before its step.
     """
 
@@ -31,6 +41,8 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
     #: The auxiliary module, kept on the algorithm so that the policy stays SB3's own; saved with the model.
     auxiliary_module: AuxiliaryLoss | None = None
     auxiliary_optimizer: th.optim.Optimizer
+    replay_buffer_class: type[ReplayBuffer] | None
+    replay_buffer_kwargs: dict[str, Any]
 
     def __init__(
         self,
@@ -53,6 +65,15 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
         super().__init__(policy, env, _init_setup_model=False, **kwargs)  # type: ignore[call-arg]
         if shift_pad < 0:
             raise ValueError(f"shift_pad must be >= 0, got {shift_pad}")
+        if auxiliary_learning_rate is not None and (
+            isinstance(auxiliary_learning_rate, bool)
+            or not isinstance(auxiliary_learning_rate, (int, float))
+            or not auxiliary_learning_rate > 0
+        ):
+            raise ValueError(
+                "auxiliary_learning_rate must be a positive number (None: the host's learning rate), "
+                f"got {auxiliary_learning_rate!r}"
+            )
         self.shift_pad = shift_pad
         self.auxiliary_learning_rate = auxiliary_learning_rate
         self.check_finite_losses = check_finite_losses
@@ -60,27 +81,32 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
             self._setup_model()
 
     def _setup_model(self) -> None:
-        """The host's setup with a sequence replay buffer."""
-        self._use_sequence_buffer(
+        """The host's setup with a sequence replay buffer; the auxiliary loss gets an Adam of its own, over its
+        module and the critic's features extractor (the encoder it trains besides the critic)."""
+        self.replay_buffer_class, self.replay_buffer_kwargs = sequence_buffer(
+            self.replay_buffer_class,
+            self.replay_buffer_kwargs,
             f"{type(self).__name__} samples the auxiliary loss's batches",
             horizon=max(1, self._auxiliary_horizon()),
             n_steps=self.n_steps,  # type: ignore[attr-defined]
             gamma=self.gamma,  # type: ignore[attr-defined]
         )
-        super()._setup_model()
+        with n_steps_given_to_buffer():
+            super()._setup_model()
+        auxiliary = self._build_auxiliary()
+        if auxiliary is not None:
+            self.auxiliary_module = auxiliary.to(self.device)
+            self.auxiliary_optimizer = self._auxiliary_adam(auxiliary.parameters())
 
-    def _keep_auxiliary(self, auxiliary: AuxiliaryLoss) -> None:
-        self.auxiliary_module = auxiliary
+    def _auxiliary_adam(self, parameters: Iterable[nn.Parameter]) -> th.optim.Optimizer:
+        """An Adam over ``parameters`` and the critic's features extractor at the auxiliary learning rate."""
+        learning_rate = self.lr_schedule(1) if self.auxiliary_learning_rate is None else self.auxiliary_learning_rate  # type: ignore[attr-defined]
+        return th.optim.Adam([*parameters, *self.critic.features_extractor.parameters()], lr=learning_rate)
 
     @property
     def auxiliary(self) -> AuxiliaryLoss | None:
+        """The auxiliary loss module, kept on the algorithm (``auxiliary_module``) so that the policy stays SB3's."""
         return self.auxiliary_module
-
-    def _optimise_auxiliary(self, auxiliary: AuxiliaryLoss) -> None:
-        """A separate Adam over the auxiliary module and the critic's features extractor."""
-        learning_rate = self.auxiliary_learning_rate or self.lr_schedule(1)  # type: ignore[attr-defined]
-        encoder = self.critic.features_extractor
-        self.auxiliary_optimizer = th.optim.Adam([*auxiliary.parameters(), *encoder.parameters()], lr=learning_rate)
 
     def encode(self, observations: th.Tensor) -> th.Tensor:
         """Features h of the critic's encoder for uint8 stacked observations (no augmentation)."""
@@ -139,7 +165,8 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
         self.auxiliary_optimizer.zero_grad()
         loss.backward()
         if host_norm is not None:
-            logs["aux_grad_ratio"] = gradient_norm_ratio(self.critic.features_extractor.parameters(), host_norm)
+            ratio = gradient_norm_ratio(self.critic.features_extractor.parameters(), host_norm)
+            logs["aux_grad_ratio"] = self._averaged_aux_grad_ratio(ratio)
         self.auxiliary_optimizer.step()
         self.auxiliary.after_update(self.critic.features_extractor)
         return logs
