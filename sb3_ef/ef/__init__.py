@@ -2,7 +2,7 @@
 
 from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.ef.decoder import FrameDecoder, decoder_layers
-from sb3_ef.ef.foresight import EgoForesight, RolloutBlock, draw_rollout_steps
+from sb3_ef.ef.foresight import EgoForesight, LatentEgoForesight, RolloutBlock, draw_rollout_steps, ego_foresight
 from sb3_ef.ef.latent import TARGETS, LatentHead, MomentumTarget
 from sb3_ef.ef.losses import ForesightLoss, ForesightTargets, LatentForesightLoss, foresight_loss
 from sb3_ef.ef.probe import fit_probe
@@ -14,12 +14,14 @@ __all__ = [
     "ForesightLoss",
     "ForesightTargets",
     "FrameDecoder",
+    "LatentEgoForesight",
     "LatentForesightLoss",
     "LatentHead",
     "MomentumTarget",
     "RolloutBlock",
     "decoder_layers",
     "draw_rollout_steps",
+    "ego_foresight",
     "fit_probe",
     "foresight_loss",
 ]

@@ -1,8 +1,9 @@
-"""Ego-Foresight: the module, the rollout-length rule, and EF as a host's auxiliary loss (docs/ef.md)."""
+"""Ego-Foresight's modules, pixel (the paper's) and latent, sharing the split and the rollout; the rollout-length
+rule (docs/ef.md)."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Any, ClassVar
 
 import torch as th
 from torch import nn
@@ -19,9 +20,6 @@ from sb3_ef.ef.latent import (
     check_target,
     info_nce,
 )
-
-if TYPE_CHECKING:
-    pass
 
 STEP_SAMPLINGS = ("batch", "sample")
 
@@ -99,15 +97,12 @@ class EgoForesight(nn.Module):
     :param skip_channels: channels of the encoder feature map passed as U-Net skip, 0 for none.
     :param step_sampling: ``"batch"`` (one k per batch) or ``"sample"`` (one k per sample).
     :param decode_batch_size: decode only this many samples per batch (``None``: all); changes the method.
-    :param target: ``"pixel"`` (the paper, frame t+k) or ``"latent"`` (target features of t+k; the decoder a probe).
-    :param projection_dim: latent EF's projection size (latent only).
-    :param head_hidden_dim: width of latent EF's projection and prediction MLPs (latent only).
-    :param temperature: latent EF's InfoNCE temperature (latent only).
-    :param loss_scale: weight of latent EF's InfoNCE, times ``beta`` (latent only).
     """
 
-    head: LatentHead  # latent EF only
-    probe_steps: th.Tensor  # latent EF only
+    #: What the loss predicts: the frame at t+k (:class:`LatentEgoForesight`: features of the observation at t+k).
+    target: ClassVar[str] = "pixel"
+    #: Weight of the loss inside EF's, times ``beta`` (1: the paper's squared error as it is).
+    loss_scale: float = 1.0
 
     def __init__(
         self,
@@ -121,20 +116,8 @@ class EgoForesight(nn.Module):
         skip_channels: int = 0,
         step_sampling: str = "batch",
         decode_batch_size: int | None = None,
-        target: str = "pixel",
-        projection_dim: int | None = None,
-        head_hidden_dim: int | None = None,
-        temperature: float | None = None,
-        loss_scale: float | None = None,
     ):
         super().__init__()
-        latent_options = {
-            "projection_dim": projection_dim,
-            "head_hidden_dim": head_hidden_dim,
-            "temperature": temperature,
-            "loss_scale": loss_scale,
-        }
-        self.target = check_target(target, decode_batch_size, **latent_options)
         if not 1 <= agent_dim < feature_dim:
             raise ValueError(f"agent_dim must be in [1, feature_dim={feature_dim}), got {agent_dim}")
         if action_dim < 1:
@@ -155,16 +138,12 @@ class EgoForesight(nn.Module):
         self.decode_batch_size = decode_batch_size
         self.rollout_block = RolloutBlock(agent_dim, action_dim, rollout_hidden_dims)
         self.decoder = FrameDecoder(feature_dim, frame_shape, decoder_channels, skip_channels)
-        self.loss_scale = 1.0
-        if target == "latent":
-            self.loss_scale = check_loss_scale(DEFAULT_LOSS_SCALE if loss_scale is None else loss_scale)
-            projection = DEFAULT_PROJECTION_DIM if projection_dim is None else projection_dim
-            hidden = DEFAULT_HEAD_HIDDEN_DIM if head_hidden_dim is None else head_hidden_dim
-            self.head = LatentHead(
-                feature_dim, projection, hidden, DEFAULT_TEMPERATURE if temperature is None else temperature
-            )
-            # Probe decoder updates, counted by whoever fits it: 0 means untrained.
-            self.register_buffer("probe_steps", th.zeros((), dtype=th.long))
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        """A module pickled by an earlier version (policy files) kept ``target`` per instance: latent EF's class."""
+        if state.pop("target", "pixel") == "latent":
+            self.__class__ = LatentEgoForesight
+        super().__setstate__(state)
 
     @property
     def scene_dim(self) -> int:
@@ -182,12 +161,7 @@ class EgoForesight(nn.Module):
         return self.rollout_block(h_agent, actions)
 
     def decode(self, h_scene: th.Tensor, h_agent: th.Tensor, skip: th.Tensor | None = None) -> th.Tensor:
-        """Decode scene and (predicted) agent features to a (B, C, h, w) frame in [0, 1] (latent EF: its probe)."""
-        if self.target == "latent" and int(self.probe_steps) == 0:
-            raise ValueError(
-                "This Ego-Foresight predicts features (target='latent'): it decodes frames through a probe decoder, "
-                "which is not trained yet; fit it first with sb3_ef.ef.probe.fit_probe(model)"
-            )
+        """Decode scene and (predicted) agent features to a (B, C, h, w) frame in [0, 1]."""
         return self.decoder(th.cat([h_agent, h_scene], dim=-1), skip)
 
     def draw_steps(self, future_mask: th.Tensor, generator: th.Generator | None = None) -> th.Tensor:
@@ -212,11 +186,6 @@ class EgoForesight(nn.Module):
         :param valid: optional (B,) bool or float weights.
         :param skip: encoder feature map of the context when ``skip_channels > 0``.
         """
-        if self.target == "latent":
-            raise ValueError(
-                "This Ego-Foresight predicts features (target='latent'): train it with latent_loss (its decoder is a "
-                "probe, trained with probe_loss on detached features)"
-            )
         batch = h.shape[0]
         h_scene, h_agent = self.split(h)
         max_step = self._checked_window(batch, future_actions, steps, valid)
@@ -232,56 +201,6 @@ class EgoForesight(nn.Module):
         prediction = self.decode(h_scene, predicted_agent, skip)
         per_sample = (prediction - target).pow(2).flatten(1).sum(dim=1)
         return _weighted_mean(per_sample, valid)
-
-    def latent_loss(
-        self,
-        h: th.Tensor,
-        future_actions: th.Tensor,
-        steps: th.Tensor,
-        target: th.Tensor,
-        valid: th.Tensor | None = None,
-        candidates_valid: th.Tensor | None = None,
-    ) -> th.Tensor:
-        """Latent EF's InfoNCE of the head's prediction against target projections; else as :meth:`loss`.
-
-        :param target: (N >= B, projection_dim) target projections: row i < B sample i's at t+k, all rows candidates.
-        :param candidates_valid: optional (N,) bool: the candidates inside their episode.
-        """
-        if self.target != "latent":
-            raise ValueError("latent_loss needs an Ego-Foresight built with target='latent'")
-        batch = h.shape[0]
-        h_scene, h_agent = self.split(h)
-        max_step = self._checked_window(batch, future_actions, steps, valid)
-        if target.dim() != 2 or target.shape[0] < batch or target.shape[1] != self.head.projection_dim:
-            raise ValueError(
-                f"Expected target features of shape (>= {batch}, {self.head.projection_dim}), got {tuple(target.shape)}"
-            )
-        predicted_agent = self._agent_at(h_agent, future_actions, steps, max_step)
-        prediction = self.head(th.cat([predicted_agent, h_scene], dim=-1))
-        per_sample = info_nce(prediction, target.detach(), self.head.temperature, candidates_valid)
-        return _weighted_mean(per_sample, valid)
-
-    def probe_loss(
-        self,
-        h: th.Tensor,
-        future_actions: th.Tensor,
-        steps: th.Tensor,
-        target: th.Tensor,
-        valid: th.Tensor | None = None,
-        skip: th.Tensor | None = None,
-    ) -> th.Tensor:
-        """Latent EF's probe loss: :meth:`loss`'s error, only the decoder learning from it."""
-        if self.target != "latent":
-            raise ValueError("probe_loss needs an Ego-Foresight built with target='latent' (pixel EF trains its own)")
-        batch = h.shape[0]
-        with th.no_grad():
-            h_scene, h_agent = self.split(h)
-            max_step = self._checked_window(batch, future_actions, steps, valid)
-            predicted_agent = self._agent_at(h_agent, future_actions, steps, max_step)
-        target = self._target_to_float(target, batch)
-        features = th.cat([predicted_agent, h_scene], dim=-1)
-        prediction = self.decoder(features, None if skip is None else skip.detach())
-        return _weighted_mean((prediction - target).pow(2).flatten(1).sum(dim=1), valid)
 
     def _checked_window(self, batch: int, future_actions: th.Tensor, steps: th.Tensor, valid: th.Tensor | None) -> int:
         """Check the shapes of a loss's window; return the longest rollout it needs (the window under compile)."""
@@ -332,6 +251,110 @@ class EgoForesight(nn.Module):
         if low < 0.0 or high > 1.0:
             raise ValueError(f"A float target frame must lie in [0, 1], got values in [{low}, {high}]")
         return target
+
+
+class LatentEgoForesight(EgoForesight):
+    """Ego-Foresight in feature space: h_s and the rolled-out h_a predict the target encoder's projection of the
+    observation at t+k (InfoNCE); the frame decoder is a probe, trained apart on detached features (docs/ef.md,
+    "Ego-Foresight in feature space"). Arguments as :class:`EgoForesight`'s, and:
+
+    :param projection_dim: size of the projected vectors the loss compares.
+    :param head_hidden_dim: width of the projection and prediction MLPs.
+    :param temperature: the InfoNCE's temperature.
+    :param loss_scale: weight of the InfoNCE, times ``beta``.
+    """
+
+    target: ClassVar[str] = "latent"
+    probe_steps: th.Tensor
+
+    def __init__(
+        self,
+        feature_dim: int,
+        action_dim: int,
+        frame_shape: tuple[int, int, int] = (3, 84, 84),
+        agent_dim: int = 32,
+        horizon: int = 10,
+        rollout_hidden_dims: tuple[int, ...] | list[int] = (512, 512),
+        decoder_channels: int = 64,
+        skip_channels: int = 0,
+        step_sampling: str = "batch",
+        projection_dim: int = DEFAULT_PROJECTION_DIM,
+        head_hidden_dim: int = DEFAULT_HEAD_HIDDEN_DIM,
+        temperature: float = DEFAULT_TEMPERATURE,
+        loss_scale: float = DEFAULT_LOSS_SCALE,
+    ):
+        super().__init__(
+            feature_dim, action_dim, frame_shape, agent_dim, horizon, rollout_hidden_dims, decoder_channels,
+            skip_channels, step_sampling,
+        )  # fmt: skip
+        self.loss_scale = check_loss_scale(loss_scale)
+        self.head = LatentHead(feature_dim, projection_dim, head_hidden_dim, temperature)
+        # Probe decoder updates, counted by whoever fits it: 0 means untrained.
+        self.register_buffer("probe_steps", th.zeros((), dtype=th.long))
+
+    def decode(self, h_scene: th.Tensor, h_agent: th.Tensor, skip: th.Tensor | None = None) -> th.Tensor:
+        """Decode to a frame through the probe decoder, once it is trained."""
+        if int(self.probe_steps) == 0:
+            raise ValueError(
+                "This Ego-Foresight predicts features (target='latent'): it decodes frames through a probe decoder, "
+                "which is not trained yet; fit it first with sb3_ef.ef.probe.fit_probe(model)"
+            )
+        return super().decode(h_scene, h_agent, skip)
+
+    def loss(
+        self,
+        h: th.Tensor,
+        future_actions: th.Tensor,
+        steps: th.Tensor,
+        target: th.Tensor,
+        valid: th.Tensor | None = None,
+        candidates_valid: th.Tensor | None = None,
+    ) -> th.Tensor:
+        """The InfoNCE of the head's prediction against target projections; arguments as :class:`EgoForesight`'s.
+
+        :param target: (N >= B, projection_dim) target projections: row i < B sample i's at t+k, all rows candidates.
+        :param candidates_valid: optional (N,) bool: the candidates inside their episode.
+        """
+        batch = h.shape[0]
+        h_scene, h_agent = self.split(h)
+        max_step = self._checked_window(batch, future_actions, steps, valid)
+        if target.dim() != 2 or target.shape[0] < batch or target.shape[1] != self.head.projection_dim:
+            raise ValueError(
+                f"Expected target features of shape (>= {batch}, {self.head.projection_dim}), got {tuple(target.shape)}"
+            )
+        predicted_agent = self._agent_at(h_agent, future_actions, steps, max_step)
+        prediction = self.head(th.cat([predicted_agent, h_scene], dim=-1))
+        per_sample = info_nce(prediction, target.detach(), self.head.temperature, candidates_valid)
+        return _weighted_mean(per_sample, valid)
+
+    def probe_loss(
+        self,
+        h: th.Tensor,
+        future_actions: th.Tensor,
+        steps: th.Tensor,
+        target: th.Tensor,
+        valid: th.Tensor | None = None,
+        skip: th.Tensor | None = None,
+    ) -> th.Tensor:
+        """Latent EF's probe loss: :meth:`loss`'s error, only the decoder learning from it."""
+        batch = h.shape[0]
+        with th.no_grad():
+            h_scene, h_agent = self.split(h)
+            max_step = self._checked_window(batch, future_actions, steps, valid)
+            predicted_agent = self._agent_at(h_agent, future_actions, steps, max_step)
+        target = self._target_to_float(target, batch)
+        features = th.cat([predicted_agent, h_scene], dim=-1)
+        prediction = self.decoder(features, None if skip is None else skip.detach())
+        return _weighted_mean((prediction - target).pow(2).flatten(1).sum(dim=1), valid)
+
+
+def ego_foresight(*args: Any, target: str = "pixel", **options: Any) -> EgoForesight:
+    """The Ego-Foresight module ``target`` names (``ef_kwargs["target"]``), an option of the other target refused;
+    other arguments as :class:`EgoForesight`'s (and :class:`LatentEgoForesight`'s)."""
+    latent = {name: options.get(name) for name in ("projection_dim", "head_hidden_dim", "temperature", "loss_scale")}
+    if check_target(target, options.get("decode_batch_size"), **latent) == "pixel":
+        return EgoForesight(*args, **options)
+    return LatentEgoForesight(*args, **{name: value for name, value in options.items() if value is not None})
 
 
 def _weighted_mean(per_sample: th.Tensor, valid: th.Tensor | None) -> th.Tensor:

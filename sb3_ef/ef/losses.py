@@ -13,7 +13,7 @@ from torch import nn
 from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBufferSamples
-from sb3_ef.ef.foresight import EgoForesight
+from sb3_ef.ef.foresight import EgoForesight, LatentEgoForesight, ego_foresight
 from sb3_ef.ef.latent import DEFAULT_TARGET_TAU, LatentTargets, MomentumTarget, feed_encoder, latent_targets
 
 #: ``encode(encoder, uint8 observations) -> features``: how a host feeds its encoder.
@@ -43,6 +43,7 @@ class ForesightLoss(AuxiliaryLoss):
     """
 
     beta: th.Tensor
+    ef: EgoForesight
 
     def __init__(
         self,
@@ -62,7 +63,7 @@ class ForesightLoss(AuxiliaryLoss):
                 f"got features_dim={feature_dim}, agent_dim={agent_dim}"
             )
         self.register_coefficient("beta", beta)
-        self.ef = EgoForesight(
+        self.ef = ego_foresight(
             feature_dim, action_dim, frame_shape=frame_shape, agent_dim=agent_dim, horizon=horizon, **(ef_kwargs or {})
         )
         if channels_last:
@@ -106,6 +107,8 @@ class LatentForesightLoss(ForesightLoss):
     :param encode: how the host computes features from ``encoder`` and uint8 observations; the copy is run so.
     """
 
+    ef: LatentEgoForesight
+
     def __init__(
         self,
         feature_dim: int,
@@ -138,7 +141,7 @@ class LatentForesightLoss(ForesightLoss):
         if targets.negatives is not None:
             future = th.cat([future, targets.negatives])
         target = self.target_encoder(future)
-        loss = self.ef.latent_loss(
+        loss = self.ef.loss(
             features, targets.actions, targets.steps, target, targets.valid, targets.candidates_valid()
         )
         return self.beta * self.ef.loss_scale * loss, {"ef_loss": loss.detach()}

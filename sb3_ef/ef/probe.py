@@ -9,12 +9,12 @@ import torch as th
 
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBuffer
-from sb3_ef.ef.foresight import EgoForesight
+from sb3_ef.ef.foresight import LatentEgoForesight
 from sb3_ef.ef.latent import MomentumTarget, draw_other_steps, stacked_observations_at
 
 
 def probe_step(
-    ef: EgoForesight,
+    ef: LatentEgoForesight,
     optimizer: th.optim.Optimizer,
     h: th.Tensor,
     future_actions: th.Tensor,
@@ -59,7 +59,7 @@ def fit_probe(
     :param replay_buffer: a :class:`~sb3_ef.common.buffers.SequenceReplayBuffer` to read instead of the model's.
     """
     ef = getattr(model, "ef", None)
-    if not isinstance(ef, EgoForesight) or ef.target != "latent":
+    if not isinstance(ef, LatentEgoForesight):
         raise ValueError(
             f"fit_probe needs a model with latent Ego-Foresight (ef_kwargs=dict(target='latent')), got "
             f"{type(model).__name__} with ef={type(ef).__name__}{'' if ef is None else ' target=' + repr(ef.target)}"
@@ -104,7 +104,7 @@ def fit_probe(
 
 
 def latent_window_losses(
-    ef: EgoForesight,
+    ef: LatentEgoForesight,
     target: MomentumTarget,
     features: Callable[[th.Tensor], tuple[th.Tensor, th.Tensor | None]],
     observations: th.Tensor,
@@ -130,5 +130,5 @@ def latent_window_losses(
         observations, frame = random_shift(observations, frame, pad=pad)
         (candidates,) = random_shift(candidates, pad=pad)
     h, skip = features(observations)
-    latent = ef.latent_loss(h, actions, steps, target(candidates))
+    latent = ef.loss(h, actions, steps, target(candidates))
     return latent, ef.probe_loss(h, actions, steps, frame, skip=skip)

@@ -11,7 +11,7 @@ from typing import Any
 import torch as th
 from torch import nn
 
-from sb3_ef.ef import EgoForesight
+from sb3_ef.ef.foresight import LatentEgoForesight, ego_foresight
 from sb3_ef.ef.latent import DEFAULT_TARGET_TAU, MomentumTarget
 from sb3_ef.offline.encoders import build_encoder
 
@@ -45,7 +45,7 @@ class OfflineEF(nn.Module):
         target_tau = options.pop("target_tau", None)
         if target_tau is not None and options.get("target", "pixel") != "latent":
             raise ValueError("ef_kwargs target_tau applies to target='latent' only, got it with target='pixel'")
-        self.ef = EgoForesight(
+        self.ef = ego_foresight(
             self.encoder.features_dim,
             config.action_dim,
             frame_shape=self.frame_shape,
@@ -57,7 +57,7 @@ class OfflineEF(nn.Module):
         # Latent EF (ef_kwargs target="latent"): the momentum copy of the encoder whose features it predicts.
         self.target_encoder = (
             MomentumTarget(self.encoder, self.ef.head.projection, target_tau or DEFAULT_TARGET_TAU)
-            if self.ef.target == "latent"
+            if isinstance(self.ef, LatentEgoForesight)
             else None
         )
 

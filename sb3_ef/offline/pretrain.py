@@ -15,6 +15,7 @@ from sb3_ef.analysis.prediction import frame_grid, to_uint8_frames
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.files import write_atomically, write_text_atomically
 from sb3_ef.common.interrupt import Interrupted, sigint_deferred
+from sb3_ef.ef.foresight import LatentEgoForesight
 from sb3_ef.ef.probe import latent_window_losses
 from sb3_ef.offline.dataset import EpisodeDataset
 from sb3_ef.offline.episodes import Episode, EpisodeError
@@ -272,7 +273,8 @@ def _update(run: _Run, batch: Windows) -> float:
     batch = _to(batch, device)
     batch_size, horizon = batch.actions.shape[:2]
     ef_steps = model.ef.draw_steps(th.ones(batch_size, horizon, dtype=th.bool, device=device))
-    if model.target_encoder is not None:  # latent EF, and its probe decoder on detached features (docs/ef.md)
+    if isinstance(model.ef, LatentEgoForesight):  # latent EF, and its probe decoder on detached features (docs/ef.md)
+        assert model.target_encoder is not None
         latent, probe = latent_window_losses(
             model.ef, model.target_encoder, model.features, batch.observations, batch.frames, batch.actions, ef_steps,
             run.settings["shift_pad"],
@@ -289,7 +291,7 @@ def _update(run: _Run, batch: Windows) -> float:
     run.optimizer.zero_grad(set_to_none=True)
     loss.backward()
     run.optimizer.step()
-    if model.target_encoder is not None:
+    if isinstance(model.ef, LatentEgoForesight) and model.target_encoder is not None:
         model.target_encoder.update(model.encoder, model.ef.head.projection)
     return loss.item()
 

@@ -78,7 +78,7 @@ def test_candidates_past_an_episodes_end_do_not_change_the_loss():
     candidates = th.where(valid[:, None, None, None], candidates, noise)  # other contents where nothing was
     replaced = targets._replace(observations=candidates[:12], negatives=candidates[12:])
     th.testing.assert_close(loss_module(features, replaced)[0], loss)
-    unmasked = loss_module.ef.latent_loss(
+    unmasked = loss_module.ef.loss(
         features, targets.actions, targets.steps, loss_module.target_encoder(candidates), targets.valid
     )
     assert not th.allclose(unmasked * loss_module.ef.loss_scale, loss), "the replaced candidates must matter unmasked"

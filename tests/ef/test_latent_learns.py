@@ -14,7 +14,7 @@ import torch as th
 from torch import nn
 
 from sb3_ef.analysis.saliency import decoder_saliency
-from sb3_ef.ef import EgoForesight
+from sb3_ef.ef import LatentEgoForesight
 from sb3_ef.ef.latent import MomentumTarget, draw_other_steps, stacked_observations_at
 from sb3_ef.ef.probe import probe_step
 from tests.helpers.learning import toy_babbling_windows
@@ -32,16 +32,16 @@ def encode(encoder: nn.Module, obs: th.Tensor) -> th.Tensor:
     return encoder(obs.float() / 255 - 0.5)
 
 
-def train_latent(data: dict[str, th.Tensor], updates: int) -> tuple[nn.Module, EgoForesight]:
+def train_latent(data: dict[str, th.Tensor], updates: int) -> tuple[nn.Module, LatentEgoForesight]:
     """The hosts' latent EF update without the RL loss (``ForesightLoss.prepare`` / ``forward`` / ``after_update``)."""
     encoder = nn.Sequential(
         nn.Conv2d(9, 16, 3, stride=2, padding=1), nn.ReLU(),
         nn.Conv2d(16, 32, 3, stride=2, padding=1), nn.ReLU(),
         nn.Flatten(), nn.Linear(32 * (SIZE // 4) ** 2, FEATURES),
     )  # fmt: skip
-    ef = EgoForesight(FEATURES, 2, (3, SIZE, SIZE), agent_dim=AGENT_DIM, horizon=HORIZON, rollout_hidden_dims=(64, 64),
-                      decoder_channels=32, step_sampling="sample", target="latent", projection_dim=32,
-                      head_hidden_dim=64)  # fmt: skip
+    ef = LatentEgoForesight(FEATURES, 2, (3, SIZE, SIZE), agent_dim=AGENT_DIM, horizon=HORIZON,
+                            rollout_hidden_dims=(64, 64), decoder_channels=32, step_sampling="sample",
+                            projection_dim=32, head_hidden_dim=64)  # fmt: skip
     target = MomentumTarget(encoder, ef.head.projection, 0.01, encode)
     optimizer = th.optim.Adam([*encoder.parameters(), *ef.rollout_block.parameters(), *ef.head.parameters()], lr=1e-3)
     generator = th.Generator().manual_seed(0)
@@ -52,7 +52,7 @@ def train_latent(data: dict[str, th.Tensor], updates: int) -> tuple[nn.Module, E
         steps = ef.draw_steps(mask, generator)
         others = draw_other_steps(mask, steps, HORIZON, generator)
         future = th.cat([stacked_observations_at(obs, frames, steps), stacked_observations_at(obs, frames, others)])
-        loss = ef.latent_loss(encode(encoder, obs), actions, steps, target(future))
+        loss = ef.loss(encode(encoder, obs), actions, steps, target(future))
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
@@ -82,7 +82,7 @@ def agent_r2(encoder: nn.Module, train: dict[str, th.Tensor], test: dict[str, th
     return position_r2(h, (train[what], test[what]))
 
 
-def fit_probe_on(encoder: nn.Module, ef: EgoForesight, data: dict[str, th.Tensor], steps: int) -> None:
+def fit_probe_on(encoder: nn.Module, ef: LatentEgoForesight, data: dict[str, th.Tensor], steps: int) -> None:
     optimizer = th.optim.Adam(ef.decoder.parameters(), lr=3e-3)
     generator = th.Generator().manual_seed(1)
     mask = th.ones(BATCH, HORIZON, dtype=th.bool)
