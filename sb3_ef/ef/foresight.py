@@ -269,26 +269,18 @@ class LatentEgoForesight(EgoForesight):
 
     def __init__(
         self,
-        feature_dim: int,
-        action_dim: int,
-        frame_shape: tuple[int, int, int] = (3, 84, 84),
-        agent_dim: int = 32,
-        horizon: int = 10,
-        rollout_hidden_dims: tuple[int, ...] | list[int] = (512, 512),
-        decoder_channels: int = 64,
-        skip_channels: int = 0,
-        step_sampling: str = "batch",
+        *args: Any,
         projection_dim: int = DEFAULT_PROJECTION_DIM,
         head_hidden_dim: int = DEFAULT_HEAD_HIDDEN_DIM,
         temperature: float = DEFAULT_TEMPERATURE,
         loss_scale: float = DEFAULT_LOSS_SCALE,
+        **kwargs: Any,
     ):
-        super().__init__(
-            feature_dim, action_dim, frame_shape, agent_dim, horizon, rollout_hidden_dims, decoder_channels,
-            skip_channels, step_sampling,
-        )  # fmt: skip
+        if kwargs.get("decode_batch_size") is not None:
+            raise ValueError("ef_kwargs decode_batch_size applies to target='pixel' only (latent EF decodes no frame)")
+        super().__init__(*args, **kwargs)
         self.loss_scale = check_loss_scale(loss_scale)
-        self.head = LatentHead(feature_dim, projection_dim, head_hidden_dim, temperature)
+        self.head = LatentHead(self.feature_dim, projection_dim, head_hidden_dim, temperature)
         # Probe decoder updates, counted by whoever fits it: 0 means untrained.
         self.register_buffer("probe_steps", th.zeros((), dtype=th.long))
 

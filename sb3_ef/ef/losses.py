@@ -4,6 +4,7 @@ from ``ef_kwargs["target"]``."""
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -109,23 +110,11 @@ class LatentForesightLoss(ForesightLoss):
 
     ef: LatentEgoForesight
 
-    def __init__(
-        self,
-        feature_dim: int,
-        action_dim: int,
-        frame_shape: tuple[int, int, int],
-        agent_dim: int,
-        horizon: int,
-        beta: float = 1.0,
-        ef_kwargs: dict[str, Any] | None = None,
-        channels_last: bool = False,
-        *,
-        encoder: nn.Module,
-        encode: Encode = feed_encoder,
-    ):
-        options = {"target": "latent", **(ef_kwargs or {})}
+    def __init__(self, *args: Any, encoder: nn.Module, encode: Encode = feed_encoder, **kwargs: Any):
+        bound = inspect.signature(ForesightLoss).bind(*args, **kwargs)
+        options = {"target": "latent", **(bound.arguments.get("ef_kwargs") or {})}
         target_tau = options.pop("target_tau", DEFAULT_TARGET_TAU)
-        super().__init__(feature_dim, action_dim, frame_shape, agent_dim, horizon, beta, options, channels_last)
+        super().__init__(**{**bound.arguments, "ef_kwargs": options})
         self.target_encoder = MomentumTarget(encoder, self.ef.head.projection, target_tau, encode)
 
     def prepare(  # type: ignore[override]
