@@ -1,4 +1,4 @@
-"""A tiny pixel env without MuJoCo for the DrQ-v2 tests, and small model settings that keep them fast."""
+"""Tiny pixel envs without MuJoCo for the DrQ-v2 tests, and small model settings that keep them fast."""
 
 from __future__ import annotations
 
@@ -8,6 +8,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 from gymnasium.wrappers import TimeLimit
+
+from sb3_ef.envs.toy import ToyAgentEnv
 
 SIZE = 32
 FRAME_STACK = 3
@@ -80,3 +82,29 @@ class CueEnv(gym.Env):
 def make_cue_env(size: int = SIZE, episode_steps: int = EPISODE_STEPS) -> gym.Env:
     """The cue env with a time limit (the algorithm reads the episode length from it)."""
     return TimeLimit(CueEnv(size), max_episode_steps=episode_steps)
+
+
+class TerminatingToyEnv(gym.Wrapper):
+    """sb3-ef's ``ToyAgentEnv`` whose every second episode ends early, after ``terminate_after`` steps, by a
+    termination (``terminated=True``); the others end at its time limit (``truncated=True``)."""
+
+    def __init__(self, env: ToyAgentEnv, terminate_after: int):
+        if not 1 <= terminate_after < env.max_episode_steps:
+            raise ValueError(
+                f"terminate_after must lie in [1, max_episode_steps={env.max_episode_steps}), got {terminate_after}"
+            )
+        super().__init__(env)
+        self.terminate_after = terminate_after
+        self._episodes = self._steps = 0
+
+    def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict]:
+        self._episodes += 1
+        self._steps = 0
+        return self.env.reset(**kwargs)
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        observation, reward, terminated, truncated, info = self.env.step(action)
+        self._steps += 1
+        if self._episodes % 2 == 0 and self._steps == self.terminate_after:
+            terminated, truncated = True, False
+        return observation, float(reward), terminated, truncated, info

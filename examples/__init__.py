@@ -1,0 +1,1 @@
+"""Runnable examples; a package so that the tests import them by name."""
