@@ -91,7 +91,7 @@ ALGORITHMS: dict[str, AlgorithmEntry] = {entry.key: entry for entry in (
         "dreamerv3", "sb3_ef.dreamerv3:DreamerV3", paper=True, own_exploration=True,
         grid_run="sb3_ef.dreamerv3.grid_run:train_dreamerv3",
         grid_check="sb3_ef.dreamerv3.grid_run:check_dreamerv3_row",
-        zoo_run=("sb3_ef.zoo.sheeprl_run:train_main", "sb3_ef.zoo.sheeprl_run:enjoy_main"),
+        zoo_run=("sb3_ef.dreamerv3.zoo_run:train_main", "sb3_ef.dreamerv3.zoo_run:enjoy_main"),
     ),
 )}  # fmt: skip
 
