@@ -1,13 +1,17 @@
-# The dev loop: `make lint type test docs` is what CI runs (see .ci/run); `make test-slow` adds the long checks.
+# The dev loop: `make check` (lint, import layers, types, docs, tests) is what CI runs (see .ci/run), before its
+# install of the wheel into a fresh venv; `make test-slow` adds the long checks.
 PYTHON ?= python
 
-.PHONY: install lint format type test test-slow docs check
+.PHONY: install lint imports format type test test-slow docs check
 
 install:  ## the CPU torch and the package with every extra (drop the pin on a GPU machine)
 	$(PYTHON) -m pip install "torch==2.13.0" -e ".[all]"
 
 lint:
 	ruff check .
+
+imports:  ## the import layers of pyproject.toml's [tool.importlinter]
+	lint-imports
 
 format:
 	ruff check --fix .
@@ -24,4 +28,4 @@ test-slow:  ## the slow set only: learning checks, notebooks, the two-node Ray c
 docs:  ## build docs/ strictly: a broken internal link or a page missing from the nav fails
 	mkdocs build --strict --site-dir site
 
-check: lint type docs test
+check: lint imports type docs test

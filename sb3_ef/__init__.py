@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import os
+from typing import Any
 
+from sb3_ef import registry
 from sb3_ef.common.lazy import lazy_attributes
 from sb3_ef.envs.registration import register_envs
 
@@ -11,16 +13,7 @@ with open(os.path.join(os.path.dirname(__file__), "version.txt")) as _file:
     __version__ = _file.read().strip()
 
 _PUBLIC = {
-    "DrQv2EF": "sb3_ef.drqv2",
-    "DrQv2": "sb3_ef.drqv2",
-    "TDMPC2EF": "sb3_ef.tdmpc2",
-    "TDMPC2": "sb3_ef.tdmpc2",
-    "SACEF": "sb3_ef.sb3_hosts",
-    "TD3EF": "sb3_ef.sb3_hosts",
-    "TQCEF": "sb3_ef.sb3_hosts",
-    "SEAR": "sb3_ef.sear",
-    "CURL": "sb3_ef.curl",
-    "DreamerV3": "sb3_ef.dreamerv3",  # the workbench's sheeprl wrapper, named here lazily: the library never imports it
+    **{item.class_name: item.module for item in registry.ALGORITHMS.values() if not item.workbench},
     "MotorBabblingCallback": "sb3_ef.ef.babbling",
     "SequenceReplayBuffer": "sb3_ef.common.buffers",
     "make_env": "sb3_ef.envs",
@@ -30,4 +23,12 @@ __all__ = [*_PUBLIC, "__version__"]
 
 register_envs()
 
-__getattr__ = lazy_attributes(__name__, _PUBLIC)
+_lazy = lazy_attributes(__name__, _PUBLIC)
+
+
+def __getattr__(name: str) -> Any:
+    """A public name, imported now; a workbench class (``DreamerV3``) is refused with the import that gives it."""
+    item = registry.by_class_name(name)
+    if item is not None and item.workbench:
+        raise ImportError(f"sb3_ef does not export {name}, a workbench class: `from {item.module} import {name}`")
+    return _lazy(name)

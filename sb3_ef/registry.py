@@ -1,5 +1,7 @@
-"""The algorithm registry: each key mapped to its class (imported on first use) and what the workbench does with it.
-A new algorithm is one entry here, a zoo config and its package."""
+"""The algorithm registry, the one table of sb3-ef's algorithms: each key mapped to its class (named by import path,
+imported on first use) and its facts. The workbench keeps its own per-key hooks (zoo run, sampler, grid run and
+check) in the packages that call them; the library's tables (the root's names, ``POLICY_OWNERS``, ``EF_CLASSES``)
+derive from this one."""
 
 from __future__ import annotations
 
@@ -7,14 +9,7 @@ import importlib
 from dataclasses import dataclass
 from typing import Any
 
-from sb3_ef.common.validation import did_you_mean
-from sb3_ef.envs.factory import SUITE_OPTIONS
-
-#: Name prefixes of the suites :func:`sb3_ef.make_env` builds (it repeats actions); other ids go through ``gym.make``.
-MAKE_ENV_SUITES = tuple(f"{suite}/" for suite in SUITE_OPTIONS)
-#: The grid run function and row check of the algorithms SB3's ``learn`` trains.
-SB3_GRID_RUN = "sb3_ef.grid.run:train_sb3"
-SB3_GRID_CHECK = "sb3_ef.grid.checks:check_sb3_row"
+from sb3_ef.common.names import did_you_mean
 
 
 def import_target(target: str) -> Any:
@@ -25,19 +20,17 @@ def import_target(target: str) -> Any:
 
 @dataclass(frozen=True)
 class AlgorithmEntry:
-    """What the workbench needs of one algorithm.
+    """One algorithm's facts.
 
     :param key: the name in commands, configs and grids (``drqv2_ef``).
     :param target: the class, as ``"module:Class"``.
     :param paper: a method or baseline of the Ego-Foresight paper (its zoo config holds the paper's tasks).
     :param ef: trains Ego-Foresight: ``sb3-ef analyze model`` shows its predictions and saliency.
     :param own_exploration: explores with its own noise (rl-zoo3's SB3 action-noise keys are refused).
-    :param sampler: its Optuna sampler for ``sb3-ef optimize`` (``"module:function"``), if it has one.
-    :param grid_run: the function that trains one ``sb3-ef benchmark`` row (as :func:`sb3_ef.grid.run.train_sb3`).
-    :param grid_check: the function that checks one row before anything trains (as ``check_sb3_row``).
-    :param zoo_run: the ``train`` and ``enjoy`` functions of an algorithm rl-zoo3 cannot train; ``None``: rl-zoo3's.
     :param warm_start: an offline-pretrained encoder and EF can be copied into it; ``sb3-ef collect`` acts with it.
     :param legacy_policy_module: the policy module of its sb3-ef 0.1.0 files (``sb3-ef upgrade``), if any.
+    :param workbench: its class is the workbench's (a wrapper of another project's agent), not the library's: the
+        root ``sb3_ef`` does not export it.
     """
 
     key: str
@@ -45,12 +38,14 @@ class AlgorithmEntry:
     paper: bool = False
     ef: bool = False
     own_exploration: bool = False
-    sampler: str | None = None
-    grid_run: str = SB3_GRID_RUN
-    grid_check: str = SB3_GRID_CHECK
-    zoo_run: tuple[str, str] | None = None
     warm_start: bool = False
     legacy_policy_module: str | None = None
+    workbench: bool = False
+
+    @property
+    def module(self) -> str:
+        """The module that defines the class (``sb3_ef.drqv2``)."""
+        return self.target.partition(":")[0]
 
     @property
     def class_name(self) -> str:
@@ -62,19 +57,13 @@ class AlgorithmEntry:
         """The class (imported now)."""
         return import_target(self.target)
 
-    @property
-    def rl_zoo3(self) -> bool:
-        """Whether rl-zoo3 trains it (registered in its ``ALGOS``)."""
-        return self.zoo_run is None
-
 
 def _paper_host(key: str, target: str, ef: bool) -> AlgorithmEntry:
-    """A host of the paper (DrQ-v2, TD-MPC2), with or without EF: Optuna sampler ``sample_<key>_params``."""
-    package = target.partition(":")[0]
+    """A host of the paper (DrQ-v2, TD-MPC2), with or without EF."""
+    policies = f"{target.partition(':')[0]}.policies"
     return AlgorithmEntry(
-        key, target, paper=True, ef=ef, own_exploration=True, sampler=f"sb3_ef.zoo.hyperparams_opt:sample_{key}_params",
-        warm_start=ef, legacy_policy_module=f"{package}.policies",
-    )  # fmt: skip
+        key, target, paper=True, ef=ef, own_exploration=True, warm_start=ef, legacy_policy_module=policies
+    )
 
 
 ALGORITHMS: dict[str, AlgorithmEntry] = {entry.key: entry for entry in (
@@ -87,12 +76,8 @@ ALGORITHMS: dict[str, AlgorithmEntry] = {entry.key: entry for entry in (
     AlgorithmEntry("sac_ef", "sb3_ef.sb3_hosts:SACEF", ef=True, legacy_policy_module="stable_baselines3.sac.policies"),
     AlgorithmEntry("td3_ef", "sb3_ef.sb3_hosts:TD3EF", ef=True, legacy_policy_module="stable_baselines3.td3.policies"),
     AlgorithmEntry("tqc_ef", "sb3_ef.sb3_hosts:TQCEF", ef=True, legacy_policy_module="sb3_contrib.tqc.policies"),
-    AlgorithmEntry(
-        "dreamerv3", "sb3_ef.dreamerv3:DreamerV3", paper=True, own_exploration=True,
-        grid_run="sb3_ef.dreamerv3.grid_run:train_dreamerv3",
-        grid_check="sb3_ef.dreamerv3.grid_run:check_dreamerv3_row",
-        zoo_run=("sb3_ef.zoo.sheeprl_run:train_main", "sb3_ef.zoo.sheeprl_run:enjoy_main"),
-    ),
+    # sheeprl's Dreamer-v3 behind SB3's interface: a class of the workbench, which the library never imports.
+    AlgorithmEntry("dreamerv3", "sb3_ef.dreamerv3:DreamerV3", paper=True, own_exploration=True, workbench=True),
 )}  # fmt: skip
 
 

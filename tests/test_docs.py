@@ -8,6 +8,8 @@ from pathlib import Path
 
 import pytest
 
+import sb3_ef
+
 ROOT = Path(__file__).resolve().parents[1]
 DOCUMENTS = sorted(
     [ROOT / "README.md", *ROOT.glob("docs/*.md"), *ROOT.glob("zoo_configs/*.yml"), *ROOT.glob("benchmarks/*.md")]
@@ -47,13 +49,14 @@ def _module_source(parts: list[str]) -> str | None:
 
 def _resolves(dotted: str) -> bool:
     """The longest prefix of ``dotted`` that is a module of the package exists, and the next name, if any, is defined
-    or imported in that module's source."""
+    or imported in that module's source (or exported by the root)."""
     parts = dotted.split(".")
     for end in range(len(parts), 0, -1):
         source = _module_source(parts[:end])
         if source is not None:
             rest = parts[end:]
-            return not rest or re.search(rf"\b{rest[0]}\b", source) is not None
+            exported = end == 1 and rest[0] in sb3_ef.__all__  # the root's names derive from the registry
+            return not rest or exported or re.search(rf"\b{rest[0]}\b", source) is not None
     return False
 
 

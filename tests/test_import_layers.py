@@ -1,5 +1,5 @@
 """The two layers: the library (what ``DrQv2EF("CnnPolicy", env).learn(n)`` needs) loads nothing of the workbench
-above it nor of the workbench's dependencies, and no two modules of the package import each other.
+above it nor of the workbench's dependencies, and no module of the package imports itself through others.
 
 pyproject.toml's import-linter contracts (``lint-imports``) hold the first for every import statement; the test
 here holds it for what a user's program really loads, lazy imports included."""
@@ -16,7 +16,7 @@ import grimp
 import sb3_ef
 
 #: The workbench packages and modules (docs/architecture.md).
-WORKBENCH = ("zoo", "grid", "analysis", "offline", "dreamerv3", "cli", "upgrade", "registry")
+WORKBENCH = ("zoo", "grid", "analysis", "offline", "dreamerv3", "cli", "upgrade")
 #: What only the workbench may bring in.
 WORKBENCH_DEPENDENCIES = ("rl_zoo3", "optuna", "ray", "sheeprl", "hydra", "lightning", "minari", "h5py")
 
@@ -56,22 +56,11 @@ def test_the_library_classes_load_no_workbench_module_and_none_of_its_dependenci
     assert workbench == [] and dependencies == []
 
 
-def test_no_two_modules_import_each_other():
-    """Every import statement counts: at module level, inside functions and under ``if TYPE_CHECKING:``."""
+def test_no_import_circle_at_all():
+    """No module imports itself through others (``a -> b -> a``, ``a -> b -> c -> a``): the import graph is acyclic.
+    Every import statement counts: at module level, inside functions and under ``if TYPE_CHECKING:``."""
     graph = grimp.build_graph(sb3_ef.__name__, cache_dir=None)
     assert "sb3_ef.grid.run" in graph.find_modules_directly_imported_by("sb3_ef.dreamerv3.grid_run")  # graph read
-    pairs = sorted(
-        f"{module} <-> {imported}"
-        for module in graph.modules
-        for imported in graph.find_modules_directly_imported_by(module)
-        if module < imported and module in graph.find_modules_directly_imported_by(imported)
-    )
-    assert pairs == []
-
-
-def test_no_import_circle_at_all():
-    """Nor longer circles (``a -> b -> c -> a``): the package's import graph is acyclic."""
-    graph = grimp.build_graph(sb3_ef.__name__, cache_dir=None)
     circles = sorted(
         " -> ".join([module, *graph.find_shortest_chain(imported, module)])
         for module in graph.modules

@@ -16,6 +16,7 @@ import numpy as np
 from sb3_ef import registry
 from sb3_ef.common.acting import EpisodeActor
 from sb3_ef.common.files import write_text_atomically
+from sb3_ef.envs.factory import MAKE_ENV_SUITES
 
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
@@ -99,7 +100,7 @@ def make_analysis_env(
         value = kwargs.pop(key, expected)
         if value != expected:
             raise ValueError(f"env_kwargs {key}={value!r} does not match the model's {key} {expected}")
-    if name.startswith(registry.MAKE_ENV_SUITES):
+    if name.startswith(MAKE_ENV_SUITES):
         from sb3_ef.envs import make_env
 
         return make_env(name, size=size, frame_stack=frame_stack, **{"action_repeat": action_repeat, **kwargs})

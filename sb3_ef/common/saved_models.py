@@ -10,16 +10,14 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import IO, Any
 
+from sb3_ef import registry
 from sb3_ef.common.files import write_atomically
 
-#: Module of a saved policy class -> the sb3-ef algorithms that save it.
+#: Module of a saved policy class -> the sb3-ef algorithms whose files hold it (the registry's policy modules).
 POLICY_OWNERS = {
-    "sb3_ef.drqv2.policies": "DrQv2EF or DrQv2",
-    "sb3_ef.tdmpc2.policies": "TDMPC2EF or TDMPC2",
-    "sb3_ef.curl.policies": "CURL",
-    "stable_baselines3.sac.policies": "SACEF",
-    "stable_baselines3.td3.policies": "TD3EF",
-    "sb3_contrib.tqc.policies": "TQCEF",
+    module: " or ".join(item.class_name for item in registry.ALGORITHMS.values() if item.legacy_policy_module == module)
+    for module in dict.fromkeys(item.legacy_policy_module for item in registry.ALGORITHMS.values())
+    if module is not None
 }
 #: Attributes only the model files of sb3-ef 0.1.0's Ego-Foresight variants hold.
 LEGACY_EF_ATTRIBUTES = ("ef_horizon", "_ef_generator", "ef_learning_rate")

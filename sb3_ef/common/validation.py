@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import difflib
 import inspect
 import math
 import numbers
@@ -15,16 +14,8 @@ from typing import Any
 
 import numpy as np
 
-
-def closest_names(name: str, choices: Iterable[str], count: int = 3, cutoff: float = 0.6) -> list[str]:
-    """Up to ``count`` of ``choices`` at least ``cutoff`` similar to ``name`` (difflib's ratio), best first."""
-    return difflib.get_close_matches(name, list(choices), n=count, cutoff=cutoff)
-
-
-def did_you_mean(name: str, choices: Iterable[str], cutoff: float = 0.6) -> str:
-    """`` (did you mean 'a' or 'b'?)`` for the close matches of ``name``, or ``""`` when none is close."""
-    matches = closest_names(name, choices, cutoff=cutoff)
-    return f" (did you mean {' or '.join(repr(match) for match in matches)}?)" if matches else ""
+from sb3_ef import registry
+from sb3_ef.common.names import did_you_mean
 
 
 def check_choice(what: str, value: Any, choices: Iterable[str]) -> None:
@@ -166,8 +157,9 @@ def _accepted_arguments(target: Callable[..., Any]) -> set[str] | None:
 
 
 _NAMED = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
-#: Ego-Foresight's arguments, named when given to a class without EF.
-EF_CLASSES = "Ego-Foresight's classes DrQv2EF, TDMPC2EF, SACEF, TD3EF and TQCEF"
+#: Ego-Foresight's arguments and its classes (the registry's ``ef`` keys), named when one is given to another class.
+_EF_NAMES = [registry.ALGORITHMS[key].class_name for key in registry.keys(ef=True)]
+EF_CLASSES = f"Ego-Foresight's classes {', '.join(_EF_NAMES[:-1])} and {_EF_NAMES[-1]}"
 EF_ARGUMENTS = ("beta", "ef_horizon", "agent_dim", "ef_kwargs", "babbling_steps", "babbling_mode", "babbling_in_eval")
 
 

@@ -28,6 +28,8 @@ SUITE_OPTIONS = {
     "metaworld": ("episode_length", "resample_task", "repeat_discount", "render_mode"),
     "dmc-distracting": (*_DMC_OPTIONS, "distraction", "difficulty", "dynamic", "background_dir", "background_videos"),
 }
+#: Name prefixes of the ids :func:`make_env` builds (it repeats actions); other ids go through ``gym.make``.
+MAKE_ENV_SUITES = tuple(f"{suite}/" for suite in SUITE_OPTIONS)
 
 
 def make_env(

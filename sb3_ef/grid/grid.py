@@ -14,6 +14,7 @@ import yaml
 import sb3_ef  # noqa: F401  (registers the environments)
 from sb3_ef import registry
 from sb3_ef.common.validation import did_you_mean
+from sb3_ef.envs.factory import MAKE_ENV_SUITES
 from sb3_ef.zoo import config as zoo_config
 
 FILE_KEYS = frozenset({"grids", "anchors"})
@@ -97,7 +98,7 @@ class RunSpec:
     @property
     def action_repeat(self) -> int:
         """Env frames per agent step (``make_env``'s default 2 unless ``env_kwargs`` says otherwise)."""
-        if self.task.startswith(registry.MAKE_ENV_SUITES):
+        if self.task.startswith(MAKE_ENV_SUITES):
             return int(self.env_kwargs.get("action_repeat", 2))
         return 1
 

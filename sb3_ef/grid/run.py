@@ -23,12 +23,17 @@ from sb3_ef.analysis.records import (
 )
 from sb3_ef.common.evaluation import EVAL_SEED_OFFSET, StepSeededEvalCallback
 from sb3_ef.common.files import write_text_atomically
+from sb3_ef.envs.factory import MAKE_ENV_SUITES
 from sb3_ef.grid.grid import RunSpec, constructor_kwargs
-from sb3_ef.registry import MAKE_ENV_SUITES, import_target
+from sb3_ef.registry import import_target
 
 if TYPE_CHECKING:
     from stable_baselines3.common.noise import ActionNoise
     from stable_baselines3.common.vec_env import DummyVecEnv
+
+#: The training function (``"module:function"``) of each registry key that SB3's ``learn`` does not train, by path,
+#: as it lives in that algorithm's workbench package, above the grid; the others train with :func:`train_sb3`.
+GRID_RUNS = {"dreamerv3": "sb3_ef.dreamerv3.grid_run:train_dreamerv3"}
 
 
 @dataclass(frozen=True)
@@ -157,7 +162,8 @@ def execute_run(
     finished = read_result(paths)
     if finished is not None:
         return finished
-    train = import_target(registry.entry(spec.algo, "RunSpec.algo").grid_run)
+    registry.entry(spec.algo, "RunSpec.algo")  # a known key
+    train = import_target(GRID_RUNS[spec.algo]) if spec.algo in GRID_RUNS else train_sb3
     start = time.perf_counter()
     steps, resumed_from = train(spec, paths, threads, device, keep_checkpoints)
     return finish_run(spec, paths, steps, start, resumed_from, node, keep_checkpoints)

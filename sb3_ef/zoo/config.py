@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import inspect
 import re
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -13,10 +14,12 @@ import yaml
 from sb3_ef import registry
 from sb3_ef.common.validation import did_you_mean
 
-#: Algorithm keys whose configs hold the paper's tasks and settings (rl-zoo3 trains them).
-PAPER_ALGORITHMS = registry.keys(paper=True, rl_zoo3=True)
-#: Algorithm keys this package registers in rl-zoo3.
-ZOO_ALGORITHMS = registry.keys(rl_zoo3=True)
+#: The ``train`` and ``enjoy`` functions (``"module:function"``) of each registry key that trains in its own loop, not
+#: rl-zoo3's; by path, as they live in the workbench package of that algorithm, above the zoo.
+OWN_LOOPS = {"dreamerv3": ("sb3_ef.dreamerv3.zoo_run:train_main", "sb3_ef.dreamerv3.zoo_run:enjoy_main")}
+#: Algorithm keys this package registers in rl-zoo3, and those whose configs hold the paper's tasks and settings.
+ZOO_ALGORITHMS = tuple(key for key in registry.ALGORITHMS if key not in OWN_LOOPS)
+PAPER_ALGORITHMS = tuple(key for key in registry.keys(paper=True) if key not in OWN_LOOPS)
 BENCHMARK_ALGORITHMS = tuple(registry.ALGORITHMS)
 
 #: Keys rl-zoo3's ExperimentManager consumes before the remaining ones reach the algorithm constructor.
@@ -40,14 +43,12 @@ REJECTED_PAPER_KEYS = dict.fromkeys(
     NOISE_KEYS, "the algorithms explore with their own noise schedules, not SB3 action noise"
 )
 
-_CONFIG_DIR = Path(__file__).resolve().parents[2] / "zoo_configs"
-
 
 def default_config_path(algo: str) -> Path:
-    """The zoo_configs/<algo>.yml shipped next to the package (editable install / source checkout)."""
+    """``zoo_configs/<algo>.yml``, shipped in the package as ``sb3_ef/zoo/configs/`` (a link in a source checkout)."""
     if algo not in BENCHMARK_ALGORITHMS:
         raise ValueError(f"No default zoo config for algorithm {algo!r}: expected one of {BENCHMARK_ALGORITHMS}")
-    path = _CONFIG_DIR / f"{algo}.yml"
+    path = Path(str(resources.files("sb3_ef.zoo") / "configs" / f"{algo}.yml"))
     if not path.is_file():
         raise FileNotFoundError(f"Default zoo config {path} not found: pass --conf-file explicitly")
     return path

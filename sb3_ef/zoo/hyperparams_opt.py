@@ -8,9 +8,7 @@ from typing import Any
 
 import optuna
 
-from sb3_ef import registry
 from sb3_ef.drqv2.policies import DrQv2Policy
-from sb3_ef.registry import import_target
 from sb3_ef.tdmpc2.policies import TDMPC2Policy
 
 Params = dict[str, Any]
@@ -98,14 +96,13 @@ def _sampler(
     return sample
 
 
-# Babbling choices around the paper's defaults: 12500 agent steps for DrQv2-EF, 1250 for TD-MPC2-EF.
-sample_drqv2_ef_params = _sampler(_suggest_drqv2, [0, 5_000, 12_500, 25_000], _drqv2_feature_dim)
-sample_drqv2_params = _sampler(_suggest_drqv2, None)
-sample_tdmpc2_ef_params = _sampler(_suggest_tdmpc2, [0, 625, 1_250, 2_500], _tdmpc2_feature_dim)
-sample_tdmpc2_params = _sampler(_suggest_tdmpc2, None)
-
+#: The Optuna sampler of each registry key ``sb3-ef optimize`` tunes; a key without one is refused. Babbling choices
+#: around the paper's defaults: 12500 agent steps for DrQv2-EF, 1250 for TD-MPC2-EF.
 SAMPLERS: dict[str, Callable[..., Params]] = {
-    entry.key: import_target(entry.sampler) for entry in registry.ALGORITHMS.values() if entry.sampler is not None
+    "drqv2_ef": _sampler(_suggest_drqv2, [0, 5_000, 12_500, 25_000], _drqv2_feature_dim),
+    "drqv2": _sampler(_suggest_drqv2, None),
+    "tdmpc2_ef": _sampler(_suggest_tdmpc2, [0, 625, 1_250, 2_500], _tdmpc2_feature_dim),
+    "tdmpc2": _sampler(_suggest_tdmpc2, None),
 }
 
 CONVERTERS: dict[str, Callable[..., Params]] = dict.fromkeys(SAMPLERS, convert_params)

@@ -2,26 +2,28 @@
 
 from __future__ import annotations
 
+import importlib
 from functools import partial
 from typing import Any
 
 from rl_zoo3 import exp_manager, hyperparams_opt, utils
 
 from sb3_ef import registry
+from sb3_ef.zoo.config import ZOO_ALGORITHMS
 from sb3_ef.zoo.hyperparams_opt import CONVERTERS, SAMPLERS
 
 
 def algorithm_classes() -> dict[str, type]:
     """rl-zoo3 key -> algorithm class, for the registry's algorithms that rl-zoo3 trains (imported now)."""
-    return {key: registry.entry(key).algorithm_class for key in registry.keys(rl_zoo3=True)}
+    return {key: registry.entry(key).algorithm_class for key in ZOO_ALGORITHMS}
 
 
 def config_namespace() -> dict[str, Any]:
-    """Names a zoo config string may use (``SequenceReplayBuffer``; ``DrQv2Encoder`` for frames under 36x36)."""
-    from sb3_ef.common.buffers import SequenceReplayBuffer
-    from sb3_ef.drqv2.policies import DrQv2Encoder
-
-    return {"SequenceReplayBuffer": SequenceReplayBuffer, "DrQv2Encoder": DrQv2Encoder}
+    """Names a zoo config string may use: those the buffers and the library's algorithm packages export
+    (``SequenceReplayBuffer``; ``DrQv2Encoder`` for frames under 36x36)."""
+    packages = ["sb3_ef.common.buffers", *(item.module for item in registry.ALGORITHMS.values() if not item.workbench)]
+    modules = [importlib.import_module(package) for package in dict.fromkeys(packages)]
+    return {name: getattr(module, name) for module in modules for name in module.__all__}
 
 
 def register_algorithms(base_policy_kwargs: dict[str, Any] | None = None) -> None:

@@ -16,7 +16,6 @@ import gymnasium as gym
 from rl_zoo3 import exp_manager, hyperparams_opt, utils
 
 import sb3_ef  # noqa: F401  (registers the environments)
-from sb3_ef import registry
 from sb3_ef.common.checkpoints import Checkpoint, checkpoint_for, latest_checkpoint
 from sb3_ef.common.validation import did_you_mean, is_intact
 from sb3_ef.registry import import_target
@@ -197,10 +196,9 @@ def own_loop_main(argv: list[str], command: str) -> Callable[[list[str]], None] 
         except ValueError:  # reported when the run is resumed
             argv = []
     algo = _pre_parser().parse_known_args(argv)[0].algo
-    item = registry.ALGORITHMS.get(algo)
-    if item is None or item.zoo_run is None:
+    if algo not in config.OWN_LOOPS:
         return None
-    return import_target(item.zoo_run[("train", "enjoy").index(command)])
+    return import_target(config.OWN_LOOPS[algo][("train", "enjoy").index(command)])
 
 
 def run_with_argv(function: Callable[[], None], argv: Sequence[str], prog: str) -> None:
