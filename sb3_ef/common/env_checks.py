@@ -52,14 +52,6 @@ def check_box_actions(action_space: spaces.Space, algorithm: str) -> None:
         raise ValueError(f"{algorithm} needs a continuous (Box) action space, got {action_space}")
 
 
-def check_sequence_buffer(replay_buffer_class: type[ReplayBuffer] | None, why: str) -> None:
-    """``why`` says what the algorithm samples that only a :class:`SequenceReplayBuffer` provides."""
-    if replay_buffer_class is not None and not issubclass(replay_buffer_class, SequenceReplayBuffer):
-        raise ValueError(
-            f"{why}: replay_buffer_class must be a SequenceReplayBuffer (sub)class, got {replay_buffer_class.__name__}"
-        )
-
-
 def sequence_buffer(
     replay_buffer_class: type[ReplayBuffer] | None,
     replay_buffer_kwargs: dict[str, Any],
@@ -69,7 +61,10 @@ def sequence_buffer(
 ) -> tuple[type[ReplayBuffer], dict[str, Any]]:
     """An off-policy host's buffer class and arguments: a :class:`SequenceReplayBuffer` (checked, ``why`` says what
     it samples) with the window ``horizon`` and ``defaults`` (such as ``n_steps``, ``gamma``) under the user's."""
-    check_sequence_buffer(replay_buffer_class, why)
+    if replay_buffer_class is not None and not issubclass(replay_buffer_class, SequenceReplayBuffer):
+        raise ValueError(
+            f"{why}: replay_buffer_class must be a SequenceReplayBuffer (sub)class, got {replay_buffer_class.__name__}"
+        )
     return replay_buffer_class or SequenceReplayBuffer, {**defaults, **replay_buffer_kwargs, "horizon": horizon}
 
 

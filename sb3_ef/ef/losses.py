@@ -58,11 +58,6 @@ class ForesightLoss(AuxiliaryLoss):
         channels_last: bool = False,
     ):
         super().__init__()
-        if feature_dim <= agent_dim:
-            raise ValueError(
-                f"Ego-Foresight needs features_dim > agent_dim (scene features must remain), "
-                f"got features_dim={feature_dim}, agent_dim={agent_dim}"
-            )
         self.register_coefficient("beta", beta)
         self.ef = ego_foresight(
             feature_dim, action_dim, frame_shape=frame_shape, agent_dim=agent_dim, horizon=horizon, **(ef_kwargs or {})
@@ -93,7 +88,7 @@ class ForesightLoss(AuxiliaryLoss):
     def __setstate__(self, state: dict[str, Any]) -> None:
         """A loss pickled by an earlier version (policy files): ``beta`` a float, latent EF in this class."""
         super().__setstate__(state)
-        if state.get("target_encoder") is not None:
+        if "target_encoder" in state["_modules"]:
             self.__class__ = LatentForesightLoss
         if "beta" in state:
             self.register_coefficient("beta", self.__dict__.pop("beta"))

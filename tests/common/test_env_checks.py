@@ -8,7 +8,7 @@ from gymnasium.wrappers import TimeLimit
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.vec_env import DummyVecEnv
 
-from sb3_ef.common.env_checks import check_box_actions, check_sequence_buffer, check_stacked_frames, episode_steps
+from sb3_ef.common.env_checks import check_box_actions, check_stacked_frames, episode_steps, sequence_buffer
 from sb3_ef.envs.toy import ToyAgentEnv
 
 
@@ -41,7 +41,7 @@ def test_episode_steps_from_each_source(env, expected):
 
 def test_checks_name_expected_and_received():
     with pytest.raises(ValueError, match=r"Host needs windows: .*SequenceReplayBuffer.*got ReplayBuffer"):
-        check_sequence_buffer(ReplayBuffer, "Host needs windows")
+        sequence_buffer(ReplayBuffer, {}, "Host needs windows", horizon=3)
     with pytest.raises(ValueError, match=r"Host expects stacked RGB frames.*got Box\(0, 255, \(4, 8, 8\)"):
         check_stacked_frames(spaces.Box(0, 255, (4, 8, 8), np.uint8), "Host")
     with pytest.raises(ValueError, match=r"Host needs a continuous \(Box\) action space, got Discrete\(3\)"):
