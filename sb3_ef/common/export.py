@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import pathlib
 import warnings
 from collections.abc import Callable, Iterator
@@ -184,6 +185,9 @@ def export_policy(
     """
     if format not in FORMATS:
         raise ValueError(f"format must be one of {FORMATS}, got {format!r}")
+    missing = [name for name in ("onnx", "onnxscript") if format == "onnx" and importlib.util.find_spec(name) is None]
+    if missing:
+        raise ImportError(f"format='onnx' needs {' and '.join(missing)}: pip install 'sb3-ef[export]'")
     policy = getattr(model, "policy", None)
     if not isinstance(policy, BasePolicy):
         what = f"whose .policy is a {type(policy).__name__}" if hasattr(model, "policy") else "without one"
