@@ -17,6 +17,7 @@ _PUBLIC = {
     "MotorBabblingCallback": "sb3_ef.ef.babbling",
     "SequenceReplayBuffer": "sb3_ef.common.buffers",
     "make_env": "sb3_ef.envs",
+    "export_policy": "sb3_ef.common.export",
 }
 
 __all__ = [*_PUBLIC, "__version__"]
