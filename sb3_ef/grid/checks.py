@@ -16,10 +16,15 @@ EXPECTED_ERRORS = (ValueError, TypeError, OSError, ImportError)
 
 
 def check_sb3_row(spec: RunSpec, env: Any, device: str) -> None:
-    """Check a row that SB3's ``learn`` trains: its class built on ``env`` without networks, and its crop."""
+    """Check a row that SB3's ``learn`` trains: its class built on ``env`` without networks, its crop and its EF
+    options (``ef_kwargs``, the algorithm's own or in ``policy_kwargs``)."""
     from sb3_ef.curl.crop import check_crop_size
+    from sb3_ef.ef.arguments import check_ef_kwargs
 
     model = new_model(spec, env, device, _init_setup_model=False)
+    for ef_kwargs in (getattr(model, "ef_kwargs", None), model.policy_kwargs.get("ef_kwargs")):
+        if ef_kwargs is not None:
+            check_ef_kwargs(ef_kwargs)
     crop_size = getattr(model, "crop_size", None)
     if crop_size is not None:
         _, height, width = model.observation_space.shape

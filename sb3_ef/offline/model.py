@@ -12,6 +12,7 @@ import torch as th
 from torch import nn
 
 from sb3_ef.ef import EgoForesight
+from sb3_ef.ef.arguments import check_ef_kwargs
 from sb3_ef.ef.foresight import momentum_target
 from sb3_ef.offline.encoders import build_encoder
 
@@ -37,6 +38,7 @@ class OfflineEF(nn.Module):
         super().__init__()
         if config.context < 1:
             raise ValueError(f"context must be at least 1 frame, got {config.context}")
+        check_ef_kwargs(config.ef_kwargs)
         self.config = config
         self.encoder = build_encoder(
             config.encoder, config.frame_shape, config.context, config.action_dim, **dict(config.encoder_kwargs)
