@@ -127,7 +127,15 @@ def _algorithms(value: Any) -> list[Algorithm]:
             f"'algorithms' must be a non-empty list of zoo keys or a mapping label -> options, got {value!r}"
         )
     if not isinstance(value, Mapping):
-        return [item if isinstance(item, Algorithm) else Algorithm(str(item)) for item in value]
+        algorithms = [item if isinstance(item, Algorithm) else Algorithm(str(item)) for item in value]
+        labels = [algorithm.label for algorithm in algorithms]
+        twice = next((label for label in labels if labels.count(label) > 1), None)
+        if twice is not None:
+            raise ValueError(
+                f"'algorithms' lists {twice!r} twice: give each variant its own label (a mapping label -> options, "
+                f"e.g. {twice}_b: {{algo: {twice}, hyperparams: ...}})"
+            )
+        return algorithms
     algorithms = []
     for label, options in value.items():
         options = options or {}
@@ -147,6 +155,9 @@ def _seeds(value: Any) -> list[int]:
     if isinstance(value, int) and not isinstance(value, bool) and value > 0:
         return list(range(value))
     if isinstance(value, Sequence) and value and all(isinstance(s, int) and not isinstance(s, bool) for s in value):
+        twice = next((seed for seed in value if value.count(seed) > 1), None)
+        if twice is not None:
+            raise ValueError(f"'seeds' lists seed {twice} twice ({list(value)}): a seed gives one run per algorithm and task")
         return list(value)
     raise ValueError(f"'seeds' must be a positive count or a non-empty list of ints, got {value!r}")
 
@@ -228,9 +239,14 @@ def grid_runs(
         raise ValueError(f"'tasks' must be a list of gymnasium ids, got {tasks!r}")
     for name, value in (("env_kwargs", env_kwargs), ("hyperparams", hyperparams)):
         _check_mapping(repr(name), value or {})
-    tasks = [resolve_task(task) for task in ([tasks] if isinstance(tasks, str) else tasks)]
+    written = [tasks] if isinstance(tasks, str) else list(tasks)
+    tasks = [resolve_task(task) for task in written]
     if not tasks:
         raise ValueError("'tasks' must name at least one task")
+    twice = next((task for task in tasks if tasks.count(task) > 1), None)
+    if twice is not None:
+        given = " and ".join(repr(name) for name, task in zip(written, tasks, strict=True) if task == twice)
+        raise ValueError(f"'tasks' names {twice} twice ({given}; the '-v0' may be left out)")
     runs_of_seed: list[dict[str, Any]] = []  # the runs of one seed, as RunSpec arguments without the seed
     problems: dict[str, None] = {}  # each once (a bad override is one problem, not one per task)
     for algorithm in _algorithms(algorithms):
@@ -258,12 +274,15 @@ def grid_runs(
 
 
 def check_unique(runs: Sequence[RunSpec]) -> None:
-    """Raise ``ValueError`` naming a run id that occurs twice (two runs would share one results file)."""
-    seen: set[str] = set()
-    for run in runs:
-        if run.run_id in seen:
-            raise ValueError(f"Run {run.run_id} occurs twice in the grid: give the algorithms distinct labels")
-        seen.add(run.run_id)
+    """Raise ``ValueError`` naming a run id that occurs twice (two runs would share one results folder)."""
+    first: dict[str, int] = {}
+    for index, run in enumerate(runs, start=1):
+        earlier = first.setdefault(run.run_id, index)
+        if earlier != index:
+            raise ValueError(
+                f"Runs {earlier} and {index} of the grid are both {run.run_id} (the same label, task and seed): they "
+                "would share one results folder; give one of them another label"
+            )
 
 
 def select_runs(runs: Sequence[RunSpec], patterns: Sequence[str]) -> list[RunSpec]:
@@ -322,14 +341,27 @@ def read_grid_file(path: str | os.PathLike) -> list[dict[str, Any]]:
 def load_grid(path: str | os.PathLike) -> list[RunSpec]:
     """Read a grid file and expand every block; a :class:`GridError` names every problem of every block."""
     runs, problems = [], []
+    block_of: dict[str, int] = {}  # each run id's block
     for index, block in enumerate(read_grid_file(path)):
         try:
-            runs += grid_runs(**block)
+            block_runs = grid_runs(**block)
         except GridError as error:
             problems += [f"{path}, grids[{index}]: {problem}" for problem in error.problems]
+            continue
         except ValueError as error:
             problems.append(f"{path}, grids[{index}]: {error}")
+            continue
+        runs += block_runs
+        repeated: dict[str, RunSpec] = {}  # the first run of each label that an earlier block has too
+        for run in block_runs:
+            if block_of.setdefault(run.run_id, index) != index:
+                repeated.setdefault(run.label, run)
+        problems += [
+            f"{path}, grids[{index}]: {label} on {run.task} with seed {run.seed} is also a run of "
+            f"grids[{block_of[run.run_id]}]: the two would share one results folder; give {label} another label in "
+            "one of the blocks"
+            for label, run in repeated.items()
+        ]
     if problems:
         raise GridError(problems)
-    check_unique(runs)
     return runs

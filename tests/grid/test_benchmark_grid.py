@@ -8,7 +8,7 @@ import pytest
 import yaml
 
 from sb3_ef.envs.tasks import DMC_PAPER_TASKS, METAWORLD_PAPER_TASKS
-from sb3_ef.grid.grid import Algorithm, RunSpec, grid_runs, load_grid, select_runs
+from sb3_ef.grid.grid import Algorithm, RunSpec, check_unique, grid_runs, load_grid, select_runs
 from sb3_ef.grid.run import RunResult
 from sb3_ef.grid.runner import plan_table, summary_table
 
@@ -112,7 +112,23 @@ def _block(**changes) -> dict:
             {"grids": [_block(algorithms={"drqv2": {"env_kwargs": [1]}})]},
             "Algorithm 'drqv2': 'env_kwargs' must be a mapping of names to values, got [1]",
         ),
-        ({"grids": [_block(), _block()]}, "Run drqv2/toy-agent-v0_s0 occurs twice"),
+        (
+            {"grids": [_block(), _block()]},
+            "grid.yml, grids[1]: drqv2 on toy/agent-v0 with seed 0 is also a run of grids[0]: the two would share one "
+            "results folder; give drqv2 another label in one of the blocks",
+        ),
+        (
+            {"grids": [_block(seeds=[1, 1])]},
+            "grid.yml, grids[0]: 'seeds' lists seed 1 twice ([1, 1]): a seed gives one run per algorithm and task",
+        ),
+        (
+            {"grids": [_block(tasks=["toy/agent", "toy/agent-v0"])]},
+            "grids[0]: 'tasks' names toy/agent-v0 twice ('toy/agent' and 'toy/agent-v0'; the '-v0' may be left out)",
+        ),
+        (
+            {"grids": [_block(algorithms=["drqv2", "drqv2"])]},
+            "grids[0]: 'algorithms' lists 'drqv2' twice: give each variant its own label (a mapping label -> options",
+        ),
         ({"grids": [_block()], "grid": []}, "unknown top-level key(s) 'grid' (did you mean 'grids'?)"),
         ({"grid": [_block()]}, "non-empty list 'grids'"),
     ],
@@ -121,6 +137,12 @@ def test_bad_grids_are_refused_with_the_cause_named(tmp_path, document, message)
     with pytest.raises(ValueError) as error:
         load_grid(_grid_file(tmp_path, document))
     assert message in str(error.value)
+
+
+def test_runs_given_together_from_python_are_refused_when_two_share_an_id():
+    runs = load_grid(TINY_GRID)
+    with pytest.raises(ValueError, match=r"Runs 1 and 5 of the grid are both drqv2/dmc-cartpole-balance-v0_s0 \(the"):
+        check_unique([*runs, runs[0]])
 
 
 def test_runs_are_selected_by_shell_patterns_on_their_ids():
