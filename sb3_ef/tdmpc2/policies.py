@@ -47,12 +47,13 @@ def _seeded_draws(device: th.device, seed: int) -> Iterator[None]:
         yield
 
 
-#: DrQ-v2 policy arguments a TD-MPC2 policy does not take, with what sizes it has instead.
-_DRQV2_ARGUMENTS = {
-    "net_arch": "mlp_dim (width of every MLP)",
-    "features_dim": "num_channels (the latent has 16 * num_channels dims)",
-    "trunk_dim": "mlp_dim",
-    "n_critics": "num_q",
+#: DrQ-v2's and SB3's policy arguments a TD-MPC2 policy does not take, with what it has instead.
+_NOT_TAKEN = {
+    "net_arch": "its sizes are set by mlp_dim (width of every MLP)",
+    "features_dim": "its sizes are set by num_channels (the latent has 16 * num_channels dims)",
+    "trunk_dim": "its sizes are set by mlp_dim",
+    "n_critics": "its sizes are set by num_q",
+    "normalize_images": "its encoder always scales the uint8 frames itself (frames / 255 - 0.5, as TD-MPC2)",
 }
 
 
@@ -104,8 +105,8 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
         **unknown: Any,
     ):
         for name in unknown:
-            instead = _DRQV2_ARGUMENTS.get(name, "see the TDMPC2Policy docstring")
-            raise ValueError(f"TDMPC2Policy has no argument {name!r}: its sizes are set by {instead}")
+            instead = _NOT_TAKEN.get(name, "its arguments are listed in the TDMPC2Policy docstring")
+            raise ValueError(f"TDMPC2Policy has no argument {name!r}: {instead}")
         if optimizer_kwargs is None and optimizer_class is th.optim.Adam:
             optimizer_kwargs = {"fused": True}
         super().__init__(
