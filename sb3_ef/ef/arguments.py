@@ -45,7 +45,7 @@ OPTIONS: dict[str, tuple[str, Callable[[object], bool], str | None]] = {
     ),
     "projection_dim": ("a positive integer", _positive_int, "latent"),
     "head_hidden_dim": ("a positive integer", _positive_int, "latent"),
-    "temperature": ("a finite number > 0", _number(lambda number: number > 0), "latent"),
+    "temperature": ("a finite positive number", _number(lambda number: number > 0), "latent"),
     "loss_scale": ("a finite number >= 0", _number(lambda number: number >= 0), "latent"),
     "target_tau": ("a number in (0, 1]", _number(lambda number: 0 < number <= 1), "latent"),
 }

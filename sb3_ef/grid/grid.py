@@ -157,7 +157,9 @@ def _seeds(value: Any) -> list[int]:
     if isinstance(value, Sequence) and value and all(isinstance(s, int) and not isinstance(s, bool) for s in value):
         twice = next((seed for seed in value if value.count(seed) > 1), None)
         if twice is not None:
-            raise ValueError(f"'seeds' lists seed {twice} twice ({list(value)}): a seed gives one run per algorithm and task")
+            raise ValueError(
+                f"'seeds' lists seed {twice} twice ({list(value)}): a seed gives one run per algorithm and task"
+            )
         return list(value)
     raise ValueError(f"'seeds' must be a positive count or a non-empty list of ints, got {value!r}")
 

@@ -41,7 +41,7 @@ def test_options_that_pass_build_an_ego_foresight(ef_kwargs):
         ({"target": "latent", "loss_scale": float("nan")}, "loss_scale must be a finite number >= 0, got nan"),
         ({"target": "latent", "loss_scale": "3"}, "ef_kwargs loss_scale must be a finite number >= 0, got str '3'"),
         ({"target": "latent", "loss_scale": True}, "ef_kwargs loss_scale must be a finite number >= 0, got bool True"),
-        ({"target": "latent", "temperature": 0}, "ef_kwargs temperature must be a finite number > 0, got 0"),
+        ({"target": "latent", "temperature": 0}, "ef_kwargs temperature must be a finite positive number, got 0"),
         ({"target": "latent", "target_tau": 2}, "ef_kwargs target_tau must be a number in (0, 1], got 2"),
         ({"target": "latnt"}, "ef_kwargs target must be one of ('pixel', 'latent'), got str 'latnt'"),
         ({"step_sampling": "all"}, "ef_kwargs step_sampling must be one of ('batch', 'sample'), got str 'all'"),

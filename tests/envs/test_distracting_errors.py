@@ -66,7 +66,7 @@ def test_an_unreadable_frame_is_named_when_the_env_is_made(tmp_path):
 
 def damaged_copy(davis_dir: Path, folder: Path) -> Path:
     """A copy of the DAVIS folder whose second video's last frame is cut in half, as a failed copy leaves it."""
-    shutil.copytree(davis_dir, folder)
+    shutil.copytree(davis_dir, folder, ignore=shutil.ignore_patterns(CACHE_FOLDER))
     frame = frame_files(folder / DAVIS_TRAIN_VIDEOS[1])[-1]
     frame.write_bytes(frame.read_bytes()[: frame.stat().st_size // 2])
     return frame
