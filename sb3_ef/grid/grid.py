@@ -128,13 +128,9 @@ def _algorithms(value: Any) -> list[Algorithm]:
         )
     if not isinstance(value, Mapping):
         algorithms = [item if isinstance(item, Algorithm) else Algorithm(str(item)) for item in value]
-        labels = [algorithm.label for algorithm in algorithms]
-        twice = next((label for label in labels if labels.count(label) > 1), None)
+        twice = _repeated([algorithm.label for algorithm in algorithms])
         if twice is not None:
-            raise ValueError(
-                f"'algorithms' lists {twice!r} twice: give each variant its own label (a mapping label -> options, "
-                f"e.g. {twice}_b: {{algo: {twice}, hyperparams: ...}})"
-            )
+            raise ValueError(f"'algorithms' lists {twice!r} twice: give each variant its own label (label -> options)")
         return algorithms
     algorithms = []
     for label, options in value.items():
@@ -155,13 +151,15 @@ def _seeds(value: Any) -> list[int]:
     if isinstance(value, int) and not isinstance(value, bool) and value > 0:
         return list(range(value))
     if isinstance(value, Sequence) and value and all(isinstance(s, int) and not isinstance(s, bool) for s in value):
-        twice = next((seed for seed in value if value.count(seed) > 1), None)
-        if twice is not None:
-            raise ValueError(
-                f"'seeds' lists seed {twice} twice ({list(value)}): a seed gives one run per algorithm and task"
-            )
+        if _repeated(value) is not None:
+            raise ValueError(f"'seeds' lists seed {_repeated(value)} twice ({list(value)}): one run per seed")
         return list(value)
     raise ValueError(f"'seeds' must be a positive count or a non-empty list of ints, got {value!r}")
+
+
+def _repeated(items: Sequence[Any]) -> Any:
+    """The first item of ``items`` that occurs twice, or ``None``."""
+    return next((item for item in items if items.count(item) > 1), None)
 
 
 def _check_mapping(name: str, value: Any) -> None:
@@ -245,7 +243,7 @@ def grid_runs(
     tasks = [resolve_task(task) for task in written]
     if not tasks:
         raise ValueError("'tasks' must name at least one task")
-    twice = next((task for task in tasks if tasks.count(task) > 1), None)
+    twice = _repeated(tasks)
     if twice is not None:
         given = " and ".join(repr(name) for name, task in zip(written, tasks, strict=True) if task == twice)
         raise ValueError(f"'tasks' names {twice} twice ({given}; the '-v0' may be left out)")
@@ -275,15 +273,16 @@ def grid_runs(
     return [RunSpec(seed=seed, **arguments) for seed in _seeds(seeds) for arguments in runs_of_seed]
 
 
-def check_unique(runs: Sequence[RunSpec]) -> None:
-    """Raise ``ValueError`` naming a run id that occurs twice (two runs would share one results folder)."""
-    first: dict[str, int] = {}
-    for index, run in enumerate(runs, start=1):
-        earlier = first.setdefault(run.run_id, index)
-        if earlier != index:
+def check_unique(runs: Sequence[RunSpec], places: Sequence[str] | None = None) -> None:
+    """Raise ``ValueError`` naming a run id that occurs twice (two runs would share one results folder) and the
+    ``places`` of the two runs (default: their positions)."""
+    places = places or [f"run {index} of the grid" for index in range(1, len(runs) + 1)]
+    first: dict[str, str] = {}
+    for run, place in zip(runs, places, strict=True):
+        if first.setdefault(run.run_id, place) != place:
             raise ValueError(
-                f"Runs {earlier} and {index} of the grid are both {run.run_id} (the same label, task and seed): they "
-                "would share one results folder; give one of them another label"
+                f"{run.label} on {run.task} with seed {run.seed} is {first[run.run_id]} and {place}: the two runs "
+                f"would share one results folder ({run.run_id}); give {run.label} another label in one of them"
             )
 
 
@@ -342,28 +341,18 @@ def read_grid_file(path: str | os.PathLike) -> list[dict[str, Any]]:
 
 def load_grid(path: str | os.PathLike) -> list[RunSpec]:
     """Read a grid file and expand every block; a :class:`GridError` names every problem of every block."""
-    runs, problems = [], []
-    block_of: dict[str, int] = {}  # each run id's block
+    runs, places, problems = [], [], []
     for index, block in enumerate(read_grid_file(path)):
         try:
             block_runs = grid_runs(**block)
         except GridError as error:
             problems += [f"{path}, grids[{index}]: {problem}" for problem in error.problems]
-            continue
         except ValueError as error:
             problems.append(f"{path}, grids[{index}]: {error}")
-            continue
-        runs += block_runs
-        repeated: dict[str, RunSpec] = {}  # the first run of each label that an earlier block has too
-        for run in block_runs:
-            if block_of.setdefault(run.run_id, index) != index:
-                repeated.setdefault(run.label, run)
-        problems += [
-            f"{path}, grids[{index}]: {label} on {run.task} with seed {run.seed} is also a run of "
-            f"grids[{block_of[run.run_id]}]: the two would share one results folder; give {label} another label in "
-            "one of the blocks"
-            for label, run in repeated.items()
-        ]
+        else:
+            runs += block_runs
+            places += [f"a run of {path}, grids[{index}]"] * len(block_runs)
     if problems:
         raise GridError(problems)
+    check_unique(runs, places)  # a block repeats no run: two blocks may
     return runs
