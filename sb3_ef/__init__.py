@@ -4,12 +4,9 @@ from __future__ import annotations
 
 import os
 
-from sb3_ef import _moved
-
-_moved.install()  # before any other module of the package: old import paths say where they went
-
-from sb3_ef.common.lazy import lazy_attributes  # noqa: E402
-from sb3_ef.envs.registration import register_envs  # noqa: E402
+from sb3_ef import _moved  # noqa: F401  (first: old import paths of the last release say where they went)
+from sb3_ef.common.lazy import lazy_attributes
+from sb3_ef.envs.registration import register_envs
 
 with open(os.path.join(os.path.dirname(__file__), "version.txt")) as _file:
     __version__ = _file.read().strip()

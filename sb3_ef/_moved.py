@@ -1,5 +1,6 @@
 """Where the modules and names that moved or left the package in the last release went: importing an old path
-raises an ``ImportError`` that says so. Kept for one release, then deleted with its line in ``sb3_ef/__init__.py``."""
+raises an ``ImportError`` that says so. Importing this module puts its finder first on ``sys.meta_path``. Kept for one
+release, then deleted with its import in ``sb3_ef/__init__.py``."""
 
 from __future__ import annotations
 
@@ -80,7 +81,4 @@ class MovedPathFinder(importlib.abc.MetaPathFinder):
         return spec
 
 
-def install() -> None:
-    """Put :class:`MovedPathFinder` first on ``sys.meta_path``, before any module of the package is imported."""
-    if not any(isinstance(finder, MovedPathFinder) for finder in sys.meta_path):
-        sys.meta_path.insert(0, MovedPathFinder())
+sys.meta_path.insert(0, MovedPathFinder())  # on import: sb3_ef/__init__.py imports this module first

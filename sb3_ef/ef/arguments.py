@@ -19,6 +19,10 @@ def _positive_int(value: object) -> bool:
     return isinstance(value, numbers.Integral) and not isinstance(value, bool) and int(value) >= 1
 
 
+def _all(value: object, test: Callable[[object], bool]) -> bool:
+    return isinstance(value, (list, tuple)) and all(map(test, value))
+
+
 def _is_real(value: object) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, bool)
 
@@ -31,18 +35,10 @@ def _number(test: Callable[[float], bool]) -> Callable[[object], bool]:
 #: Each option of ``ef_kwargs``: what it must be, the test of a value, and the one target it applies to (or None).
 OPTIONS: dict[str, tuple[str, Callable[[object], bool], str | None]] = {
     "target": (f"one of {TARGETS}", lambda value: value in TARGETS, None),
-    "rollout_hidden_dims": (
-        "a list of positive integers (the rollout MLP's hidden widths)",
-        lambda value: isinstance(value, (list, tuple)) and all(map(_positive_int, value)),
-        None,
-    ),
+    "rollout_hidden_dims": ("a list of positive integers (hidden widths)", lambda v: _all(v, _positive_int), None),
     "decoder_channels": ("a positive integer", _positive_int, None),
     "step_sampling": (f"one of {STEP_SAMPLINGS}", lambda value: value in STEP_SAMPLINGS, None),
-    "decode_batch_size": (
-        "None (all) or a positive integer",
-        lambda value: value is None or _positive_int(value),
-        "pixel",
-    ),
+    "decode_batch_size": ("None (all) or a positive integer", lambda v: v is None or _positive_int(v), "pixel"),
     "projection_dim": ("a positive integer", _positive_int, "latent"),
     "head_hidden_dim": ("a positive integer", _positive_int, "latent"),
     "temperature": ("a finite positive number", _number(lambda number: number > 0), "latent"),

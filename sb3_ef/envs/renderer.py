@@ -12,7 +12,6 @@ from typing import TypeVar
 
 import mujoco
 import numpy as np
-from OpenGL import error as gl_error  # after mujoco, which sets PyOpenGL's platform from MUJOCO_GL
 
 #: Tries of an OpenGL context's creation or use, 0.5 s then 1 s apart: a machine under heavy load can refuse one.
 GL_TRIES = 3
@@ -31,8 +30,9 @@ def camera_id(model: mujoco.MjModel, camera: int | str) -> int:
 
 
 def _is_gl_failure(error: Exception) -> bool:
-    """PyOpenGL's errors (``EGLError``, ...), MuJoCo's fatal ones, and its backends' context errors."""
-    return isinstance(error, (gl_error.Error, mujoco.FatalError)) or (
+    """PyOpenGL's errors (``EGLError``, ...; not imported here), MuJoCo's fatal ones, its backends' context errors."""
+    from_opengl = any(kind.__module__.startswith("OpenGL.") for kind in type(error).__mro__)
+    return from_opengl or isinstance(error, mujoco.FatalError) or (
         isinstance(error, RuntimeError) and "context" in str(error)
     )
 

@@ -46,7 +46,7 @@ def test_options_that_pass_build_an_ego_foresight(ef_kwargs):
         ({"target": "latnt"}, "ef_kwargs target must be one of ('pixel', 'latent'), got str 'latnt'"),
         ({"step_sampling": "all"}, "ef_kwargs step_sampling must be one of ('batch', 'sample'), got str 'all'"),
         ({"decoder_channels": 0}, "ef_kwargs decoder_channels must be a positive integer, got 0"),
-        ({"rollout_hidden_dims": 64}, "rollout_hidden_dims must be a list of positive integers (the rollout MLP's"),
+        ({"rollout_hidden_dims": 8}, "rollout_hidden_dims must be a list of positive integers (hidden widths), got 8"),
         ({"loss_scale": 1}, "ef_kwargs ['loss_scale'] apply to target='latent' only, got target='pixel' (the default)"),
         (
             {"target": "latent", "decode_batch_size": 8},
