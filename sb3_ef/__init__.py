@@ -5,7 +5,10 @@ from __future__ import annotations
 import os
 from typing import Any
 
-from sb3_ef import registry
+from sb3_ef import (
+    _moved,  # noqa: F401  (first: old import paths of the last release say where they went)
+    registry,
+)
 from sb3_ef.common.lazy import lazy_attributes
 from sb3_ef.envs.registration import register_envs
 

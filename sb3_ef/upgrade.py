@@ -168,6 +168,9 @@ def upgrade(source: str | os.PathLike, destination: str | os.PathLike, device: s
         raise ValueError(f"{source} is not a file of sb3-ef 0.1.0 ({who}): nothing to upgrade")
     if os.path.abspath(source) == os.path.abspath(destination):
         raise ValueError(f"The upgraded file must go to another path than {source} (the original is kept)")
+    folder = os.path.dirname(os.path.abspath(destination))
+    if not os.path.isdir(folder):
+        raise FileNotFoundError(f"No folder {folder} to write {destination} into: create it first")
     algorithm = legacy_algorithm(data)
     file = upgraded_file(pathlib.Path(source), algorithm, algorithm.__name__.endswith("EF"))
 

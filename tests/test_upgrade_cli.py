@@ -30,3 +30,10 @@ def test_upgrade_refuses_to_write_over_a_file_and_to_upgrade_a_current_one(tmp_p
     assert run(str(LEGACY), str(tmp_path / "new.zip")).returncode == 0
     again = run(str(tmp_path / "new.zip"), str(tmp_path / "newer.zip"))
     assert again.returncode == 2 and "nothing to upgrade" in again.stderr and not (tmp_path / "newer.zip").exists()
+
+
+def test_upgrade_into_a_missing_folder_names_the_folder(tmp_path):
+    result = run(str(LEGACY), str(tmp_path / "missing" / "new.zip"))
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert f"No folder {tmp_path / 'missing'} to write {tmp_path / 'missing' / 'new.zip'} into" in result.stderr
+    assert ".tmp" not in result.stderr

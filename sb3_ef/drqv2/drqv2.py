@@ -332,7 +332,8 @@ class DrQv2EF(EFMixin, DrQv2):
         _init_setup_model: bool = True,
     ):
         super().__init__(**base_arguments(DrQv2, locals(), _init_setup_model=False))
-        self._init_ef(beta, ef_horizon, babbling_steps, babbling_mode, babbling_in_eval)
+        ef_kwargs = self.policy_kwargs.get("ef_kwargs")
+        self._init_ef(beta, ef_horizon, babbling_steps, babbling_mode, babbling_in_eval, ef_kwargs)
         if _init_setup_model:
             self._setup_model()
 

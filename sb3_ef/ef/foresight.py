@@ -9,6 +9,7 @@ import torch as th
 from torch import nn
 
 from sb3_ef.common.layers import mlp
+from sb3_ef.ef.arguments import OPTIONS, STEP_SAMPLINGS, check_ef_kwargs
 from sb3_ef.ef.decoder import FrameDecoder
 from sb3_ef.ef.latent import (
     DEFAULT_HEAD_HIDDEN_DIM,
@@ -17,11 +18,8 @@ from sb3_ef.ef.latent import (
     DEFAULT_TEMPERATURE,
     LatentHead,
     check_loss_scale,
-    check_target,
     info_nce,
 )
-
-STEP_SAMPLINGS = ("batch", "sample")
 
 
 def draw_rollout_steps(
@@ -343,8 +341,8 @@ class LatentEgoForesight(EgoForesight):
 def ego_foresight(*args: Any, target: str = "pixel", **options: Any) -> EgoForesight:
     """The Ego-Foresight module ``target`` names (``ef_kwargs["target"]``), an option of the other target refused;
     other arguments as :class:`EgoForesight`'s (and :class:`LatentEgoForesight`'s)."""
-    latent = {name: options.get(name) for name in ("projection_dim", "head_hidden_dim", "temperature", "loss_scale")}
-    if check_target(target, options.get("decode_batch_size"), **latent) == "pixel":
+    check_ef_kwargs({"target": target, **{name: value for name, value in options.items() if name in OPTIONS}})
+    if target == "pixel":
         return EgoForesight(*args, **options)
     return LatentEgoForesight(*args, **{name: value for name, value in options.items() if value is not None})
 

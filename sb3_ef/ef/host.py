@@ -14,6 +14,7 @@ from torch import nn
 from sb3_ef.auxiliary.host import AuxiliaryHostMixin
 from sb3_ef.common.env_checks import episode_steps
 from sb3_ef.common.validation import check_algorithm_arguments
+from sb3_ef.ef.arguments import check_ef_kwargs
 from sb3_ef.ef.babbling import MotorBabblingCallback, check_babbling, with_babbling
 from sb3_ef.ef.foresight import EgoForesight
 from sb3_ef.ef.latent import feed_encoder
@@ -86,9 +87,17 @@ class EFMixin(AuxiliaryHostMixin):
             self._beta = value
 
     def _init_ef(
-        self, beta: float, ef_horizon: int, babbling_steps: int, babbling_mode: str, babbling_in_eval: bool
+        self,
+        beta: float,
+        ef_horizon: int,
+        babbling_steps: int,
+        babbling_mode: str,
+        babbling_in_eval: bool,
+        ef_kwargs: dict[str, Any] | None,
     ) -> None:
+        """Check and keep EF's arguments (``ef_kwargs`` checked before any network is built, kept by the caller)."""
         check_algorithm_arguments(type(self), {"ef_horizon": ef_horizon, "babbling_steps": babbling_steps})
+        check_ef_kwargs(ef_kwargs or {})
         plain = next(c for c in type(self).__mro__ if issubclass(c, BaseAlgorithm) and not issubclass(c, EFMixin))
         check_ef_arguments(beta, ef_horizon, babbling_steps, babbling_mode, plain.__name__)
         self._beta = beta

@@ -21,8 +21,6 @@ from sb3_ef.common.layers import mlp
 if TYPE_CHECKING:
     from sb3_ef.common.buffers import SequenceReplayBufferSamples
 
-#: What Ego-Foresight predicts: the frame at t+k (the paper) or the target encoder's features of the observation at t+k.
-TARGETS = ("pixel", "latent")
 #: Momentum of the target encoder, moved after every update.
 DEFAULT_TARGET_TAU = 0.01
 DEFAULT_PROJECTION_DIM = 256
@@ -30,19 +28,6 @@ DEFAULT_HEAD_HIDDEN_DIM = 512
 DEFAULT_TEMPERATURE = 0.1
 #: Weight of the InfoNCE inside EF's loss, so that latent EF pulls about as hard as pixel EF (docs/ef.md).
 DEFAULT_LOSS_SCALE = 3.0
-
-
-def check_target(target: object, decode_batch_size: int | None = None, **latent_options: object) -> str:
-    """``target`` if it is one of :data:`TARGETS` and no option of the other target is given, else a ``ValueError``."""
-    if not isinstance(target, str) or target not in TARGETS:
-        raise ValueError(f"Ego-Foresight's target (ef_kwargs['target']) must be one of {TARGETS}, got {target!r}")
-    if target == "pixel":
-        given = [name for name, value in latent_options.items() if value is not None]
-        if given:
-            raise ValueError(f"ef_kwargs {given} apply to target='latent' only, got them with target='pixel'")
-    elif decode_batch_size is not None:
-        raise ValueError("ef_kwargs decode_batch_size applies to target='pixel' only (latent EF decodes no frame)")
-    return target
 
 
 def check_temperature(temperature: object) -> float:

@@ -14,6 +14,7 @@ from torch import nn
 from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.buffers import SequenceReplayBufferSamples
+from sb3_ef.ef.arguments import check_ef_kwargs
 from sb3_ef.ef.foresight import EgoForesight, LatentEgoForesight, ego_foresight
 from sb3_ef.ef.latent import DEFAULT_TARGET_TAU, LatentTargets, MomentumTarget, feed_encoder, latent_targets
 
@@ -149,9 +150,8 @@ def foresight_loss(
 ) -> ForesightLoss:
     """The EF loss ``ef_kwargs["target"]`` names (``"pixel"``, the default, or ``"latent"``) on ``encoder``."""
     options = dict(ef_kwargs or {})
+    check_ef_kwargs(options)
     if options.get("target", "pixel") != "latent":
-        if "target_tau" in options:
-            raise ValueError("ef_kwargs target_tau applies to target='latent' only, got it with target='pixel'")
         return ForesightLoss(feature_dim, action_dim, frame_shape, agent_dim, horizon, beta, options, channels_last)
     if encoder is None:
         raise ValueError("target='latent' predicts the features of the host's encoder: pass encoder=")

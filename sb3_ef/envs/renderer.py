@@ -4,10 +4,18 @@
 from __future__ import annotations
 
 import atexit
+import os
+import time
 import weakref
+from collections.abc import Callable
+from typing import TypeVar
 
 import mujoco
 import numpy as np
+
+#: Tries of an OpenGL context's creation or use, 0.5 s then 1 s apart: a machine under heavy load can refuse one.
+GL_TRIES = 3
+T = TypeVar("T")
 
 
 def camera_id(model: mujoco.MjModel, camera: int | str) -> int:
@@ -19,6 +27,41 @@ def camera_id(model: mujoco.MjModel, camera: int | str) -> int:
         return int(camera)
     valid = ", ".join(f"{index} ({name!r})" for index, name in enumerate(names))
     raise ValueError(f"Unknown camera {camera!r}: this model's cameras are {valid}")
+
+
+def _is_gl_failure(error: Exception) -> bool:
+    """PyOpenGL's errors (``EGLError``, ...; not imported here), MuJoCo's fatal ones, its backends' context errors."""
+    from_opengl = any(kind.__module__.startswith("OpenGL.") for kind in type(error).__mro__)
+    return from_opengl or isinstance(error, mujoco.FatalError) or (
+        isinstance(error, RuntimeError) and "context" in str(error)
+    )
+
+
+def _described(error: Exception) -> str:
+    """The failure without ``str(error)``, which PyOpenGL's errors can fail to give ("<exception str() failed>")."""
+    code, operation = vars(error).get("err"), getattr(getattr(error, "baseOperation", None), "__name__", None)
+    details = [f"error {code:#x}" if isinstance(code, int) else None, f"in {operation}" if operation else None]
+    details += [repr(error.args[0])] if error.args else []
+    return " ".join([type(error).__name__, *filter(None, details)])
+
+
+def with_gl_retries(what: str, call: Callable[[], T]) -> T:
+    """``call()``, tried :data:`GL_TRIES` times while OpenGL fails; then a ``RuntimeError`` naming the failure."""
+    attempt = 1
+    while True:
+        try:
+            return call()
+        except Exception as error:
+            if not _is_gl_failure(error):
+                raise
+            if attempt == GL_TRIES:
+                raise RuntimeError(
+                    f"MuJoCo's OpenGL rendering (MUJOCO_GL={os.environ.get('MUJOCO_GL', 'glfw')}) failed to {what} "
+                    f"{GL_TRIES} times: {_described(error)}. A machine under heavy load (or out of GPU memory) can "
+                    "refuse an OpenGL context: run fewer processes at once, then resume the run"
+                ) from error
+        time.sleep(0.5 * attempt)
+        attempt += 1
 
 
 _LIVE_RENDERERS: weakref.WeakSet[FrameRenderer] = weakref.WeakSet()
@@ -60,7 +103,7 @@ class FrameRenderer:
         if fast:
             model.vis.quality.shadowsize = 0
             model.vis.quality.offsamples = 0
-        self._renderer = mujoco.Renderer(model, size, size)
+        self._renderer = with_gl_retries("create a context", lambda: mujoco.Renderer(model, size, size))
         if fast:
             self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
             self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
@@ -79,14 +122,14 @@ class FrameRenderer:
     def rgb(self, data: mujoco.MjData) -> np.ndarray:
         """The ``(size, size, 3)`` uint8 frame of the current state."""
         self._renderer.update_scene(data, camera=self.camera)
-        return self._orient(self._renderer.render())
+        return self._orient(with_gl_retries("render a frame", self._renderer.render))
 
     def geom_ids(self, data: mujoco.MjData) -> np.ndarray:
         """The ``(size, size)`` int array of the geom id seen at each pixel in the current state, -1 where none."""
         self._renderer.update_scene(data, camera=self.camera)
         self._renderer.enable_segmentation_rendering()
         try:
-            segmentation = self._renderer.render()
+            segmentation = with_gl_retries("render a segmentation", self._renderer.render)
         finally:
             self._renderer.disable_segmentation_rendering()
         geom_ids = np.where(segmentation[..., 1] == mujoco.mjtObj.mjOBJ_GEOM, segmentation[..., 0], -1)
@@ -98,8 +141,12 @@ class FrameRenderer:
 
     def upload_texture(self, texture: int) -> None:
         """Send the model's changed ``texture`` to this renderer's OpenGL context (``mujoco.Renderer`` has no call)."""
-        self._renderer._gl_context.make_current()
-        mujoco.mjr_uploadTexture(self._model, self._renderer._mjr_context, texture)
+
+        def upload() -> None:
+            self._renderer._gl_context.make_current()
+            mujoco.mjr_uploadTexture(self._model, self._renderer._mjr_context, texture)
+
+        with_gl_retries("upload a texture", upload)
 
     def close(self) -> None:
         """Free the OpenGL context (idempotent)."""

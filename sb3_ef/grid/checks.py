@@ -16,7 +16,8 @@ EXPECTED_ERRORS = (ValueError, TypeError, OSError, ImportError)
 
 
 def check_sb3_row(spec: RunSpec, env: Any, device: str) -> Any:
-    """Check a row that SB3's ``learn`` trains: its class built on ``env`` without networks (returned)."""
+    """Check a row that SB3's ``learn`` trains: its class built on ``env`` without networks (returned); the
+    constructor checks its arguments, EF's ``ef_kwargs`` among them."""
     return new_model(spec, env, device, _init_setup_model=False)
 
 

@@ -128,7 +128,11 @@ def _algorithms(value: Any) -> list[Algorithm]:
             f"'algorithms' must be a non-empty list of zoo keys or a mapping label -> options, got {value!r}"
         )
     if not isinstance(value, Mapping):
-        return [item if isinstance(item, Algorithm) else Algorithm(str(item)) for item in value]
+        algorithms = [item if isinstance(item, Algorithm) else Algorithm(str(item)) for item in value]
+        twice = _repeated([algorithm.label for algorithm in algorithms])
+        if twice is not None:
+            raise ValueError(f"'algorithms' lists {twice!r} twice: give each variant its own label (label -> options)")
+        return algorithms
     algorithms = []
     for label, options in value.items():
         options = options or {}
@@ -148,8 +152,15 @@ def _seeds(value: Any) -> list[int]:
     if isinstance(value, int) and not isinstance(value, bool) and value > 0:
         return list(range(value))
     if isinstance(value, Sequence) and value and all(isinstance(s, int) and not isinstance(s, bool) for s in value):
+        if _repeated(value) is not None:
+            raise ValueError(f"'seeds' lists seed {_repeated(value)} twice ({list(value)}): one run per seed")
         return list(value)
     raise ValueError(f"'seeds' must be a positive count or a non-empty list of ints, got {value!r}")
+
+
+def _repeated(items: Sequence[Any]) -> Any:
+    """The first item of ``items`` that occurs twice, or ``None``."""
+    return next((item for item in items if items.count(item) > 1), None)
 
 
 def _check_mapping(name: str, value: Any) -> None:
@@ -229,9 +240,14 @@ def grid_runs(
         raise ValueError(f"'tasks' must be a list of gymnasium ids, got {tasks!r}")
     for name, value in (("env_kwargs", env_kwargs), ("hyperparams", hyperparams)):
         _check_mapping(repr(name), value or {})
-    tasks = [resolve_task(task) for task in ([tasks] if isinstance(tasks, str) else tasks)]
+    written = [tasks] if isinstance(tasks, str) else list(tasks)
+    tasks = [resolve_task(task) for task in written]
     if not tasks:
         raise ValueError("'tasks' must name at least one task")
+    twice = _repeated(tasks)
+    if twice is not None:
+        given = " and ".join(repr(name) for name, task in zip(written, tasks, strict=True) if task == twice)
+        raise ValueError(f"'tasks' names {twice} twice ({given}; the '-v0' may be left out)")
     runs_of_seed: list[dict[str, Any]] = []  # the runs of one seed, as RunSpec arguments without the seed
     problems: dict[str, None] = {}  # each once (a bad override is one problem, not one per task)
     for algorithm in _algorithms(algorithms):
@@ -258,13 +274,17 @@ def grid_runs(
     return [RunSpec(seed=seed, **arguments) for seed in _seeds(seeds) for arguments in runs_of_seed]
 
 
-def check_unique(runs: Sequence[RunSpec]) -> None:
-    """Raise ``ValueError`` naming a run id that occurs twice (two runs would share one results file)."""
-    seen: set[str] = set()
-    for run in runs:
-        if run.run_id in seen:
-            raise ValueError(f"Run {run.run_id} occurs twice in the grid: give the algorithms distinct labels")
-        seen.add(run.run_id)
+def check_unique(runs: Sequence[RunSpec], places: Sequence[str] | None = None) -> None:
+    """Raise ``ValueError`` naming a run id that occurs twice (two runs would share one results folder) and the
+    ``places`` of the two runs (default: their positions)."""
+    places = places or [f"run {index} of the grid" for index in range(1, len(runs) + 1)]
+    first: dict[str, str] = {}
+    for run, place in zip(runs, places, strict=True):
+        if first.setdefault(run.run_id, place) != place:
+            raise ValueError(
+                f"{run.label} on {run.task} with seed {run.seed} is {first[run.run_id]} and {place}: the two runs "
+                f"would share one results folder ({run.run_id}); give {run.label} another label in one of them"
+            )
 
 
 def select_runs(runs: Sequence[RunSpec], patterns: Sequence[str]) -> list[RunSpec]:
@@ -322,15 +342,18 @@ def read_grid_file(path: str | os.PathLike) -> list[dict[str, Any]]:
 
 def load_grid(path: str | os.PathLike) -> list[RunSpec]:
     """Read a grid file and expand every block; a :class:`GridError` names every problem of every block."""
-    runs, problems = [], []
+    runs, places, problems = [], [], []
     for index, block in enumerate(read_grid_file(path)):
         try:
-            runs += grid_runs(**block)
+            block_runs = grid_runs(**block)
         except GridError as error:
             problems += [f"{path}, grids[{index}]: {problem}" for problem in error.problems]
         except ValueError as error:
             problems.append(f"{path}, grids[{index}]: {error}")
+        else:
+            runs += block_runs
+            places += [f"a run of {path}, grids[{index}]"] * len(block_runs)
     if problems:
         raise GridError(problems)
-    check_unique(runs)
+    check_unique(runs, places)  # a block repeats no run: two blocks may
     return runs

@@ -131,8 +131,14 @@ def _open_episode_file(path: str, source: str) -> Iterator[Any]:
         with ExitStack() as stack:  # the handle is closed even when numpy cannot read the archive
             if path.endswith(NPZ_SUFFIXES):
                 handle = stack.enter_context(open(path, "rb"))
-                if handle.read(6) == b"\x93NUMPY":
+                head = handle.read(6)
+                if head == b"\x93NUMPY":
                     raise EpisodeError(f"{source}: a single .npy array, not an .npz archive of 'frames' and 'actions'")
+                if head and not head.startswith(b"PK"):  # numpy would try it as a pickle: never for a data file
+                    raise EpisodeError(
+                        f"{source}: not an episode archive (an .npz is a zip of 'frames' and 'actions' arrays; this "
+                        f"file starts with {head!r})"
+                    )
                 handle.seek(0)
                 file = stack.enter_context(np.load(handle, allow_pickle=False))
             else:

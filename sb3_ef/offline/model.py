@@ -11,6 +11,7 @@ from typing import Any
 import torch as th
 from torch import nn
 
+from sb3_ef.ef.arguments import check_ef_kwargs
 from sb3_ef.ef.foresight import LatentEgoForesight, ego_foresight
 from sb3_ef.ef.latent import DEFAULT_TARGET_TAU, MomentumTarget
 from sb3_ef.offline.encoders import build_encoder
@@ -37,6 +38,7 @@ class OfflineEF(nn.Module):
         super().__init__()
         if config.context < 1:
             raise ValueError(f"context must be at least 1 frame, got {config.context}")
+        check_ef_kwargs(config.ef_kwargs)
         self.config = config
         self.encoder = build_encoder(
             config.encoder, config.frame_shape, config.context, config.action_dim, **dict(config.encoder_kwargs)

@@ -15,6 +15,7 @@ from sb3_ef.analysis.prediction import frame_grid, to_uint8_frames
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.files import write_atomically, write_text_atomically
 from sb3_ef.common.interrupt import Interrupted, sigint_deferred
+from sb3_ef.ef.arguments import check_ef_kwargs
 from sb3_ef.ef.foresight import LatentEgoForesight
 from sb3_ef.ef.probe import latent_window_losses
 from sb3_ef.offline.dataset import EpisodeDataset
@@ -122,6 +123,7 @@ def pretrain(
     settings = {"steps": steps, "batch_size": batch_size, "learning_rate": learning_rate, "shift_pad": shift_pad}
     settings.update(holdout=holdout, eval_every=eval_every, checkpoint_every=checkpoint_every)
     _check_settings({**settings, "saliency_windows": saliency_windows, "cache_mb": cache_mb, "workers": workers})
+    check_ef_kwargs(ef_kwargs or {})
     th.manual_seed(seed)
     out_dir = os.fspath(out_dir)
     _refuse_finished_run(out_dir, steps, resume, overwrite)

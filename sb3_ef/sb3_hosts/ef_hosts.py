@@ -56,7 +56,7 @@ class EFStepMixin(EFMixin, AuxiliaryStepMixin):
                 f"{misplaced[0]}=...)), not in policy_kwargs: its policy is the host's own, without EF"
             )
         super().__init__(policy, env, _init_setup_model=False, **kwargs)
-        self._init_ef(beta, ef_horizon, babbling_steps, babbling_mode, babbling_in_eval)
+        self._init_ef(beta, ef_horizon, babbling_steps, babbling_mode, babbling_in_eval, ef_kwargs)
         self.agent_dim = agent_dim
         self.ef_kwargs = dict(ef_kwargs or {})
         if _init_setup_model:

@@ -47,12 +47,13 @@ def _seeded_draws(device: th.device, seed: int) -> Iterator[None]:
         yield
 
 
-#: DrQ-v2 policy arguments a TD-MPC2 policy does not take, with what sizes it has instead.
-_DRQV2_ARGUMENTS = {
-    "net_arch": "mlp_dim (width of every MLP)",
-    "features_dim": "num_channels (the latent has 16 * num_channels dims)",
-    "trunk_dim": "mlp_dim",
-    "n_critics": "num_q",
+#: DrQ-v2's and SB3's policy arguments a TD-MPC2 policy does not take, with what it has instead.
+_NOT_TAKEN = {
+    "net_arch": "its sizes are set by mlp_dim (width of every MLP)",
+    "features_dim": "its sizes are set by num_channels (the latent has 16 * num_channels dims)",
+    "trunk_dim": "its sizes are set by mlp_dim",
+    "n_critics": "its sizes are set by num_q",
+    "normalize_images": "its encoder always scales the uint8 frames itself (frames / 255 - 0.5, as TD-MPC2)",
 }
 
 
@@ -104,8 +105,8 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
         **unknown: Any,
     ):
         for name in unknown:
-            instead = _DRQV2_ARGUMENTS.get(name, "see the TDMPC2Policy docstring")
-            raise ValueError(f"TDMPC2Policy has no argument {name!r}: its sizes are set by {instead}")
+            instead = _NOT_TAKEN.get(name, "its arguments are listed in the TDMPC2Policy docstring")
+            raise ValueError(f"TDMPC2Policy has no argument {name!r}: {instead}")
         if optimizer_kwargs is None and optimizer_class is th.optim.Adam:
             optimizer_kwargs = {"fused": True}
         super().__init__(
@@ -114,6 +115,7 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
             normalize_images=False,
             optimizer_class=optimizer_class,
             optimizer_kwargs=optimizer_kwargs,
+            squash_output=True,  # the plan acts in [-1, 1]: predict and exports unscale it to the env's bounds
         )
         channels, height, width = check_pixel_space(observation_space)
         self.frame_shape = (FRAME_CHANNELS, height, width)
@@ -189,8 +191,9 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
         assert isinstance(observations, th.Tensor)
         previous = self._warm_start(state, episode_start, observations.shape[0])
         actions, plans = self._plan_actions(observations, previous, deterministic)
-        clipped = np.clip(actions.cpu().numpy(), self.action_space.low, self.action_space.high)  # type: ignore[attr-defined]
-        return (clipped if vectorized else clipped.squeeze(axis=0)), (plans.cpu().numpy(),)
+        # The plan acts in [-1, 1] (the buffer's scale): the env's bounds, as the rollouts' actions are.
+        env_actions = self.unscale_action(actions.cpu().numpy())
+        return (env_actions if vectorized else env_actions.squeeze(axis=0)), (plans.cpu().numpy(),)
 
     def _warm_start(
         self, state: tuple[np.ndarray, ...] | None, episode_start: np.ndarray | None, n_envs: int

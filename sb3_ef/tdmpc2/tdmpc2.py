@@ -104,12 +104,6 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
             env = maybe_make_env(env, verbose)
             check_pixel_space(policy_observation_space(env.observation_space))
             check_box_actions(env.action_space, "TD-MPC2")
-            low, high = env.action_space.low, env.action_space.high  # type: ignore[attr-defined]
-            if not (np.all(low == -1.0) and np.all(high == 1.0)):
-                raise ValueError(
-                    "TD-MPC2 plans actions in [-1, 1]: rescale the env's actions (gymnasium.wrappers.RescaleAction("
-                    f"env, -1, 1)), got an action space from {low} to {high}"
-                )
         super().__init__(
             **base_arguments(
                 OffPolicyAlgorithm,

@@ -68,7 +68,8 @@ class TDMPC2EF(EFMixin, TDMPC2):
         _init_setup_model: bool = True,
     ):
         super().__init__(**base_arguments(TDMPC2, locals(), _init_setup_model=False))
-        self._init_ef(beta, ef_horizon, babbling_steps, babbling_mode, babbling_in_eval)
+        ef_kwargs = self.policy_kwargs.get("ef_kwargs")
+        self._init_ef(beta, ef_horizon, babbling_steps, babbling_mode, babbling_in_eval, ef_kwargs)
         if _init_setup_model:
             self._setup_model()
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import ast
 import importlib
 import types
 from collections.abc import Sequence
@@ -206,9 +207,27 @@ def check_algo_and_env(args: argparse.Namespace) -> None:
         )
 
 
+def check_n_envs(pairs: Sequence[str] | None) -> None:
+    """Raise :class:`UsageError` for an ``n_envs`` in ``--hyperparams`` that is not a positive integer (rl-zoo3 and SB3
+    would divide by it and fail deep in their set-up); an expression that is not a literal is left to rl-zoo3."""
+    for item in pairs or ():
+        key, _, value = item.partition(":")
+        if key.strip() != "n_envs":
+            continue
+        try:
+            n_envs = ast.literal_eval(value.strip())
+        except (ValueError, SyntaxError):
+            continue
+        if isinstance(n_envs, bool) or not isinstance(n_envs, int) or n_envs < 1:
+            raise UsageError(
+                f"--hyperparams n_envs must be a positive integer (the number of envs stepped together), got {value}"
+            )
+
+
 def check_train_argv(argv: Sequence[str]) -> argparse.Namespace:
     """Check the arguments of ``sb3-ef train`` / ``optimize`` (with ``--resume``, algo and env are checked later)."""
     args = check_zoo_argv(argv, (*TRAIN_OPTIONS, *SB3_EF_TRAIN_OPTIONS), "sb3-ef train")
+    check_n_envs(args.hyperparams)
     if args.resume is None:
         check_algo_and_env(args)
         options = {"--checkpoint-buffer": args.checkpoint_buffer, "--keep-checkpoints": args.keep_checkpoints}

@@ -58,7 +58,7 @@ def test_resumed_latent_pretraining_continues_from_the_checkpoints_target_and_pr
 
 
 def test_a_target_tau_is_refused_for_pixel_pretraining(tmp_path):
-    with pytest.raises(ValueError, match="target_tau applies to target='latent' only"):
+    with pytest.raises(ValueError, match=r"\['target_tau'\] apply to target='latent' only"):
         pretrain(episodes(), tmp_path, steps=1, ef_kwargs={"target_tau": 0.1}, **ARGUMENTS)
 
 

@@ -11,7 +11,7 @@ import pytest
 
 from sb3_ef.envs import make_env
 from sb3_ef.envs.distracting import davis
-from sb3_ef.envs.distracting.davis import DAVIS_TRAIN_VIDEOS, check_frames, frame_files
+from sb3_ef.envs.distracting.davis import CACHE_FOLDER, DAVIS_TRAIN_VIDEOS, frame_files, load_textures, video_textures
 from sb3_ef.envs.distracting.settings import camera_settings, color_settings
 from tests.envs.davis_files import FRAMES, write_video
 
@@ -66,7 +66,7 @@ def test_an_unreadable_frame_is_named_when_the_env_is_made(tmp_path):
 
 def damaged_copy(davis_dir: Path, folder: Path) -> Path:
     """A copy of the DAVIS folder whose second video's last frame is cut in half, as a failed copy leaves it."""
-    shutil.copytree(davis_dir, folder)
+    shutil.copytree(davis_dir, folder, ignore=shutil.ignore_patterns(CACHE_FOLDER))
     frame = frame_files(folder / DAVIS_TRAIN_VIDEOS[1])[-1]
     frame.write_bytes(frame.read_bytes()[: frame.stat().st_size // 2])
     return frame
@@ -80,23 +80,40 @@ def test_a_damaged_jpeg_among_real_ones_is_named_with_the_remedy(davis_dir, tmp_
     )
     with pytest.raises(ValueError, match=message):
         make_env(NAME, size=32, background_dir=tmp_path / "480p", distraction="background")
+    cached = [path.name for path in (tmp_path / "480p" / CACHE_FOLDER).iterdir()]
+    assert any(name.startswith("bear-800-") for name in cached)  # the intact video before it (800: DMC's sky)
+    assert not any(name.startswith((DAVIS_TRAIN_VIDEOS[1], ".")) for name in cached)  # nothing of the damaged one
 
 
-def test_decoded_folders_are_not_decoded_again_until_a_frame_changes(davis_dir, tmp_path, monkeypatch):
+def test_videos_are_decoded_once_into_a_cache_until_a_frame_changes(davis_dir, tmp_path, monkeypatch):
     folders = [tmp_path / "480p" / video for video in DAVIS_TRAIN_VIDEOS[:4]]
-    shutil.copytree(davis_dir, tmp_path / "480p")
+    shutil.copytree(davis_dir, tmp_path / "480p", ignore=shutil.ignore_patterns(CACHE_FOLDER))
+    decoded = load_textures(frame_files(folders[1]), 16, 16)
     opened: list[Path] = []
     original = davis.Image.open
     monkeypatch.setattr(davis.Image, "open", lambda path, *args: (opened.append(path), original(path, *args))[1])
-    check_frames(folders)
-    assert len(opened) == 4 * FRAMES
-    check_frames(folders)
-    assert len(opened) == 4 * FRAMES  # the second env: nothing decoded
+    first = [video_textures(folder, 16) for folder in folders]
+    assert len(opened) == 4 * FRAMES and len(list((tmp_path / "480p" / CACHE_FOLDER).glob("*.npy"))) == 4
+    again = [video_textures(folder, 16) for folder in folders]  # another env, in this or another process
+    assert len(opened) == 4 * FRAMES and all(isinstance(textures, np.memmap) for textures in again)
+    np.testing.assert_array_equal(again[1], decoded)
+    np.testing.assert_array_equal(first[1], decoded)
+    video_textures(folders[1], 32)  # another texture size: decoded for it
+    assert len(opened) == 5 * FRAMES
     frame = frame_files(folders[1])[-1]
     frame.write_bytes(frame.read_bytes()[:-100])
     with pytest.raises(ValueError, match="cannot be decoded"):
-        check_frames(folders)
-    assert opened[-1] == frame and len(opened) == 4 * FRAMES + FRAMES  # only the changed folder
+        video_textures(folders[1], 16)
+    assert opened[-1] == frame and len(opened) == 6 * FRAMES  # only the changed folder
+
+
+def test_a_folder_that_cannot_hold_the_cache_uses_the_users_cache_folder(davis_dir, tmp_path, monkeypatch):
+    shutil.copytree(davis_dir, tmp_path / "480p", ignore=shutil.ignore_patterns(CACHE_FOLDER))
+    (tmp_path / "480p" / CACHE_FOLDER).write_text("a file where the cache folder would go: it cannot be made")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    textures = video_textures(tmp_path / "480p" / "bear", 16)
+    [cached] = (tmp_path / "cache" / "sb3-ef" / "backgrounds").glob("bear-16-*.npy")
+    np.testing.assert_array_equal(np.load(cached), textures)
 
 
 @pytest.mark.parametrize(

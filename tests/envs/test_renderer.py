@@ -1,4 +1,5 @@
-"""Renderer: camera resolution errors and a clean interpreter exit (no EGL tracebacks)."""
+"""Renderer: camera resolution errors, OpenGL failures retried then named, and a clean interpreter exit (no EGL
+tracebacks)."""
 
 import os
 import subprocess
@@ -7,7 +8,7 @@ import sys
 import mujoco
 import pytest
 
-from sb3_ef.envs.renderer import camera_id
+from sb3_ef.envs.renderer import GL_TRIES, camera_id, with_gl_retries
 
 TWO_CAMERAS = """
 <mujoco><worldbody>
@@ -45,6 +46,44 @@ def test_unknown_camera_lists_valid_ones(camera):
     model = mujoco.MjModel.from_xml_string(TWO_CAMERAS)
     with pytest.raises(ValueError, match=r"cameras are 0 \('front'\), 1 \('top'\)"):
         camera_id(model, camera)
+
+
+class Unprintable:
+    def __repr__(self) -> str:
+        raise RuntimeError("no repr")
+
+
+@pytest.mark.skipif(os.environ.get("MUJOCO_GL") != "egl", reason="an EGL context")
+def test_an_egl_failure_is_retried_and_a_lasting_one_named():
+    from OpenGL.EGL import eglMakeCurrent
+    from OpenGL.raw.EGL._errors import EGLError
+
+    # EGL_BAD_ALLOC as a crashed resume raised it: its str() fails ("<exception str() failed>" in the traceback)
+    failure = EGLError(err=0x3003, baseOperation=eglMakeCurrent, cArguments=(Unprintable(),))
+    with pytest.raises(RuntimeError, match="no repr"):
+        str(failure)
+    model = mujoco.MjModel.from_xml_string(TWO_CAMERAS)
+    tries = []
+
+    def create() -> mujoco.Renderer:
+        tries.append(len(tries))
+        if len(tries) < GL_TRIES:
+            raise failure
+        return mujoco.Renderer(model, 16, 16)
+
+    renderer = with_gl_retries("create a context", create)
+    renderer.update_scene(mujoco.MjData(model))
+    assert renderer.render().shape == (16, 16, 3) and len(tries) == GL_TRIES
+    renderer.close()
+
+    def fail() -> None:
+        raise failure
+
+    message = r"MUJOCO_GL=egl\) failed to render a frame 3 times: EGLError error 0x3003 in eglMakeCurrent\. A machine"
+    with pytest.raises(RuntimeError, match=message):
+        with_gl_retries("render a frame", fail)
+    with pytest.raises(ValueError, match="not OpenGL's"):  # other errors pass at once
+        with_gl_retries("render a frame", lambda: int("not OpenGL's"))
 
 
 # Either order: the suite made second imports dm_control's renderer (and its exit hook) after ours was registered.

@@ -90,6 +90,29 @@ def test_td3_ef_rows_build_rl_zoo3s_action_noise_from_the_config(tmp_path, capsy
     assert errors[1] == f"  td3_ef on {TASK}: noise_type must be one of 'normal', 'ornstein-uhlenbeck', got 'gaussian'"
 
 
+def test_ef_options_are_checked_wherever_the_row_gives_them(tmp_path, capsys):
+    """ef_kwargs are the algorithm's own (SACEF), or in policy_kwargs as a zoo string or a mapping (DrQv2EF)."""
+    algorithms = {
+        "sac_ef": {"hyperparams": {**SMALL, "ef_kwargs": {"target": "latent", "loss_scale": -1}}},
+        "drqv2_ef": {"hyperparams": {**SMALL, "policy_kwargs": "dict(ef_kwargs=dict(decoder_chanels=16))"}},
+        "drqv2_ef_mapping": {
+            "algo": "drqv2_ef",
+            "hyperparams": {**SMALL, "policy_kwargs": {"ef_kwargs": {"target": "latent", "loss_scale": "3"}}},
+        },
+        "drqv2_ef_good": {
+            "algo": "drqv2_ef",
+            "hyperparams": {**SMALL, "policy_kwargs": {"ef_kwargs": {"target": "latent"}}},
+        },
+    }
+    status, errors = benchmark(tmp_path, capsys, block(algorithms, [TASK]))
+    assert status == 2 and len(errors) == 4
+    assert errors[1].startswith(
+        f"  drqv2_ef on {TASK}: ef_kwargs holds an unknown option decoder_chanels=16 (did you mean 'decoder_channels'"
+    )
+    assert errors[2] == f"  drqv2_ef_mapping on {TASK}: ef_kwargs loss_scale must be a finite number >= 0, got str '3'"
+    assert errors[3] == f"  sac_ef on {TASK}: ef_kwargs loss_scale must be a finite number >= 0, got -1"
+
+
 def test_a_misspelt_sheeprl_override_is_named_with_the_close_key(tmp_path, capsys):
     pytest.importorskip("sheeprl")
     algorithms = {"dreamerv3": {"hyperparams": {"sheeprl_overrides": {"algo.horizn": 15}}}}

@@ -8,7 +8,7 @@ import pytest
 import yaml
 
 from sb3_ef.envs.tasks import DMC_PAPER_TASKS, METAWORLD_PAPER_TASKS
-from sb3_ef.grid.grid import Algorithm, RunSpec, grid_runs, load_grid, select_runs
+from sb3_ef.grid.grid import Algorithm, RunSpec, check_unique, grid_runs, load_grid, select_runs
 from sb3_ef.grid.run import RunResult
 from sb3_ef.grid.runner import plan_table, summary_table
 
@@ -112,15 +112,38 @@ def _block(**changes) -> dict:
             {"grids": [_block(algorithms={"drqv2": {"env_kwargs": [1]}})]},
             "Algorithm 'drqv2': 'env_kwargs' must be a mapping of names to values, got [1]",
         ),
-        ({"grids": [_block(), _block()]}, "Run drqv2/toy-agent-v0_s0 occurs twice"),
+        (
+            {"grids": [_block(), _block()]},
+            "drqv2 on toy/agent-v0 with seed 0 is a run of {grid}, grids[0] and a run of {grid}, grids[1]: the two "
+            "runs would share one results folder (drqv2/toy-agent-v0_s0); give drqv2 another label in one of them",
+        ),
+        (
+            {"grids": [_block(seeds=[1, 1])]},
+            "grid.yml, grids[0]: 'seeds' lists seed 1 twice ([1, 1]): one run per seed",
+        ),
+        (
+            {"grids": [_block(tasks=["toy/agent", "toy/agent-v0"])]},
+            "grids[0]: 'tasks' names toy/agent-v0 twice ('toy/agent' and 'toy/agent-v0'; the '-v0' may be left out)",
+        ),
+        (
+            {"grids": [_block(algorithms=["drqv2", "drqv2"])]},
+            "grids[0]: 'algorithms' lists 'drqv2' twice: give each variant its own label (label -> options)",
+        ),
         ({"grids": [_block()], "grid": []}, "unknown top-level key(s) 'grid' (did you mean 'grids'?)"),
         ({"grid": [_block()]}, "non-empty list 'grids'"),
     ],
 )
 def test_bad_grids_are_refused_with_the_cause_named(tmp_path, document, message):
+    path = _grid_file(tmp_path, document)
     with pytest.raises(ValueError) as error:
-        load_grid(_grid_file(tmp_path, document))
-    assert message in str(error.value)
+        load_grid(path)
+    assert message.format(grid=path) in str(error.value)
+
+
+def test_runs_given_together_from_python_are_refused_when_two_share_an_id():
+    runs = load_grid(TINY_GRID)
+    with pytest.raises(ValueError, match=r"drqv2 on dmc/cartpole-balance-v0 with seed 0 is run 1 of the grid and run"):
+        check_unique([*runs, runs[0]])
 
 
 def test_runs_are_selected_by_shell_patterns_on_their_ids():

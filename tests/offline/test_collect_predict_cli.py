@@ -117,6 +117,22 @@ def test_pretrain_json_options_explain_what_is_expected(text, match, capsys):
     assert re.search(f"argument --ef-kwargs: {match}", capsys.readouterr().err)
 
 
+def test_pretrain_refuses_a_mistyped_ef_option_before_it_reads_the_dataset(tmp_path, capsys):
+    ef_kwargs = '{"decoder_chanels": 8}'
+    assert main(["pretrain", str(tmp_path / "missing"), str(tmp_path / "out"), "--ef-kwargs", ef_kwargs]) == 2
+    error = capsys.readouterr().err
+    assert "unknown option decoder_chanels=8 (did you mean 'decoder_channels'" in error and "missing" not in error
+
+
+def test_pretrain_names_a_file_that_is_not_an_episode_archive_without_suggesting_to_unpickle_it(tmp_path, capsys):
+    (tmp_path / "episodes").mkdir()
+    (tmp_path / "episodes" / "episode_0.npz").write_bytes(np.random.default_rng(0).bytes(3000))
+    assert main(["pretrain", str(tmp_path / "episodes"), str(tmp_path / "out")]) == 2
+    error = capsys.readouterr().err
+    assert "episode_0.npz (episode 0): not an episode archive (an .npz is a zip of 'frames' and 'actions'" in error
+    assert "pickle" not in error
+
+
 def test_docs_name_the_files_collect_writes(tmp_path):
     (path,) = collect("toy/agent-v0", tmp_path, episodes=1, size=16, progress_bar=False, masks=False)
     docs = (Path(__file__).parents[2] / "docs" / "offline.md").read_text()

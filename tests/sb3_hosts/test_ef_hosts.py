@@ -116,7 +116,7 @@ class VectorEnv(gym.Env):
         (toy_env(), {"replay_buffer_class": ReplayBuffer}, r"SequenceReplayBuffer .*got ReplayBuffer"),
         (toy_env(), {"beta": 0.0}, r"use SAC to train without Ego-Foresight"),
         (ToyAgentEnv(size=32, max_episode_steps=2), {}, r"expected ef_horizon <= 2, got 3"),
-        (toy_env(), {"agent_dim": 32}, r"features_dim=32, agent_dim=32"),
+        (toy_env(), {"agent_dim": 32}, r"agent_dim must be in \[1, feature_dim=32\), got 32"),
     ],
 )
 def test_bad_input_is_rejected_at_construction(env, kwargs, message):

@@ -38,6 +38,10 @@ def test_the_algorithm_table_matches_rl_zoo3s():
         (["train", "--algo", "sear", "--gym-packages", "no_such_package"], "--gym-packages: cannot import"),
         (["train", "--algo", "sear", "--save-freq", "0"], "--save-freq must be >= 1 (or -1), got 0"),
         (
+            ["train", "--algo", "drqv2", "--env", "dmc/cartpole-balance-v0", "--hyperparams", "n_envs:0"],
+            "--hyperparams n_envs must be a positive integer (the number of envs stepped together), got 0",
+        ),
+        (
             ["train", "--algo", "sear", "--checkpoint-buffer"],
             "--checkpoint-buffer: options of the --save-freq checkpoints, give --save-freq N too",
         ),

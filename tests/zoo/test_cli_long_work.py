@@ -93,6 +93,23 @@ def test_progress_lines_come_every_interval(capsys):
     assert "return" in steps[-1]  # episodes of 5 steps ended
 
 
+def test_progress_lines_give_the_recent_speed_and_the_time_left_at_it():
+    """A fast random-action warm-up (64 steps/s for a minute) then training at 15 steps/s: two minutes on, the
+    line gives 15 steps/s and the time left at that speed, not the mean since the start (31 steps/s)."""
+    from sb3_ef.zoo.progress import ProgressLogCallback
+
+    model = DrQv2EF("CnnPolicy", ToyAgentEnv(size=32), buffer_size=100, ef_horizon=3, device="cpu")
+    callback = ProgressLogCallback(100_000, recent_s=60.0)
+    callback.init_callback(model)
+    callback.on_training_start({}, {})
+    start = callback._start_time
+    for second in range(10, 190, 10):
+        callback.num_timesteps = 64 * min(second, 60) + 15 * max(0, second - 60)
+        line = callback.line(start + second)
+    assert callback.num_timesteps == 5640
+    assert "  15 steps/s  elapsed 0:03:00  left ~1:44:51" in line  # (100000 - 5640) / 15 s
+
+
 def test_plan_table_says_when_hours_are_unknown(tmp_path):
     from sb3_ef.grid import grid_runs
     from sb3_ef.grid.runner import plan_table

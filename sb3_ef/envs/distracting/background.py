@@ -7,14 +7,15 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from sb3_ef.envs.distracting.davis import frame_files, load_textures
+from sb3_ef.envs.distracting.davis import video_textures
 from sb3_ef.envs.renderer import FrameRenderer
 
 
 class BackgroundDistraction:
     """Shows DAVIS video frames on the skybox (no geom: agent masks never see it) and a ``ground_alpha`` floor.
 
-    :param videos: folders of JPEG frames (:func:`~sb3_ef.envs.distracting.davis.video_folders`).
+    :param videos: folders of JPEG frames (:func:`~sb3_ef.envs.distracting.davis.video_folders`), decoded here (once
+        per folder and texture size for every process: :func:`~sb3_ef.envs.distracting.davis.video_textures`).
     :param texture_side: side of the sky's face in texels, at most (and by default) the model's; smaller uploads faster.
     """
 
@@ -37,7 +38,8 @@ class BackgroundDistraction:
         model.tex_width[self._texture] = self._side
         model.tex_height[self._texture] = self._side  # one square face, shown on all six
         self._start = int(model.tex_adr[self._texture])
-        self._frames = np.zeros((0, self._side * self._side * 3), np.uint8)
+        self._textures = [video_textures(video, self._side) for video in videos]  # memory-mapped
+        self._frames = self._textures[0][:0]
         self._index, self._direction = 0, 1
         self._shown: int | None = None  # the frame in the model's texture (and on the renderer)
 
@@ -47,16 +49,14 @@ class BackgroundDistraction:
         return self._index
 
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData, rng: np.random.Generator) -> None:
-        """Draw the episode's video (and frame, or start frame and direction); load and resize its frames."""
+        """Draw the episode's video (and frame, or start frame and direction)."""
         model.mat_rgba[self._ground, 3] = self.ground_alpha
-        video = self.videos[int(rng.integers(len(self.videos)))]
-        files = frame_files(video)
-        if not files:
-            raise ValueError(f"The background video folder {str(video)!r} holds no JPEG frames any more")
+        frames = self._textures[int(rng.integers(len(self._textures)))]
         if not self.dynamic:
-            files = [files[int(rng.integers(len(files)))]]
-        self._frames = load_textures(files, self._side, self._side)
-        self._index = int(rng.integers(len(files)))
+            frame = int(rng.integers(len(frames)))
+            frames = frames[frame : frame + 1]
+        self._frames = frames
+        self._index = int(rng.integers(len(frames)))
         self._direction = int(rng.choice([-1, 1]))
         self._shown = None
 

@@ -1,7 +1,11 @@
-"""DAVIS 2017 videos for the background distraction: video lists, folder checks, frame loading (docs/envs.md)."""
+"""DAVIS 2017 videos for the background distraction: video lists, folder checks, frames decoded once into a
+memory-mapped cache (docs/envs.md)."""
 
 from __future__ import annotations
 
+import fcntl
+import hashlib
+import json
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -9,6 +13,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from sb3_ef.common.files import atomic_path
 from sb3_ef.envs.distracting.settings import DIFFICULTY_VIDEOS
 
 #: The 60 DAVIS 2017 training videos, in the suite's order (a difficulty draws from the first n).
@@ -42,8 +47,10 @@ DAVIS_DOWNLOAD_HINT = (
 
 _JPEG_SUFFIXES = (".jpg", ".jpeg")
 
-#: Video folders whose frames all decoded, with each frame's name, size and modification time.
-_DECODED: set[tuple[Path, tuple[tuple[str, int, int], ...]]] = set()
+#: The decoded frames' folder, beside the video folders; where that cannot be written, one under the user's cache.
+CACHE_FOLDER = ".sb3-ef-textures"
+#: How a frame becomes a texture: part of every cache file's key, so that a change decodes the videos again.
+TEXTURE_DECODING = "PIL RGB, bilinear resize to side x side, uint8 rows of side * side * 3"
 
 
 def frame_files(folder: Path) -> list[Path]:
@@ -112,9 +119,7 @@ def video_folders(
             f"background_dir {str(root)!r} lacks {len(missing)} of the {len(names)} videos the {difficulty!r} "
             f"background draws from ({shown}): {DAVIS_DOWNLOAD_HINT}"
         )
-    folders = tuple(root / name for name in names)
-    check_frames(folders)
-    return folders
+    return tuple(root / name for name in names)
 
 
 def _frame_error(path: Path, error: OSError) -> ValueError:
@@ -124,27 +129,10 @@ def _frame_error(path: Path, error: OSError) -> ValueError:
     )
 
 
-def check_frames(folders: Sequence[Path]) -> None:
-    """Decode every frame of ``folders`` (small), so that a damaged one is named when the env is made."""
-    for folder in folders:
-        files = frame_files(folder)
-        signature = tuple((path.name, path.stat().st_size, path.stat().st_mtime_ns) for path in files)
-        key = (folder.resolve(), signature)
-        if key in _DECODED:
-            continue
-        for path in files:
-            try:
-                with Image.open(path) as image:
-                    image.draft("RGB", (max(1, image.width // 8), max(1, image.height // 8)))
-                    image.load()
-            except OSError as error:  # PIL's UnidentifiedImageError and truncated files included
-                raise _frame_error(path, error) from error
-        _DECODED.add(key)
-
-
-def load_textures(files: Sequence[Path], width: int, height: int) -> np.ndarray:
-    """The frames as ``(len(files), height * width * 3)`` uint8 RGB textures, resized bilinearly to the texture."""
-    textures = np.empty((len(files), height * width * 3), np.uint8)
+def load_textures(files: Sequence[Path], width: int, height: int, out: np.ndarray | None = None) -> np.ndarray:
+    """The frames as ``(len(files), height * width * 3)`` uint8 RGB textures (into ``out`` if given), resized
+    bilinearly to the texture."""
+    textures = np.empty((len(files), height * width * 3), np.uint8) if out is None else out
     for index, path in enumerate(files):
         try:
             with Image.open(path) as image:
@@ -153,3 +141,51 @@ def load_textures(files: Sequence[Path], width: int, height: int) -> np.ndarray:
             raise _frame_error(path, error) from error
         textures[index] = np.asarray(resized, np.uint8).reshape(-1)
     return textures
+
+
+def _cache_folders(root: Path) -> tuple[Path, Path]:
+    """Where decoded videos of ``root`` are kept: beside them, else under ``$XDG_CACHE_HOME`` (``~/.cache``)."""
+    user_cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return root / CACHE_FOLDER, user_cache / "sb3-ef" / "backgrounds"
+
+
+def video_textures(folder: Path, side: int) -> np.ndarray:
+    """A video's frames as ``(frames, side * side * 3)`` uint8 textures, memory-mapped from a cache file decoded once
+    (naming a damaged frame) and shared by every process; its key: the frames' names, sizes and modification times,
+    ``side`` and :data:`TEXTURE_DECODING`."""
+    files = frame_files(folder)
+    frames = [(path.name, path.stat().st_size, path.stat().st_mtime_ns) for path in files]
+    key = hashlib.sha256(json.dumps([TEXTURE_DECODING, side, frames]).encode()).hexdigest()[:16]
+    name = f"{folder.name}-{side}-{key}.npy"
+    found = next((cache / name for cache in _cache_folders(folder.parent) if (cache / name).is_file()), None)
+    return np.load(found or _decode_into_cache(files, side, folder.parent, name), mmap_mode="r")
+
+
+def _decode_into_cache(files: Sequence[Path], side: int, root: Path, name: str) -> Path:
+    """Decode ``files`` into the cache file ``name`` (atomically; one process at a time, the others wait for it)."""
+    cache = _writable_cache(root)
+    path = cache / name
+    with open(cache / "lock", "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not path.is_file():
+            with atomic_path(path) as temporary:
+                shape = (len(files), side * side * 3)
+                textures = np.lib.format.open_memmap(temporary, mode="w+", dtype=np.uint8, shape=shape)
+                load_textures(files, side, side, out=textures)
+                textures.flush()
+    return path
+
+
+def _writable_cache(root: Path) -> Path:
+    """The first of :func:`_cache_folders` that can be written (made if missing)."""
+    for cache in _cache_folders(root):
+        try:
+            cache.mkdir(parents=True, exist_ok=True)
+        except OSError:
+            continue
+        if os.access(cache, os.W_OK):
+            return cache
+    raise PermissionError(
+        f"Decoded background frames are kept in {' or '.join(map(str, _cache_folders(root)))}, and neither can be "
+        "written: make one writable, or set XDG_CACHE_HOME to a writable folder"
+    )
