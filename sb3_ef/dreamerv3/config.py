@@ -87,10 +87,7 @@ def _dotted(overrides: Mapping[Any, Any], prefix: str = "") -> dict[str, Any]:
     for key, value in overrides.items():
         if not isinstance(key, str):
             raise ValueError(f"{_OVERRIDES_FORM}, got the key {key!r} ({type(key).__name__})")
-        if isinstance(value, Mapping):
-            dotted.update(_dotted(value, f"{prefix}{key}."))
-        else:
-            dotted[prefix + key] = value
+        dotted.update(_dotted(value, f"{prefix}{key}.") if isinstance(value, Mapping) else {prefix + key: value})
     return dotted
 
 

@@ -124,7 +124,7 @@ class DreamerV3:
     def frame_shape(self) -> tuple[int, int, int]:
         """``(3, h, w)``: the frames Dreamer-v3 reads."""
         if self.env is None:
-            raise ValueError("DreamerV3 has no env: pass one to load() to train")
+            raise ValueError("DreamerV3 has no env: pass one to set_env() to train")
         _, height, width = self.env.observation_space.shape  # type: ignore[misc]
         return FRAME_CHANNELS, height, width
 
@@ -137,13 +137,15 @@ class DreamerV3:
 
         :param force_reset: ``True`` only: sheeprl starts every ``learn`` with a reset of the env.
         """
-        _check_force_reset(force_reset)
+        if not force_reset:
+            raise ValueError("DreamerV3 cannot keep the env's episode going (force_reset=False): sheeprl resets it")
         if isinstance(env, DummyVecEnv) and env.num_envs == 1:
             env = env.envs[0]
         if not isinstance(env, gym.Env):
+            count = f" of {env.num_envs} envs" if hasattr(env, "num_envs") else ""
             raise ValueError(
-                f"DreamerV3 takes one gymnasium env (sheeprl vectorises it itself), got {type(env).__name__}; "
-                "rl-zoo3's `sb3-ef train` gives a VecEnv: run dreamerv3 through `sb3-ef benchmark` instead"
+                f"DreamerV3 takes one gymnasium env or a DummyVecEnv of one (sheeprl vectorises it itself), got a "
+                f"{type(env).__name__}{count}"
             )
         self._check_frames(NewestFrame(env).observation_space.shape[1:], "the env")  # type: ignore[index]
         if self._has_weights and env.action_space.shape != self.action_space.shape:
@@ -413,9 +415,8 @@ class DreamerV3:
 
         :param custom_objects: new values of :data:`LOAD_SETTINGS` (the others are the saved run's), as ``kwargs``.
         :param print_system_info: print the versions of the saving system and of this one.
-        :param force_reset: ``True`` only: sheeprl starts every ``learn`` with a reset of the env.
+        :param force_reset: ``True`` only, with ``env``: sheeprl starts every ``learn`` with a reset of the env.
         """
-        _check_force_reset(force_reset)
         changed = {**(custom_objects or {}), **kwargs}
         fixed = sorted(set(changed) - set(LOAD_SETTINGS))
         if fixed:
@@ -441,21 +442,13 @@ class DreamerV3:
         model._state = th.load(io.BytesIO(weights), map_location="cpu", weights_only=False)
         model.resolved = dotdict(OmegaConf.to_container(OmegaConf.create(config.decode()), resolve=True))
         if env is not None:
-            model.set_env(env)
+            model.set_env(env, force_reset)
         return model
 
 
 def _check_positive(name: str, value: Any) -> None:
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
         raise ValueError(f"{name} must be a positive integer, got {value!r}")
-
-
-def _check_force_reset(force_reset: bool) -> None:
-    if not force_reset:
-        raise ValueError(
-            "DreamerV3 cannot keep the env's episode going (force_reset=False): sheeprl starts every learn with a "
-            "reset of the env"
-        )
 
 
 def _loaded_state_dict(name: str, current: dict[str, Any], given: dict[str, Any], strict: bool) -> dict[str, Any]:
@@ -471,8 +464,8 @@ def _loaded_state_dict(name: str, current: dict[str, Any], given: dict[str, Any]
 
 
 def _sb3_callback(callback: MaybeCallback) -> BaseCallback:
-    """``learn``'s callback as SB3 takes it: a list as a ``CallbackList``, a function ``(locals, globals) -> bool``
-    (or ``None``) as a ``ConvertCallback``."""
+    """``learn``'s callback as one ``CallbackList``, a function ``(locals, globals) -> bool`` (or ``None``) in it as a
+    ``ConvertCallback``, as SB3 takes them."""
     items = callback if isinstance(callback, list) else [callback]
     for item in items:
         if item is not None and not isinstance(item, BaseCallback) and not callable(item):
@@ -480,5 +473,4 @@ def _sb3_callback(callback: MaybeCallback) -> BaseCallback:
                 "callback must be an SB3 BaseCallback, a function (locals, globals) -> bool or a list of them, got "
                 f"{type(item).__name__}"
             )
-    converted = [item if isinstance(item, BaseCallback) else ConvertCallback(item) for item in items]
-    return CallbackList(converted) if isinstance(callback, list) else converted[0]
+    return CallbackList([item if isinstance(item, BaseCallback) else ConvertCallback(item) for item in items])

@@ -77,8 +77,8 @@ def test_an_exception_in_a_callback_propagates_and_learn_can_continue(tmp_path):
 
     model = tiny(tmp_path)
     with pytest.raises(ArithmeticError, match="the callback's own error"):
-        model.learn(10, callback=Failing())
-    assert model.num_timesteps == 3  # the weights of step 3 (no checkpoint was written)
+        model.learn(10, callback=Failing(), checkpoint_freq=2)
+    assert model.num_timesteps == 3  # the weights of step 3, on from the replay buffer of the checkpoint at step 2
     assert model.learn(2, reset_num_timesteps=False).num_timesteps == 5
 
 

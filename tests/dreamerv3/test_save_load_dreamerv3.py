@@ -92,7 +92,7 @@ def test_set_env(loaded, tmp_path):
     model.set_env(env3)
     model.learn(total_timesteps=4, reset_num_timesteps=False)
     assert model.num_timesteps == 45
-    with pytest.raises(ValueError, match="one gymnasium env"):
+    with pytest.raises(ValueError, match=r"one gymnasium env or a DummyVecEnv of one .* of 2 envs"):
         model.set_env(env4)
     with pytest.raises(ValueError, match="force_reset=False"):
         model.set_env(model.get_env(), force_reset=False)
