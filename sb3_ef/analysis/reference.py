@@ -56,7 +56,7 @@ REFERENCES = {
     "dreamerv3": Reference(
         "Dreamer-v3 (official, 2024 release, model 12M)", "dreamerv3_dmc_vision.csv.xz", "frame",
         _FRAMES + "official runs at action repeat 2; one point per training episode)",
-        "danijar/dreamerv3 scores/dmc_vision-dreamerv3.json.gz at commit e3f0224 (MIT licence)", 2,
+        "danijar/dreamerv3 scores/dmc_vision-dreamerv3.json.gz added in commit 2411f7d (MIT licence)", 2,
         "2024 release (the 2025 article's scores), model 12M (the size12m preset its dmc_vision block sets)",
     ),
     "dreamerv3-2023": Reference(
@@ -97,6 +97,16 @@ def check_reference_data(name: str) -> None:
         )
 
 
+#: danijar/dreamerv3's task names that are not sb3-ef's (its 2023 scores file writes ``dmc_cup_catch``).
+AUTHORS_TASKS = {"cup-catch": "ball-in-cup-catch"}
+
+
+def _authors_task(task: str) -> str:
+    """sb3-ef's name of a danijar/dreamerv3 task: ``dmc_walker_walk`` -> ``walker-walk``."""
+    name = reference_task(re.sub(r"^dmc[a-z]*_", "", task))
+    return AUTHORS_TASKS.get(name, name)
+
+
 def authors_scores(path: str | os.PathLike, method: str = "dreamerv3") -> pd.DataFrame:
     """The runs of ``method`` in a danijar/dreamerv3 scores file, one row per point (``task, seed, x, return``)."""
     pandas = require("pandas")
@@ -105,7 +115,7 @@ def authors_scores(path: str | os.PathLike, method: str = "dreamerv3") -> pd.Dat
     frames = [
         pandas.DataFrame(
             {
-                "task": reference_task(re.sub(r"^dmc[a-z]*_", "", str(run["task"]))),
+                "task": _authors_task(str(run["task"])),
                 "seed": int(run["seed"]),
                 "x": np.asarray(run["xs"], dtype=np.int64),
                 "return": np.round(np.asarray(run["ys"], dtype=float), 2),

@@ -1,4 +1,5 @@
-"""The Fabric callback sheeprl calls at its checkpoints: evaluate, write, name it in ``latest.json`` (in that order)."""
+"""The Fabric callback sheeprl calls after every step: evaluate, write a checkpoint, name it in ``latest.json``, call
+SB3's callbacks (in that order)."""
 
 from __future__ import annotations
 
@@ -44,26 +45,34 @@ class Evaluation:
 
 
 def read_latest(work_dir: str | os.PathLike) -> dict[str, Any] | None:
-    """``{"checkpoint", "step", "settings"}`` of the run's latest complete checkpoint, or ``None``."""
+    """``{"checkpoint", "step", "settings", "replay_buffer"}`` of the run's latest complete checkpoint, or ``None``."""
     path = Path(work_dir) / LATEST_FILE
     if not path.is_file():
         return None
     latest = json.loads(path.read_text())
     if not Path(latest["checkpoint"]).is_file():
         raise FileNotFoundError(f"{path} names the checkpoint {latest['checkpoint']}, which does not exist")
-    return latest
+    return {"replay_buffer": True, **latest}  # files written before the key existed held the buffer
+
+
+class StopTraining(BaseException):
+    """An SB3 callback returned ``False`` (a ``BaseException``: no ``except Exception`` on the way out catches it)."""
 
 
 class RunCallback:
-    """sheeprl's ``CheckpointCallback`` with the evaluation before it and ``latest.json`` after it.
+    """sheeprl's ``CheckpointCallback`` called after every step: the model takes the state, then the evaluation, the
+    checkpoint and ``latest.json`` at their steps, then SB3's callbacks (in that order).
 
     :param work_dir: the run's folder (``latest.json`` goes there).
     :param settings: ``DreamerV3``'s arguments, recorded in ``latest.json``.
+    :param on_weights: called with each step's state without its replay buffer.
+    :param on_checkpoint: called with each checkpoint written and whether it holds the replay buffer.
+    :param on_step: SB3's ``callback.on_step``; when it returns ``False`` the step's checkpoint is written (the
+        model continues from it) and :class:`StopTraining` is raised.
     :param evaluation: the periodic evaluation, or ``None``.
     :param keep_last: the newest checkpoints sheeprl keeps (all with ``None``).
-    :param save_every: the steps between checkpoints written to disk (other calls only keep the weights).
+    :param save_every: the steps between checkpoints written to disk.
     :param total_steps: the step of the run's last call, whose checkpoint is always written.
-    :param on_weights: called with each call's state without its replay buffer.
     """
 
     def __init__(
@@ -72,41 +81,52 @@ class RunCallback:
         settings: dict[str, Any],
         frame_shape: tuple[int, int, int],
         action_space: gym.spaces.Box,
+        on_weights: Callable[[dict[str, Any]], None],
+        on_checkpoint: Callable[[str, bool], None],
+        on_step: Callable[[], bool],
         evaluation: Evaluation | None = None,
         keep_last: int | None = None,
         save_every: int = 1,
         total_steps: int = 0,
-        on_weights: Callable[[dict[str, Any]], None] | None = None,
     ):
         from sheeprl.utils.callback import CheckpointCallback
 
         self.checkpointer = CheckpointCallback(keep_last=keep_last)
         self.work_dir, self.settings, self.evaluation = Path(work_dir), settings, evaluation
         self.frame_shape, self.action_space = frame_shape, action_space
-        self.save_every, self.total_steps, self.on_weights = save_every, total_steps, on_weights
+        self.save_every, self.total_steps = save_every, total_steps
+        self.on_weights, self.on_checkpoint, self.on_step = on_weights, on_checkpoint, on_step
         self.log_prefix: str | None = None  # print a line per evaluation, after this prefix
         self.start_step = 0  # the step this call of learn starts from (for the speed in the lines)
         self._start_time = time.monotonic()
         self.config: Any = None  # the run's resolved sheeprl configuration, set before training starts
-        self.last_state: dict[str, Any] | None = None
-        self.last_checkpoint: str | None = None
 
     def on_checkpoint_coupled(
         self, fabric: Any, ckpt_path: str, state: dict[str, Any], replay_buffer: Any = None
     ) -> None:
         step = int(state["iter_num"])  # policy steps: one env, one process
+        weights = {key: value for key, value in state.items() if key != "rb"}
+        self.on_weights(weights)
         if self.evaluation is not None and step % self.evaluation.freq == 0:
-            self._evaluate(fabric, state, step)
-        self.last_state = {key: value for key, value in state.items() if key != "rb"}
-        if self.on_weights is not None:
-            self.on_weights(self.last_state)
-        if step % self.save_every and step < self.total_steps:
-            return
+            self._evaluate(fabric, weights, step)
+        written = step % self.save_every == 0 or step >= self.total_steps
+        if written:
+            self._write(fabric, ckpt_path, state, replay_buffer)
+        if not self.on_step():
+            if not written:
+                self._write(fabric, ckpt_path, state, replay_buffer)
+            raise StopTraining(f"a callback stopped the training at step {step}")
+
+    def _write(self, fabric: Any, ckpt_path: str, state: dict[str, Any], replay_buffer: Any) -> None:
+        """sheeprl's checkpoint, then ``latest.json`` naming it."""
         self.checkpointer.on_checkpoint_coupled(fabric, ckpt_path, state, replay_buffer)
         checkpoint = os.path.abspath(ckpt_path)
-        latest = {"checkpoint": checkpoint, "step": step, "settings": self.settings}
+        latest = {
+            "checkpoint": checkpoint, "step": int(state["iter_num"]), "settings": self.settings,
+            "replay_buffer": replay_buffer is not None,
+        }  # fmt: skip
         write_text_atomically(self.work_dir / LATEST_FILE, json.dumps(latest, indent=1))
-        self.last_checkpoint = checkpoint
+        self.on_checkpoint(checkpoint, replay_buffer is not None)
 
     def _evaluate(self, fabric: Any, state: dict[str, Any], step: int) -> None:
         assert self.evaluation is not None and self.config is not None

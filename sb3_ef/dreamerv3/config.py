@@ -14,6 +14,10 @@ SHEEPRL_VERSION = "0.8.4"
 #: sheeprl's Dreamer-v3 model presets (``sheeprl/configs/algo/dreamer_v3_<size>.yaml``).
 MODEL_SIZES = ("XS", "S", "M", "L", "XL")
 FRAME_KEY = "rgb"
+_OVERRIDES_FORM = (
+    "sheeprl_overrides must be a dict of sheeprl's keys to values, dotted ({'algo.horizon': 15}) or nested "
+    "({'algo': {'horizon': 15}})"
+)
 #: Keys (and the sections below them) that the run sets itself, with the argument that sets them instead.
 SESSION_KEYS = {
     "seed": "seed", "algo.total_steps": "learn(total_timesteps)", "algo.per_rank_batch_size": "batch_size",
@@ -66,17 +70,25 @@ class Recipe:
             raise ValueError(
                 f"buffer_size ({self.buffer_size}) must hold one sequence of sequence_length ({self.sequence_length})"
             )
-        overrides = self.sheeprl_overrides
-        if not isinstance(overrides, Mapping) or not all(isinstance(key, str) for key in overrides):
-            raise ValueError(
-                "sheeprl_overrides must be a dict of dotted sheeprl keys to values (e.g. {'algo.horizon': 15}), got "
-                f"{overrides!r} ({type(overrides).__name__})"
-            )
-        object.__setattr__(self, "sheeprl_overrides", dict(overrides))  # a copy: the caller's dict may change
+        if not isinstance(self.sheeprl_overrides, Mapping):
+            given = self.sheeprl_overrides
+            raise ValueError(f"{_OVERRIDES_FORM}, got {given!r} ({type(given).__name__})")
+        overrides = _dotted(self.sheeprl_overrides)
+        object.__setattr__(self, "sheeprl_overrides", overrides)  # a copy: the caller's dict may change
         for key in overrides:
             for session_key, argument in SESSION_KEYS.items():
                 if key == session_key or key.startswith(session_key + "."):
                     raise ValueError(f"sheeprl_overrides: {key!r} is set by DreamerV3 from {argument}, not here")
+
+
+def _dotted(overrides: Mapping[Any, Any], prefix: str = "") -> dict[str, Any]:
+    """``overrides`` with nested dicts merged key by key: ``{"algo": {"horizon": 15}}`` -> ``{"algo.horizon": 15}``."""
+    dotted: dict[str, Any] = {}
+    for key, value in overrides.items():
+        if not isinstance(key, str):
+            raise ValueError(f"{_OVERRIDES_FORM}, got the key {key!r} ({type(key).__name__})")
+        dotted.update(_dotted(value, f"{prefix}{key}.") if isinstance(value, Mapping) else {prefix + key: value})
+    return dotted
 
 
 def _dotted_keys(cfg: Any, prefix: str = "") -> Iterator[str]:
@@ -161,7 +173,6 @@ class Session:
     frame_size: int
     seed: int
     total_steps: int
-    checkpoint_every: int
     keep_last: int | None
     work_dir: str
     run_name: str
@@ -192,9 +203,8 @@ def set_session(cfg: Any, session: Session) -> None:
             "action_repeat": 1, "grayscale": False, "capture_video": False, "max_episode_steps": None,
             "wrapper": {"_target_": "sb3_ef.dreamerv3.env.live_env", "token": session.env_token},
         })  # fmt: skip
-        cfg.checkpoint.update(
-            every=session.checkpoint_every, keep_last=session.keep_last, save_last=True,
-            resume_from=session.resume_from,
-        )  # fmt: skip
+        # sheeprl hands its state to the run's callback after every step (building it takes well under a millisecond),
+        # which evaluates, writes checkpoints and calls SB3's callbacks at their own steps
+        cfg.checkpoint.update(every=1, keep_last=session.keep_last, save_last=True, resume_from=session.resume_from)
         callback = {"_target_": "sb3_ef.dreamerv3.callbacks.live_callback", "token": session.callback_token}
         cfg.fabric.update(accelerator=accelerator, devices=devices, num_nodes=1, strategy="auto", callbacks=[callback])

@@ -44,27 +44,33 @@ class NewestFrame(gym.ObservationWrapper):
         return observation[-FRAME_CHANNELS:]
 
 
-class StopTraining(BaseException):
-    """An SB3 callback returned ``False`` (a ``BaseException``: sheeprl's ``RestartOnException`` passes it)."""
+class StepLocals(gym.Wrapper):
+    """Writes each step into ``locals_`` as SB3's callbacks read it from a one-env ``DummyVecEnv``: batched
+    ``actions``, ``new_obs``, ``rewards``, ``dones`` and ``infos``; at an episode's end ``new_obs`` is the next
+    episode's first observation (sheeprl's vector env resets in the same step) and ``infos[0]["terminal_observation"]``
+    the last one."""
 
-
-class StepCallbacks(gym.Wrapper):
-    """Counts env steps on ``model.num_timesteps`` and calls ``callback.on_step()`` after each, as SB3 does."""
-
-    def __init__(self, env: gym.Env, model: Any, callback: Any, locals_: dict[str, Any]):
+    def __init__(self, env: gym.Env, locals_: dict[str, Any]):
         super().__init__(env)
-        self.model, self.callback, self.locals = model, callback, locals_
+        self.locals = locals_
 
     def step(self, action: Any) -> Any:
-        result = self.env.step(action)
-        observation, reward, terminated, truncated, info = result
-        self.model.num_timesteps += 1
+        result = observation, reward, terminated, truncated, info = self.env.step(action)
+        done = bool(terminated or truncated)
+        info = {**info, "TimeLimit.truncated": bool(truncated and not terminated)}
+        if done:
+            info["terminal_observation"] = observation
         self.locals.update(
-            actions=action, new_obs=observation, rewards=reward, dones=terminated or truncated, infos=[info]
-        )
-        if not self.callback.on_step():
-            raise StopTraining(f"a callback stopped the training at step {self.model.num_timesteps}")
+            actions=np.asarray(action)[np.newaxis], new_obs=observation[np.newaxis],
+            rewards=np.array([reward], dtype=np.float32), dones=np.array([done]), infos=[info],
+        )  # fmt: skip
         return result
+
+    def reset(self, **kwargs: Any) -> Any:
+        observation, info = self.env.reset(**kwargs)
+        if "new_obs" in self.locals:  # the reset after an episode's end
+            self.locals["new_obs"] = observation[np.newaxis]
+        return observation, info
 
 
 class _KeptOpen(gym.Wrapper):

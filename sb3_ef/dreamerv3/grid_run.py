@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from sb3_ef.common.evaluation import EVAL_SEED_OFFSET
+from sb3_ef.common.interrupt import Interrupted
 from sb3_ef.grid.grid import RunSpec, constructor_kwargs
 from sb3_ef.grid.run import (
     RunPaths,
@@ -73,15 +74,30 @@ def train_dreamerv3(
     remaining = spec.n_timesteps - model.num_timesteps
     if remaining > 0:
         print(f"[{spec.run_id}] Training from step {model.num_timesteps} to {spec.n_timesteps}", flush=True)
-        model.learn(
-            remaining,
-            reset_num_timesteps=resumed_from is None,
-            evaluation=evaluation,
-            checkpoint_freq=spec.checkpoint_freq,
-            keep_checkpoints=keep_checkpoints,
-            log_prefix=f"[{spec.run_id}] ",
-        )
+        try:
+            model.learn(
+                remaining,
+                reset_num_timesteps=resumed_from is None,
+                evaluation=evaluation,
+                checkpoint_freq=spec.checkpoint_freq,
+                keep_checkpoints=keep_checkpoints,
+                log_prefix=f"[{spec.run_id}] ",
+            )
+        except KeyboardInterrupt:
+            raise Interrupted(_saved_on_interrupt(model, paths)) from None
     model.save(paths.model)
     env.close()
     eval_env.close()
     return model.num_timesteps, resumed_from
+
+
+def _saved_on_interrupt(model: DreamerV3, paths: RunPaths) -> str:
+    """Save the newest weights of a run stopped by Ctrl-C as its model; what was kept and where the run resumes."""
+    from sb3_ef.dreamerv3.callbacks import read_latest
+
+    latest = read_latest(paths.checkpoints)
+    resumes = f"its last checkpoint is at step {latest['step']}" if latest else "it has no checkpoint yet"
+    if model.num_timesteps == 0:
+        return f"stopped before its first step, no model saved; {resumes}"
+    model.save(paths.model)
+    return f"stopped at step {model.num_timesteps}, model saved to {paths.model}; {resumes}"

@@ -12,6 +12,7 @@ from typing import Any
 import yaml
 
 from sb3_ef import registry
+from sb3_ef.common.interrupt import Interrupted
 from sb3_ef.grid.grid import RunSpec
 from sb3_ef.grid.run import RunPaths, build_env
 from sb3_ef.zoo import config
@@ -78,12 +79,17 @@ def run_spec(args: argparse.Namespace) -> tuple[RunSpec, dict[str, Any]]:
     config.check_keys(args.algo, algo_class, overrides, where="--hyperparams")
     entry = {**config.select_entry(entries, args.env), **overrides}
     entry["env_kwargs"] = {**(entry.get("env_kwargs") or {}), **_pairs(args.env_kwargs, "--env-kwargs")}
-    eval_freq = args.eval_freq if args.eval_freq is not None else DEFAULT_EVAL_FREQ
+    if args.eval_freq is not None and args.eval_freq < 1:
+        raise ValueError(
+            f"--eval-freq {args.eval_freq} (no evaluation) does not apply to --algo {args.algo}, whose runs record an "
+            f"evaluation every --eval-freq steps (default {DEFAULT_EVAL_FREQ})"
+        )
     n_timesteps = args.n_timesteps or int(entry["n_timesteps"])
     spec = RunSpec(
         label=args.algo, algo=args.algo, task=args.env, seed=args.seed, n_timesteps=n_timesteps,
-        eval_freq=eval_freq, eval_episodes=args.eval_episodes or DEFAULT_EVAL_EPISODES,
-        checkpoint_freq=args.save_freq or n_timesteps, hyperparams=entry, env_kwargs=entry["env_kwargs"],
+        eval_freq=args.eval_freq or DEFAULT_EVAL_FREQ, eval_episodes=args.eval_episodes or DEFAULT_EVAL_EPISODES,
+        checkpoint_freq=args.save_freq if args.save_freq and args.save_freq > 0 else n_timesteps,  # -1: at the end
+        hyperparams=entry, env_kwargs=entry["env_kwargs"],
     )  # fmt: skip
     return spec, entry
 
@@ -112,7 +118,10 @@ def train_main(argv: list[str]) -> None:
     run_result_path(folder, env_name).unlink(missing_ok=True)  # finished again only when it reaches its steps
     print(f"Log path: {folder}", flush=True)
     keep = args.keep_checkpoints if args.keep_checkpoints is not None else 2
-    steps, _ = train_dreamerv3(spec, paths, args.num_threads or 1, args.device or "auto", keep)
+    try:
+        steps, _ = train_dreamerv3(spec, paths, args.num_threads or 1, args.device or "auto", keep)
+    except Interrupted as interrupt:
+        raise Interrupted(f"{interrupt}: continue with `sb3-ef train --resume {folder}`") from None
     finish_run(folder, env_name, steps)
     print(f"Saving to {paths.model}", flush=True)
 
@@ -125,17 +134,21 @@ def enjoy_main(argv: list[str]) -> None:
     exp_id = args.exp_id or 0
     env_name = args.env.replace("/", "-")
     log_path = Path(folder) / args.algo
-    run = (
+    run = (  # sb3_ef.zoo.enjoy checked that it exists
         log_path / f"{env_name}_{exp_id}"
         if exp_id
         else max(log_path.glob(f"{env_name}_[0-9]*"), key=lambda path: int(path.name.rsplit("_", 1)[1]))
     )
-    recorded = yaml.safe_load((run / env_name / "args.yml").read_text())
+    model_path, args_path = run / f"{env_name}.zip", run / env_name / "args.yml"
+    for path, written in ((model_path, "when the run finishes or is stopped by Ctrl-C"), (args_path, "at its start")):
+        if not path.is_file():
+            raise ValueError(f"Cannot enjoy the run {run}: {path} is missing (`sb3-ef train` writes it {written})")
+    recorded = yaml.safe_load(args_path.read_text())
     env_kwargs = {**recorded.get("env_kwargs", {}), **_pairs(args.env_kwargs, "--env-kwargs")}
     spec = RunSpec(args.algo, args.algo, args.env, args.seed or 0, 1, 1, 1, 1, env_kwargs=env_kwargs)
-    model = registry.entry(args.algo).algorithm_class.load(run / f"{env_name}.zip", device=args.device or "auto")
+    model = registry.entry(args.algo).algorithm_class.load(model_path, device=args.device or "auto")
     env = build_env(spec, seed=spec.seed)
-    print(f"Loading {run / f'{env_name}.zip'}", flush=True)
+    print(f"Loading {model_path}", flush=True)
     _act(model, env, args.n_timesteps or DEFAULT_ENJOY_STEPS, bool(args.deterministic))
     env.close()
 

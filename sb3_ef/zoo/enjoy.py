@@ -41,7 +41,7 @@ def check_run_folder(folder: str, algo: str, env: str, exp_id: int) -> None:
     runs.sort(key=lambda name: int(name.rsplit("_", 1)[1]) if name.rsplit("_", 1)[1].isdigit() else -1)
     if (exp_id > 0 and f"{env_name}_{exp_id}" in runs) or (exp_id == 0 and runs):
         return
-    wanted = "any run" if exp_id == 0 else f"run {env_name}_{exp_id}"
+    wanted = f"run of {env_name}" if exp_id == 0 else f"run {env_name}_{exp_id}"
     found = (
         f"runs there: {', '.join(runs)}" if runs else "no run of this env there (train first, or pass -f LOG_FOLDER)"
     )

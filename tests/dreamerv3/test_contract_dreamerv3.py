@@ -1,145 +1,109 @@
-"""SB3's contract on DreamerV3: deterministic and vectorised predict, save / load round trips (paths with or without
-``.zip``, file objects), callbacks, learning twice, the device fallback, the checks of sheeprl_overrides and of frame
-sizes, and loads across classes naming the class in the file."""
+"""SB3's contract on DreamerV3: SB3's callback tests (stable_baselines3 tests/test_callbacks.py) adapted, and
+deterministic and vectorised predict, the device fallback, the checks of sheeprl_overrides and of frame sizes."""
 
 from __future__ import annotations
 
-import io
-from pathlib import Path
-
-import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_ef.zoo.config import default_config_path, load_config
+from tests.dreamerv3.dreamerv3_tiny import TINY, tiny, toy
 
 pytest.importorskip("sheeprl")
 
 from sb3_ef.dreamerv3 import DreamerV3
-from sb3_ef.drqv2 import DrQv2EF
-
-#: The CPU-sized entry of zoo_configs/dreamerv3.yml, with a shorter warm-up and the smallest batches.
-ENTRY = load_config(default_config_path("dreamerv3"))["toy/agent-v0"]
-TINY = {key: value for key, value in ENTRY.items() if key not in ("policy", "n_timesteps", "env_kwargs")} | {
-    "buffer_size": 500,
-    "learning_starts": 8,
-    "batch_size": 2,
-    "sequence_length": 4,
-}
 
 
-def toy(size: int = 16) -> gym.Env:
-    return gym.make("toy/agent-v0", **{**ENTRY["env_kwargs"], "size": size})
+def test_callbacks_see_sb3s_locals_and_counters(trained):
+    """SB3's ``test_callbacks``: the locals of the last step, shared by the children; the counters of the first
+    ``learn``, stopped at the end of its first episode; then ``learn`` again without a callback, with a list and the
+    progress bar, and with a function."""
+    model, callback = trained.model, trained.callback
+    assert trained.first == {"steps": 25, "event_steps": 25, "event_calls": 25}  # StopTrainingOnMaxEpisodes
+    assert trained.max_episodes.n_episodes == 1
+    assert model.env.observation_space.contains(callback.locals["new_obs"][0])
+    assert trained.max_episodes.locals["new_obs"] is callback.locals["new_obs"]  # (the others learned again since)
+    assert trained.event.locals["new_obs"] is callback.locals["new_obs"]
+    assert trained.on_event.locals["new_obs"] is callback.locals["new_obs"]
+    assert model.num_timesteps == 37
+    assert trained.recorder.steps == [*range(1, 26), *range(30, 34)]
+    assert trained.recorder.events == ["start at 0 of 40", "end", "start at 29 of 33", "end"]
 
 
-def tiny(work_dir: Path, **kwargs) -> DreamerV3:
-    return DreamerV3("CnnPolicy", toy(), **{**TINY, **kwargs}, work_dir=work_dir, seed=0, device="cpu")
+def test_the_locals_are_those_of_a_one_env_dummy_vec_env(trained):
+    [end] = trained.recorder.episode_ends  # the toy env's time limit, at step 25
+    info = end["infos"][0]
+    assert end["new_obs"].shape == (1, 3, 16, 16) and end["new_obs"].dtype == np.uint8
+    assert end["rewards"].shape == (1,) and end["dones"].tolist() == [True]
+    assert info["TimeLimit.truncated"] and info["terminal_observation"].shape == (3, 16, 16)
+    assert not np.array_equal(info["terminal_observation"], end["new_obs"][0])  # new_obs starts the next episode
+    assert trained.model.get_env().num_envs == 1
 
 
-class Recorder(BaseCallback):
-    """Records SB3's calls: the step count at each ``on_step``; returns ``False`` at ``stop_at`` calls."""
+def test_checkpoint_and_eval_callbacks_save_the_weights_of_their_step(trained):
+    files = {path.name for path in trained.logs.iterdir()}
+    assert {"rl_model_10_steps.zip", "rl_model_20_steps.zip", "event_10_steps.zip", "event_20_steps.zip"} <= files
+    assert {"best_model.zip", "evaluations.npz"} <= files
+    assert DreamerV3.load(trained.logs / "rl_model_20_steps.zip", device="cpu").num_timesteps == 20
+    with np.load(trained.logs / "evaluations.npz") as evaluations:
+        assert evaluations["timesteps"].tolist() == [10, 20]
 
-    def __init__(self, stop_at: int | None = None):
+
+class AlwaysFailCallback(BaseCallback):
+    def __init__(self, callback_false_value):
         super().__init__()
-        self.stop_at = stop_at
-        self.steps: list[int] = []
-        self.events: list[str] = []
-
-    def _on_training_start(self) -> None:
-        self.events.append(f"start at {self.num_timesteps} of {self.locals['total_timesteps']}")
+        self.callback_false_value = callback_false_value
 
     def _on_step(self) -> bool:
-        self.steps.append(self.num_timesteps)
-        return self.stop_at is None or self.n_calls < self.stop_at
-
-    def _on_training_end(self) -> None:
-        self.events.append("end")
+        return self.callback_false_value
 
 
-@pytest.fixture(scope="module")
-def trained(tmp_path_factory) -> tuple[DreamerV3, Recorder]:
-    """12 steps (training from step 8) with a callback, then 4 more with the same callback."""
-    recorder = Recorder()
-    model = tiny(tmp_path_factory.mktemp("dreamerv3")).learn(12, callback=recorder)
-    model.learn(4, callback=recorder, reset_num_timesteps=False)
-    return model, recorder
+def test_callbacks_can_cancel_runs_and_learn_continues_from_the_stop(tmp_path):
+    """SB3's ``test_callbacks_can_cancel_runs``, each falsy value stopping one ``learn`` at its first step."""
+    model = tiny(tmp_path)
+    for calls, value in enumerate([False, np.bool_(0), th.tensor(0, dtype=th.bool)], start=1):
+        stopper = AlwaysFailCallback(callback_false_value=value)
+        assert model.learn(10, callback=stopper, reset_num_timesteps=calls == 1) is model
+        assert stopper.n_calls == 1 and model.num_timesteps == calls
 
 
-def test_callbacks_see_every_env_step_and_learn_continues_its_count(trained):
-    model, recorder = trained
-    assert recorder.steps == list(range(1, 17))
-    assert recorder.events == ["start at 0 of 12", "end", "start at 12 of 16", "end"]
-    assert model.num_timesteps == 16
+def test_an_exception_in_a_callback_propagates_and_learn_can_continue(tmp_path):
+    class Failing(BaseCallback):
+        def _on_step(self) -> bool:
+            if self.num_timesteps == 3:
+                raise ArithmeticError("the callback's own error")
+            return True
+
+    model = tiny(tmp_path)
+    with pytest.raises(ArithmeticError, match="the callback's own error"):
+        model.learn(10, callback=Failing(), checkpoint_freq=2)
+    assert model.num_timesteps == 3  # the weights of step 3, on from the replay buffer of the checkpoint at step 2
+    assert model.learn(2, reset_num_timesteps=False).num_timesteps == 5
 
 
 def test_deterministic_predict_is_the_same_for_the_same_observation(trained):
-    model, _ = trained
     observation, _ = toy().reset(seed=3)
-    actions = np.stack([model.predict(observation, deterministic=True)[0] for _ in range(5)])
+    actions = np.stack([trained.model.predict(observation, deterministic=True)[0] for _ in range(5)])
     np.testing.assert_array_equal(actions, np.repeat(actions[:1], 5, axis=0))
-    sampled = np.stack([model.predict(observation)[0] for _ in range(5)])
+    sampled = np.stack([trained.model.predict(observation)[0] for _ in range(5)])
     assert np.ptp(sampled, axis=0).max() > 0  # without deterministic, actions are drawn
 
 
 def test_vectorised_predict_acts_on_each_observation_as_alone(trained):
-    model, _ = trained
     observations = np.stack([toy().reset(seed=seed)[0] for seed in range(3)])
-    actions, state = model.predict(observations, deterministic=True)
+    actions, state = trained.model.predict(observations, deterministic=True)
     assert actions.shape == (3, 2) and state[0].shape[1] == 3
-    alone = np.stack([model.predict(observation, deterministic=True)[0] for observation in observations])
+    alone = np.stack([trained.model.predict(observation, deterministic=True)[0] for observation in observations])
     np.testing.assert_allclose(actions, alone, rtol=0, atol=1e-6)
 
 
-@pytest.mark.parametrize("name", ["model", "model.zip"])
-def test_save_adds_zip_and_load_takes_the_path_either_way(trained, tmp_path, name):
-    model, _ = trained
-    model.save(tmp_path / name)
-    assert sorted(path.name for path in tmp_path.iterdir()) == ["model.zip"]
-    observation, _ = toy().reset(seed=4)
-    expected, _ = model.predict(observation, deterministic=True)
-    for given in ("model", "model.zip"):
-        loaded = DreamerV3.load(tmp_path / given, device="cpu", work_dir=tmp_path / "work")
-        assert loaded.num_timesteps == 16
-        np.testing.assert_array_equal(loaded.predict(observation, deterministic=True)[0], expected)
-
-
-def test_save_and_load_take_file_objects(trained, tmp_path):
-    model, _ = trained
-    file = io.BytesIO()
-    model.save(file)
-    file.seek(0)
-    loaded = DreamerV3.load(file, device="cpu", work_dir=tmp_path)
-    for name in ("world_model", "actor", "critic"):
-        for key, value in model._weights()[name].items():
-            th.testing.assert_close(loaded._weights()[name][key], value, rtol=0, atol=0)
-
-
-def test_a_callback_returning_false_stops_the_run(tmp_path):
-    recorder = Recorder(stop_at=10)
-    model = tiny(tmp_path).learn(16, callback=recorder, checkpoint_freq=4)
-    assert recorder.steps == list(range(1, 11)) and recorder.events[-1] == "end"
-    assert model.num_timesteps == 8  # the weights of the newest checkpoint step before the stop
-
-
 def test_frames_of_another_size_than_the_trained_one_are_named(trained, tmp_path):
-    model, _ = trained
     with pytest.raises(ValueError, match="trained on 16x16 frames, the observation gives 32x32"):
-        model.predict(toy(size=32).reset(seed=0)[0])
-    model.save(tmp_path / "model.zip")
+        trained.model.predict(toy(size=32).reset(seed=0)[0])
+    trained.model.save(tmp_path / "model.zip")
     with pytest.raises(ValueError, match="trained on 16x16 frames, the env gives 32x32"):
         DreamerV3.load(tmp_path / "model.zip", env=toy(size=32), device="cpu", work_dir=tmp_path / "work")
-
-
-def test_other_classes_name_the_class_in_the_file(trained, tmp_path):
-    model, _ = trained
-    model.save(tmp_path / "dreamer.zip")
-    with pytest.raises(ValueError, match=r"saved by DreamerV3, use DreamerV3\.load"):
-        DrQv2EF.load(tmp_path / "dreamer.zip")
-    DrQv2EF("CnnPolicy", toy(size=32), buffer_size=100).save(tmp_path / "drqv2.zip")
-    with pytest.raises(ValueError, match=r"saved by DrQv2EF, use DrQv2EF\.load"):
-        DreamerV3.load(tmp_path / "drqv2.zip")
 
 
 @pytest.mark.skipif(th.cuda.is_available(), reason="the fallback is for machines without CUDA")
@@ -149,13 +113,24 @@ def test_cuda_without_a_gpu_falls_back_to_the_cpu_with_a_warning(tmp_path):
     assert model.device == "cpu"
 
 
+def test_nested_sheeprl_overrides_are_merged_key_by_key(tmp_path):
+    overrides = {"algo": {"horizon": 5, "actor": {"ent_coef": 1e-3}}}
+    model = DreamerV3("CnnPolicy", toy(), sheeprl_overrides=overrides, work_dir=tmp_path)
+    assert model.recipe.sheeprl_overrides == {"algo.horizon": 5, "algo.actor.ent_coef": 1e-3}
+    assert (model.cfg.algo.horizon, model.cfg.algo.actor.ent_coef) == (5, 1e-3)
+    assert model.cfg.algo.name == "dreamer_v3" and model.cfg.algo.actor.optimizer.lr == 3e-5  # the rest kept
+
+
 @pytest.mark.parametrize(
     ("overrides", "message"),
     [
-        ("algo.horizon=5", r"must be a dict of dotted sheeprl keys .* got 'algo.horizon=5' \(str\)"),
+        ("algo.horizon=5", r"dotted \(\{'algo.horizon': 15\}\) or nested .* got 'algo.horizon=5' \(str\)"),
         ({"algo.horizn": 5}, r"'algo.horizn' is not a key .*did you mean 'algo.horizon'"),
+        ({"algo": {"horizn": 5}}, r"'algo.horizn' is not a key .*did you mean 'algo.horizon'"),
+        ({"algo": {"total_steps": 5}}, r"'algo.total_steps' is set by DreamerV3 from learn\(total_timesteps\)"),
         ({"algo.horizon": 2.5}, r"'algo.horizon' must be a whole number \(sheeprl's default is 15\), got 2.5"),
         ({"algo.actor.optimizer.lr": "1e-4"}, r"'algo.actor.optimizer.lr' must be a number .* got '1e-4' \(str\)"),
+        ({"algo.world_model": 5}, r"'algo.world_model' must be a dict \(a section\)"),
         ({"fabric.precision": 16}, r"'fabric.precision' must be a string"),
     ],
 )

@@ -53,7 +53,9 @@ def test_envs_dreamer_cannot_read_are_refused(env, message):
         ({"sheeprl_overrides": {"env.screen_size": 32}}, "'env.screen_size' is set by DreamerV3 from env"),
         ({"sheeprl_overrides": {"algo.per_rank_batch_size": 2}}, "from batch_size"),
         ({"sheeprl_overrides": {"fabric.accelerator": "cuda"}}, "from device"),
-        ({"sheeprl_overrides": ["algo.horizon"]}, r"must be a dict of dotted sheeprl keys .* \(list\)"),
+        ({"sheeprl_overrides": {"env": {"screen_size": 32}}}, "'env.screen_size' is set by DreamerV3 from env"),
+        ({"sheeprl_overrides": ["algo.horizon"]}, r"must be a dict of sheeprl's keys to values, dotted .* \(list\)"),
+        ({"sheeprl_overrides": {"algo": {1: 2}}}, r"nested \(\{'algo': \{'horizon': 15\}\}\), got the key 1 \(int\)"),
     ],
 )
 def test_bad_settings_are_refused_naming_what_was_expected(kwargs, message):

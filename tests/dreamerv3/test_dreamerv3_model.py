@@ -138,9 +138,14 @@ def test_training_leaves_the_process_wide_torch_settings_as_they_were(tmp_path):
 
 def test_evaluations_leave_the_training_as_it_is_without_them(tmp_path):
     """Evaluating draws its own random numbers: the weights after training are those of a run without
-    evaluations."""
-    with_evaluation = model(tmp_path / "a").learn(30, evaluation=evaluation(tmp_path / "a.csv", freq=10))
+    evaluations. Evaluations and checkpoints keep their own steps."""
+    with_evaluation = model(tmp_path / "a").learn(
+        30, evaluation=evaluation(tmp_path / "a.csv", freq=10), checkpoint_freq=15, keep_checkpoints=None
+    )
     without = model(tmp_path / "b").learn(30)
+    with open(tmp_path / "a.csv", newline="") as file:
+        assert [row["step"] for row in csv.DictReader(file)] == ["10", "20", "30"]
+    assert sorted(path.name for path in (tmp_path / "a").rglob("ckpt_*.ckpt")) == ["ckpt_15_0.ckpt", "ckpt_30_0.ckpt"]
     for name in ("world_model", "actor", "critic"):
         for key, value in with_evaluation._weights()[name].items():
             th.testing.assert_close(value, without._weights()[name][key], rtol=0, atol=0, msg=f"{name}.{key}")
@@ -150,18 +155,15 @@ def test_evaluations_leave_the_training_as_it_is_without_them(tmp_path):
     ("build", "message"),
     [
         (lambda tmp: DreamerV3("MlpPolicy", toy(), work_dir=tmp), "policy is 'CnnPolicy'"),
-        (lambda tmp: DreamerV3("CnnPolicy", DummyVecEnv([toy]), work_dir=tmp), "one gymnasium env.*sb3-ef benchmark"),
+        (lambda tmp: DreamerV3("CnnPolicy", DummyVecEnv([toy, toy]), work_dir=tmp), "got a DummyVecEnv of 2 envs"),
         (
             lambda tmp: DreamerV3("CnnPolicy", toy(), sheeprl_overrides={"algo.horizonn": 5}, work_dir=tmp),
             "'algo.horizonn' is not a key of sheeprl",
         ),
         (lambda tmp: DreamerV3("CnnPolicy", toy(), device="tpu", work_dir=tmp), "device must be"),
-        (lambda tmp: model(tmp).learn(10, callback=print), "callback must be an SB3 BaseCallback"),
+        (lambda tmp: model(tmp).learn(10, callback=5), "callback must be an SB3 BaseCallback, a function"),
         (lambda tmp: model(tmp).learn(0), "total_timesteps must be a positive integer"),
-        (
-            lambda tmp: model(tmp).learn(40, evaluation=evaluation(tmp / "r.csv"), checkpoint_freq=30),
-            r"checkpoint_freq \(30\) must be a multiple of evaluation.freq \(20\)",
-        ),
+        (lambda tmp: model(tmp).learn(10, checkpoint_freq=0), "checkpoint_freq must be a positive integer, got 0"),
         (lambda tmp: DreamerV3.load(tmp / "nothing.zip"), "No saved DreamerV3 model"),
     ],
 )
