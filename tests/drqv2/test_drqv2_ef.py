@@ -272,7 +272,7 @@ class VectorEnv(gym.Env):
         (DiscreteCueEnv(), {}, r"continuous \(Box\) action space, got Discrete\(2\)"),
         (CueEnv(size=16), {}, r"16x16 are too small .*at least 21x21"),
         (make_cue_env(episode_steps=5), {"ef_horizon": 6}, r"expected ef_horizon <= 5, got 6"),
-        (make_cue_env(), {"policy_kwargs": {**TINY_POLICY, "features_dim": 8}}, r"features_dim=8, agent_dim=8"),
+        (make_cue_env(), {"policy_kwargs": {**TINY_POLICY, "features_dim": 8}}, r"feature_dim=8\), got 8"),
         (make_cue_env(), {"replay_buffer_class": ReplayBuffer}, r"must be a SequenceReplayBuffer .*got ReplayBuffer"),
         (make_cue_env(), {"beta": 0.0}, r"beta must be a positive number \(use DrQv2 .*got 0.0"),
         (make_cue_env(), {"ef_horizon": 0}, r"ef_horizon must be a positive integer, got 0"),
