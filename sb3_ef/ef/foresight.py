@@ -17,7 +17,6 @@ from sb3_ef.ef.latent import (
     DEFAULT_PROJECTION_DIM,
     DEFAULT_TEMPERATURE,
     LatentHead,
-    check_loss_scale,
     info_nce,
 )
 
@@ -122,10 +121,8 @@ class EgoForesight(nn.Module):
             raise ValueError(f"action_dim must be >= 1, got {action_dim}")
         if horizon < 1:
             raise ValueError(f"horizon must be >= 1, got {horizon}")
-        if step_sampling not in STEP_SAMPLINGS:
-            raise ValueError(f"step_sampling must be one of {STEP_SAMPLINGS}, got {step_sampling!r}")
-        if decode_batch_size is not None and decode_batch_size < 1:
-            raise ValueError(f"decode_batch_size must be None or >= 1, got {decode_batch_size}")
+        options = {"rollout_hidden_dims": rollout_hidden_dims, "decoder_channels": decoder_channels}
+        check_ef_kwargs({**options, "step_sampling": step_sampling, "decode_batch_size": decode_batch_size})
         self.feature_dim = feature_dim
         self.action_dim = action_dim
         self.frame_shape = tuple(frame_shape)
@@ -274,10 +271,11 @@ class LatentEgoForesight(EgoForesight):
         loss_scale: float = DEFAULT_LOSS_SCALE,
         **kwargs: Any,
     ):
-        if kwargs.get("decode_batch_size") is not None:
-            raise ValueError("ef_kwargs decode_batch_size applies to target='pixel' only (latent EF decodes no frame)")
+        latent: dict[str, object] = {"projection_dim": projection_dim, "head_hidden_dim": head_hidden_dim}
+        latent.update(temperature=temperature, loss_scale=loss_scale, decode_batch_size=kwargs.get("decode_batch_size"))
+        check_ef_kwargs({"target": "latent", **latent})
         super().__init__(*args, **kwargs)
-        self.loss_scale = check_loss_scale(loss_scale)
+        self.loss_scale = float(loss_scale)
         self.head = LatentHead(self.feature_dim, projection_dim, head_hidden_dim, temperature)
         # Probe decoder updates, counted by whoever fits it: 0 means untrained.
         self.register_buffer("probe_steps", th.zeros((), dtype=th.long))

@@ -4,7 +4,6 @@ space")."""
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from functools import partial
 from typing import TYPE_CHECKING, NamedTuple
@@ -28,30 +27,6 @@ DEFAULT_HEAD_HIDDEN_DIM = 512
 DEFAULT_TEMPERATURE = 0.1
 #: Weight of the InfoNCE inside EF's loss, so that latent EF pulls about as hard as pixel EF (docs/ef.md).
 DEFAULT_LOSS_SCALE = 3.0
-
-
-def check_temperature(temperature: object) -> float:
-    """``temperature`` as a float if it is finite and positive, else a ``ValueError``."""
-    if (
-        isinstance(temperature, bool)
-        or not isinstance(temperature, (int, float))
-        or not math.isfinite(temperature)
-        or temperature <= 0
-    ):
-        raise ValueError(f"temperature must be a finite positive number, got {temperature!r}")
-    return float(temperature)
-
-
-def check_loss_scale(loss_scale: object) -> float:
-    """``loss_scale`` as a float if it is finite and >= 0, else a ``ValueError``."""
-    if (
-        isinstance(loss_scale, bool)
-        or not isinstance(loss_scale, (int, float))
-        or not math.isfinite(loss_scale)
-        or loss_scale < 0
-    ):
-        raise ValueError(f"ef_kwargs loss_scale must be a finite number >= 0, got {loss_scale!r}")
-    return float(loss_scale)
 
 
 class LatentTargets(NamedTuple):
@@ -143,17 +118,16 @@ class LatentHead(nn.Module):
     :param projection_dim: size of the projected vectors the loss compares.
     :param hidden_dim: width of the hidden block of both MLPs.
     :param temperature: the InfoNCE's temperature (:func:`info_nce`).
+
+    Its sizes and temperature are checked by :class:`~sb3_ef.ef.foresight.LatentEgoForesight`, which builds it.
     """
 
     def __init__(
         self, feature_dim: int, projection_dim: int, hidden_dim: int, temperature: float = DEFAULT_TEMPERATURE
     ):
         super().__init__()
-        for name, value in (("projection_dim", projection_dim), ("head_hidden_dim", hidden_dim)):
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be a positive int, got {value!r}")
         self.projection_dim = projection_dim
-        self.temperature = check_temperature(temperature)
+        self.temperature = float(temperature)
         self.projection = mlp(feature_dim, (hidden_dim,), projection_dim)
         self.prediction = mlp(projection_dim, (hidden_dim,), projection_dim)
 

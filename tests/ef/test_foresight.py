@@ -149,5 +149,5 @@ def test_decode_batch_size_decodes_only_the_first_samples():
     assert th.allclose(loss, expected)
     loss.backward()
     assert h.grad[:2].abs().sum() > 0 and h.grad[2:].abs().sum() == 0
-    with pytest.raises(ValueError, match="decode_batch_size must be None or >= 1, got 0"):
+    with pytest.raises(ValueError, match=r"decode_batch_size must be None \(all\) or a positive integer, got 0"):
         make_ef(decode_batch_size=0)
