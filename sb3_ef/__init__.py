@@ -18,6 +18,8 @@ _PUBLIC = {
     "SACEF": "sb3_ef.sb3_hosts",
     "TD3EF": "sb3_ef.sb3_hosts",
     "TQCEF": "sb3_ef.sb3_hosts",
+    "PPOEF": "sb3_ef.sb3_hosts",
+    "A2CEF": "sb3_ef.sb3_hosts",
     "SEAR": "sb3_ef.sear",
     "CURL": "sb3_ef.curl",
     "DreamerV3": "sb3_ef.dreamerv3",  # the workbench's sheeprl wrapper, named here lazily: the library never imports it
