@@ -38,6 +38,8 @@ class AlgorithmEntry:
     :param zoo_run: the ``train`` and ``enjoy`` functions of an algorithm rl-zoo3 cannot train; ``None``: rl-zoo3's.
     :param warm_start: an offline-pretrained encoder and EF can be copied into it; ``sb3-ef collect`` acts with it.
     :param legacy_policy_module: the policy module of its sb3-ef 0.1.0 files (``sb3-ef upgrade``), if any.
+    :param zoo_frame_stack: takes frames of any channel count stacked by rl-zoo3's ``frame_stack`` key (Atari's grey
+        frames); the others read RGB frames stacked inside the env.
     """
 
     key: str
@@ -51,6 +53,7 @@ class AlgorithmEntry:
     zoo_run: tuple[str, str] | None = None
     warm_start: bool = False
     legacy_policy_module: str | None = None
+    zoo_frame_stack: bool = False
 
     @property
     def class_name(self) -> str:
@@ -87,6 +90,8 @@ ALGORITHMS: dict[str, AlgorithmEntry] = {entry.key: entry for entry in (
     AlgorithmEntry("sac_ef", "sb3_ef.sb3_hosts:SACEF", ef=True, legacy_policy_module="stable_baselines3.sac.policies"),
     AlgorithmEntry("td3_ef", "sb3_ef.sb3_hosts:TD3EF", ef=True, legacy_policy_module="stable_baselines3.td3.policies"),
     AlgorithmEntry("tqc_ef", "sb3_ef.sb3_hosts:TQCEF", ef=True, legacy_policy_module="sb3_contrib.tqc.policies"),
+    AlgorithmEntry("ppo_ef", "sb3_ef.sb3_hosts:PPOEF", ef=True, own_exploration=True, zoo_frame_stack=True),
+    AlgorithmEntry("a2c_ef", "sb3_ef.sb3_hosts:A2CEF", ef=True, own_exploration=True, zoo_frame_stack=True),
     AlgorithmEntry(
         "dreamerv3", "sb3_ef.dreamerv3:DreamerV3", paper=True, own_exploration=True,
         grid_run="sb3_ef.dreamerv3.grid_run:train_dreamerv3",
