@@ -9,6 +9,7 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3 import A2C, PPO
+from stable_baselines3.common.base_class import maybe_make_env
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.policies import ActorCriticCnnPolicy, BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, RolloutBufferSamples
@@ -24,6 +25,7 @@ from sb3_ef.common.buffers.rollout_windows import (
     encode_actions,
     rollout_minibatches,
 )
+from sb3_ef.common.env_checks import policy_observation_space
 from sb3_ef.common.validation import check_algorithm_arguments
 from sb3_ef.ef.babbling import babble_env_actions
 from sb3_ef.ef.foresight import EgoForesight, ForesightLoss
@@ -101,10 +103,12 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
         check_algorithm_arguments(type(self), locals())
         plain = next(c for c in type(self).__mro__ if c in (PPO, A2C))
         check_ef_arguments(beta, ef_horizon, babbling_steps, babbling_mode, plain.__name__)
+        if env is not None:
+            env = maybe_make_env(env, kwargs.get("verbose", 0))
+            check_image_observations(policy_observation_space(env.observation_space), name)
+            action_encoding_dim(env.action_space)  # raises for a space EF cannot encode, naming those it can
         super().__init__(policy, env, _init_setup_model=False, **kwargs)  # type: ignore[call-arg]
         if self.env is not None:
-            check_image_observations(self.observation_space, name)
-            action_encoding_dim(self.action_space)  # raises for a space EF cannot encode, naming those it can
             channels = self.observation_space.shape[0]  # type: ignore[index]
             frame_channels = frame_channels or channels // frames_per_observation(self.env)
             if not isinstance(frame_channels, int) or frame_channels < 1 or channels % frame_channels:
