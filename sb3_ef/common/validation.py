@@ -167,7 +167,7 @@ def _accepted_arguments(target: Callable[..., Any]) -> set[str] | None:
 
 _NAMED = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
 #: Ego-Foresight's arguments, named when given to a class without EF.
-EF_CLASSES = "Ego-Foresight's classes DrQv2EF, TDMPC2EF, SACEF, TD3EF and TQCEF"
+EF_CLASSES = "Ego-Foresight's classes DrQv2EF, TDMPC2EF, SACEF, TD3EF, TQCEF, PPOEF and A2CEF"
 EF_ARGUMENTS = ("beta", "ef_horizon", "agent_dim", "ef_kwargs", "babbling_steps", "babbling_mode", "babbling_in_eval")
 
 

@@ -270,7 +270,7 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
             ef_grads = [param.grad for param in encoder]
             self.policy.zero_grad()  # the policy's parameters: EF's own keep their gradients
             host_loss.backward()
-            th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
+            logs["grad_norm"] = th.nn.utils.clip_grad_norm_(self.policy.parameters(), self.max_grad_norm)
             host_norm = gradient_norm(encoder)
             for param, grad in zip(encoder, ef_grads, strict=True):
                 if grad is not None:
