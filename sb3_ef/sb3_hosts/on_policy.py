@@ -70,7 +70,6 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
     :param check_finite_losses: raise a ``ValueError`` naming a NaN or infinite loss before its step.
     """
 
-    policy: ActorCriticCnnPolicy
     rollout_buffer: Any
     max_grad_norm: float
     n_steps: int
@@ -160,7 +159,7 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
 
     def encode(self, observations: th.Tensor) -> th.Tensor:
         """Features h of the policy's shared features extractor for uint8 stacked observations."""
-        return self.policy.extract_features(observations.to(self.device))  # type: ignore[return-value]
+        return self.policy.extract_features(observations.to(self.device))
 
     def _setup_model(self) -> None:
         """SB3's setup, then EF's loss with its parameter group in the policy's optimiser (:meth:`_optimise_auxiliary`),
@@ -195,7 +194,7 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
         state_dicts, variables = super()._get_torch_save_params()  # type: ignore[misc]
         return [*state_dicts, "auxiliary_module"], variables
 
-    def learn(  # type: ignore[override]
+    def learn(
         self: SelfOnPolicyEF,
         total_timesteps: int,
         callback: MaybeCallback = None,
@@ -222,16 +221,16 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
             self.logger.record("rollout/babbling", float(self.babbling))
         if not self.babbling:
             return super().collect_rollouts(env, callback, rollout_buffer, n_rollout_steps)  # type: ignore[misc]
-        self.policy.forward = self._babbling_forward  # type: ignore[method-assign]  # SB3 acts with self.policy(obs)
+        self.policy.forward = self._babbling_forward  # SB3 acts with self.policy(obs)
         try:
             return super().collect_rollouts(env, callback, rollout_buffer, n_rollout_steps)  # type: ignore[misc]
         finally:
             del self.policy.forward
 
-    def _babbling_forward(self, observations: th.Tensor, deterministic: bool = False) -> tuple[th.Tensor, ...]:
+    def _babbling_forward(self, obs: th.Tensor, deterministic: bool = False) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         """The policy's ``forward`` while babbling: random env actions; zero values and log-probabilities (unused)."""
         assert self._babbling_rng is not None
-        n_envs = len(observations)
+        n_envs = len(obs)
         actions = babble_env_actions(self._babbling_rng, self.action_space, n_envs, self.babbling_mode)
         zeros = th.zeros(n_envs, device=self.device)
         return th.as_tensor(actions, device=self.device), zeros[:, None], zeros
@@ -254,7 +253,7 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
         observations, targets = self.auxiliary.prepare(window, 0, self._auxiliary_generator)  # type: ignore[arg-type]
         features = self.policy.extract_features(observations)
         loss, logs = self.auxiliary(features, targets)
-        return features, loss, logs  # type: ignore[return-value]
+        return features, loss, logs
 
     def _step(self, host_loss: th.Tensor | None, ef_loss: th.Tensor) -> dict[str, th.Tensor]:
         """One step of the policy's optimiser: the host's gradient clipped as SB3 clips it (over the policy), plus
@@ -282,7 +281,9 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
         self.auxiliary.after_update(self.policy.features_extractor)
         return logs
 
-    def _evaluate_actions(self, features: th.Tensor, data: RolloutBufferSamples) -> tuple[th.Tensor, ...]:
+    def _evaluate_actions(
+        self, features: th.Tensor, data: RolloutBufferSamples
+    ) -> tuple[th.Tensor, th.Tensor, th.Tensor | None]:
         """SB3's ``ActorCriticPolicy.evaluate_actions`` from the shared features: values, log-probabilities, entropy."""
         actions = data.actions
         if isinstance(self.action_space, spaces.Discrete):

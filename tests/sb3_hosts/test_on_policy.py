@@ -2,6 +2,7 @@
 update left as SB3's, EF's gradient routes, babbling, Atari frames and bad input."""
 
 from copy import deepcopy
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -316,3 +317,14 @@ def test_caller_dicts_are_left_unchanged():
     policy_kwargs, ef_kwargs = dict(POLICY), deepcopy(EF["ef_kwargs"])
     make(PPOEF, toy_env(), policy_kwargs=policy_kwargs, ef_kwargs=ef_kwargs)
     assert policy_kwargs == POLICY and ef_kwargs == EF["ef_kwargs"]
+
+
+def test_analyze_model_reads_rgb_frames_and_names_what_it_cannot_read(tmp_path):
+    from sb3_ef.analysis.cli import analyze_model
+
+    make(PPOEF, toy_env()).learn(8).save(tmp_path / "rgb.zip")
+    written = analyze_model(str(tmp_path / "rgb.zip"), "toy/agent-v0", str(tmp_path / "rgb"), env_kwargs={})
+    assert all(Path(path).is_file() for path in written.values())
+    make(PPOEF, grey_stack()).learn(16).save(tmp_path / "grey.zip")
+    with pytest.raises(ValueError, match=r"reads RGB frames and Box actions; .* 1-channel frames and Discrete\(6\)"):
+        analyze_model(str(tmp_path / "grey.zip"), "PongNoFrameskip-v4", str(tmp_path / "grey"), env_kwargs={})
