@@ -19,6 +19,7 @@ from torch.nn import functional as F
 
 from sb3_ef.auxiliary.host import AuxiliaryHostMixin, gradient_norm
 from sb3_ef.common.buffers.rollout_windows import (
+    RolloutRing,
     RolloutWindow,
     RolloutWindows,
     action_encoding_dim,
@@ -60,8 +61,11 @@ def check_image_observations(space: spaces.Space, algorithm: str) -> None:
 class OnPolicyEFMixin(AuxiliaryHostMixin):
     """Adds Ego-Foresight to an SB3 on-policy algorithm with ``CnnPolicy``: ``class PPOEF(OnPolicyEFMixin, PPO)``.
 
-    :param beta: weight of the EF loss, added to the host's loss on each minibatch.
-    :param ef_horizon: EF's horizon H, at most ``n_steps`` (windows are cut from one rollout).
+    :param beta: weight of the EF loss, added to the host's loss on each minibatch (its gradient is not clipped; the
+        default makes it about as strong as the host's on the encoder, docs/ef.md).
+    :param ef_horizon: EF's horizon H, at most ``n_steps * ef_rollouts``.
+    :param ef_rollouts: rollouts EF's windows are cut from: 1, the current one, where they start at the minibatch's
+        steps (one encoder pass serves both losses); more, a ring of the last ones, drawn uniformly and encoded apart.
     :param agent_dim: size of h_a, the first features of the policy's shared features extractor.
     :param ef_kwargs: extra arguments of :class:`sb3_ef.ef.EgoForesight`.
     :param frame_channels: channels of one frame (``None``: the observation's channels over the frames stacked).
@@ -79,14 +83,16 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
     default_log_interval: ClassVar[int] = 1
     auxiliary_module: ForesightLoss | None = None
     _babbling_rng: np.random.Generator | None = None
+    _ef_ring: RolloutRing
 
     def __init__(
         self,
         policy: str | type[ActorCriticCnnPolicy],
         env: GymEnv | str,
         *,
-        beta: float = 1.0,
+        beta: float = 0.01,
         ef_horizon: int = 10,
+        ef_rollouts: int = 1,
         agent_dim: int = 32,
         ef_kwargs: dict[str, Any] | None = None,
         frame_channels: int | None = None,
@@ -114,13 +120,14 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
                 raise ValueError(
                     f"frame_channels must divide the observation's {channels} channels, got {frame_channels}"
                 )
-        if ef_horizon > self.n_steps:
+        if not isinstance(ef_rollouts, int) or ef_rollouts < 1 or ef_horizon > self.n_steps * ef_rollouts:
             raise ValueError(
-                f"{name} cuts EF's windows from one rollout: expected ef_horizon <= n_steps={self.n_steps}, "
-                f"got {ef_horizon}"
+                f"{name} cuts EF's windows from its last ef_rollouts rollouts: expected an integer ef_rollouts >= 1 "
+                f"and ef_horizon <= n_steps * ef_rollouts = {self.n_steps} * {ef_rollouts}, got ef_horizon={ef_horizon}"
             )
         self._beta = beta  # the loss module's weight, kept here until the loss module saves it itself
-        self.ef_horizon, self.agent_dim, self.ef_kwargs = ef_horizon, agent_dim, dict(ef_kwargs or {})
+        self.ef_horizon, self.ef_rollouts, self.agent_dim = ef_horizon, ef_rollouts, agent_dim
+        self.ef_kwargs = dict(ef_kwargs or {})
         self.frame_channels = frame_channels
         self.babbling_steps, self.babbling_mode = babbling_steps, babbling_mode
         self.check_finite_losses = check_finite_losses
@@ -163,8 +170,9 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
 
     def _setup_model(self) -> None:
         """SB3's setup, then EF's loss with its parameter group in the policy's optimiser (:meth:`_optimise_auxiliary`),
-        and the babbling generator."""
+        the ring of rollouts EF's windows are cut from, and the babbling generator."""
         super()._setup_model()
+        self._ef_ring = RolloutRing(self.ef_rollouts)
         if self._babbling_rng is None:
             self._babbling_rng = np.random.default_rng(self.seed)
 
@@ -189,6 +197,9 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
     def _optimise_auxiliary(self, auxiliary: ForesightLoss) -> None:  # type: ignore[override]
         """EF's parameters as a parameter group of the policy's optimiser (the encoder is in SB3's own group)."""
         self.policy.optimizer.add_param_group({"name": "auxiliary", "params": list(auxiliary.parameters())})
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "_ef_ring"]  # rollouts are not saved (SB3's rollout buffer is not)
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()  # type: ignore[misc]
@@ -236,15 +247,24 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
         return th.as_tensor(actions, device=self.device), zeros[:, None], zeros
 
     def _rollout_windows(self) -> RolloutWindows:
-        """EF's windows of the rollout just collected (read before SB3's ``get`` flattens the buffer)."""
+        """EF's windows of the ring with the rollout just collected (read before SB3's ``get`` flattens the buffer)."""
         buffer = self.rollout_buffer
         if buffer.generator_ready:
             raise RuntimeError("train() reads a rollout once: collect a new one first (SB3's learn does)")
         actions = encode_actions(th.as_tensor(buffer.actions), self.action_space)
-        return RolloutWindows(
-            buffer.observations, actions, buffer.episode_starts, self._last_obs, self._last_episode_starts,
-            self.frame_shape[0], self.ef_horizon, self.device,
-        )  # fmt: skip
+        self._ef_ring.add(buffer.observations, actions, buffer.episode_starts, self.device)
+        return self._ef_ring.windows(self._last_obs, self._last_episode_starts, self.frame_shape[0], self.ef_horizon)
+
+    def _ef_loss_at(
+        self, windows: RolloutWindows, indices: np.ndarray, data: RolloutBufferSamples
+    ) -> tuple[th.Tensor, th.Tensor, dict[str, th.Tensor]]:
+        """:meth:`_ef_loss` of the windows at the minibatch's steps (one rollout), or of as many drawn from the ring,
+        with the features the host's loss reads (then from a pass of their own)."""
+        if self.ef_rollouts == 1:
+            return self._ef_loss(windows(indices))
+        drawn = th.randint(windows.size, (len(indices),), generator=self._auxiliary_generator)
+        features, loss, logs = self._ef_loss(windows(drawn.numpy()))
+        return features if self.babbling else self.policy.extract_features(data.observations), loss, logs
 
     def _ef_loss(self, window: RolloutWindow) -> tuple[th.Tensor, th.Tensor, dict[str, th.Tensor]]:
         """EF's calls: the shared features of the window's observations (unshifted, the minibatch's own, so that the
@@ -256,15 +276,14 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
         return features, loss, logs
 
     def _step(self, host_loss: th.Tensor | None, ef_loss: th.Tensor) -> dict[str, th.Tensor]:
-        """One step of the policy's optimiser: the host's gradient clipped as SB3 clips it (over the policy), plus
-        EF's, clipped apart (over the encoder and EF); ``host_loss=None`` steps EF alone. Returns the norms."""
+        """One step of the policy's optimiser on the host's gradient, clipped as SB3 clips it (over the policy), plus
+        EF's ``beta``-weighted one, unclipped as EF's authors train it; ``host_loss=None`` steps EF alone."""
         assert self.auxiliary is not None
         self._check_finite(ef_loss=ef_loss, **({} if host_loss is None else {"loss": host_loss}))
         encoder = list(self.policy.features_extractor.parameters())
         self.policy.optimizer.zero_grad()
         ef_loss.backward(retain_graph=host_loss is not None)
-        ef_params = [*encoder, *self.auxiliary.parameters()]
-        logs = {"ef_grad_norm": th.nn.utils.clip_grad_norm_(ef_params, self.max_grad_norm)}
+        logs = {"ef_grad_norm": gradient_norm([*encoder, *self.auxiliary.parameters()])}
         if host_loss is not None:
             ef_grads = [param.grad for param in encoder]
             self.policy.zero_grad()  # the policy's parameters: EF's own keep their gradients
@@ -274,9 +293,8 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
             for param, grad in zip(encoder, ef_grads, strict=True):
                 if grad is not None:
                     param.grad = grad if param.grad is None else param.grad.add_(grad)
-            logs["aux_grad_ratio"] = th.nn.utils.get_total_norm(
-                [grad for grad in ef_grads if grad is not None]
-            ) / host_norm.clamp_min(1e-12)
+            ef_norm = th.nn.utils.get_total_norm([grad for grad in ef_grads if grad is not None])
+            logs["aux_grad_ratio"] = ef_norm / host_norm.clamp_min(1e-12)
         self.policy.optimizer.step()
         self.auxiliary.after_update(self.policy.features_extractor)
         return logs
@@ -323,7 +341,7 @@ class PPOEF(OnPolicyEFMixin, PPO):
         continue_training = True
         for epoch in range(self.n_epochs):
             for indices, data in rollout_minibatches(self.rollout_buffer, self.batch_size):
-                features, ef_loss, logs = self._ef_loss(windows(indices))
+                features, ef_loss, logs = self._ef_loss_at(windows, indices, data)
                 loss = None
                 if not self.babbling:
                     loss, ppo_logs = self._ppo_loss(data, features, clip_range, clip_range_vf)
@@ -391,7 +409,7 @@ class A2CEF(OnPolicyEFMixin, A2C):
         self._update_learning_rate(self.policy.optimizer)
         windows = self._rollout_windows()
         for indices, data in rollout_minibatches(self.rollout_buffer, None):  # one minibatch, as SB3's A2C
-            features, ef_loss, logs = self._ef_loss(windows(indices))
+            features, ef_loss, logs = self._ef_loss_at(windows, indices, data)
             loss = None
             if not self.babbling:
                 loss, a2c_logs = self._a2c_loss(data, features)

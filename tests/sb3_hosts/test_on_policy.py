@@ -99,10 +99,16 @@ def test_ppo_options_clip_range_vf_and_target_kl():
 
 
 @pytest.mark.parametrize(("algorithm", "host"), HOSTS.items())
-def test_host_update_is_sb3s_own_plus_efs_gradient_on_the_encoder(algorithm, host):
+@pytest.mark.parametrize("ef_rollouts", [1, 2])
+def test_host_update_is_sb3s_own_plus_efs_gradient_on_the_encoder(algorithm, host, ef_rollouts):
     """The same rollout (EF is built in a forked generator, its draws are its own) and one update: the host's losses
-    equal SB3's, its gradient is clipped as SB3 clips it, and EF's gradient moves the shared encoder only."""
-    models = [make(variant, toy_env(discrete=True)).learn(8) for variant in (algorithm, host)]
+    equal SB3's, its gradient is clipped as SB3 clips it, and EF's gradient moves the shared encoder only (its windows
+    at the minibatch's steps, or drawn from the ring and encoded apart)."""
+    extra = {"ef_rollouts": ef_rollouts}
+    models = [
+        make(variant, toy_env(discrete=True), **(extra if variant is algorithm else {})).learn(8)
+        for variant in (algorithm, host)
+    ]
     logged = [model.logger.name_to_value for model in models]
     names = ("policy_gradient_loss" if host is PPO else "policy_loss", "value_loss", "entropy_loss")
     for name in names:
@@ -286,7 +292,7 @@ class UnboundedActions(gym.ActionWrapper):
         (VectorEnv(), {}, r"PPOEF needs image observations: a uint8 Box"),
         (toy_env(), {"policy": "MultiInputPolicy"}, r"PPOEF supports policy 'CnnPolicy'"),
         (UnboundedActions(toy_env()), {}, r"encodes actions of a Box \(finite bounds\), Discrete, MultiDiscrete"),
-        (toy_env(), {"ef_horizon": 9}, r"expected ef_horizon <= n_steps=8, got 9"),
+        (toy_env(), {"ef_horizon": 9}, r"ef_horizon <= n_steps \* ef_rollouts = 8 \* 1, got ef_horizon=9"),
         (toy_env(), {"beta": 0.0}, r"use PPO to train without Ego-Foresight"),
         (toy_env(), {"agent_dim": 32}, r"features_dim=32, agent_dim=32"),
         (toy_env(), {"frame_channels": 2}, r"frame_channels must divide the observation's 9 channels, got 2"),
@@ -328,3 +334,24 @@ def test_analyze_model_reads_rgb_frames_and_names_what_it_cannot_read(tmp_path):
     make(PPOEF, grey_stack()).learn(16).save(tmp_path / "grey.zip")
     with pytest.raises(ValueError, match=r"reads RGB frames and Box actions; .* 1-channel frames and Discrete\(6\)"):
         analyze_model(str(tmp_path / "grey.zip"), "PongNoFrameskip-v4", str(tmp_path / "grey"), env_kwargs={})
+
+
+@pytest.mark.parametrize("algorithm", HOSTS)
+def test_a_ring_of_rollouts_gives_windows_longer_than_a_rollout(algorithm, tmp_path):
+    model = make(
+        algorithm,
+        grey_stack(),
+        n_steps=4,
+        ef_horizon=6,
+        ef_rollouts=3,
+        **({"batch_size": 8} if algorithm is PPOEF else {}),
+    )
+    model.learn(40)  # five rollouts of 4 steps x 2 envs
+    assert len(model._ef_ring.rollouts) == 3
+    windows = model._ef_ring.windows(model._last_obs, model._last_episode_starts, 1, 6)
+    mask = windows(np.arange(windows.size)).future_mask  # 3 rollouts x 4 steps x 2 envs
+    assert mask.shape == (24, 6) and mask[:, 4].any()  # windows of 5 valid steps: past a rollout's 4
+    model.save(tmp_path / "model")
+    loaded = algorithm.load(tmp_path / "model", env=grey_stack())
+    assert loaded.ef_rollouts == 3 and not loaded._ef_ring.rollouts  # rollouts are not saved, as SB3's buffer is not
+    loaded.learn(8)

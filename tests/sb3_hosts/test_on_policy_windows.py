@@ -11,6 +11,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecFrameStack
 
 from sb3_ef import PPOEF
 from sb3_ef.common.buffers.rollout_windows import (
+    RolloutRing,
     RolloutWindows,
     action_encoding_dim,
     encode_actions,
@@ -49,6 +50,22 @@ def test_windows_stop_at_episode_ends_and_the_rollouts_end(env, step, frames, ma
     assert window.future_mask[0].tolist() == mask
     actions = [10 * env + min(step + i, 3) for i in range(3)]
     assert window.future_actions[0, :, 0].tolist() == actions
+
+
+def test_a_ring_cuts_windows_from_one_rollout_into_the_next():
+    """The hand-built rollout split in two rollouts of 2 steps: the ring joins them again."""
+    whole = hand_built_windows()
+    ring = RolloutRing(2)
+    for part in (slice(0, 2), slice(2, 4)):
+        ring.add(whole.observations[part].numpy(), whole.actions[part], whole.continues.new_zeros(2, 2).numpy(), "cpu")
+    starts = np.array([[1, 0], [0, 0], [1, 0], [0, 0]], dtype=np.float32)
+    ring.rollouts[0] = (*ring.rollouts[0][:2], th.as_tensor(starts[:2]))
+    ring.rollouts[1] = (*ring.rollouts[1][:2], th.as_tensor(starts[2:]))
+    joined = ring.windows(whole.frames[-1:].expand(1, 2, 1, 4, 4)[0].numpy().repeat(2, axis=1), np.array([0, 1]), 1, 3)
+    for index in range(8):
+        expected, window = whole(np.array([index])), joined(np.array([index]))
+        assert th.equal(window.future_mask, expected.future_mask)
+        assert th.equal(window.future_frames[window.future_mask], expected.future_frames[expected.future_mask])
 
 
 def test_valid_windows_follow_the_frame_stack_of_a_real_rollout():

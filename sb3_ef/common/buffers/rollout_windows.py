@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterator
 from typing import NamedTuple
 
@@ -67,7 +68,7 @@ class RolloutWindow(NamedTuple):
 
 class RolloutWindows:
     """The EF windows of one rollout of ``n_steps`` x ``n_envs`` steps (or of several rollouts in a row, concatenated
-    along the steps), cut at SB3's flat indices ``env * n_steps + step``; frames are stored once, as uint8.
+    along the steps: :class:`RolloutRing`), cut at SB3's flat indices ``env * n_steps + step``; frames kept as uint8.
 
     :param observations: (n_steps, n_envs, C * stack, h, w) the rollout's observations, oldest frame first.
     :param actions: (n_steps, n_envs, A) the encoded actions (:func:`encode_actions`).
@@ -91,10 +92,6 @@ class RolloutWindows:
         device: th.device | str = "cpu",
     ):
         n_steps, n_envs = episode_starts.shape
-        if not 1 <= horizon <= n_steps:
-            raise ValueError(
-                f"EF's horizon must lie in [1, n_steps={n_steps}] (windows lie in the rollout), got {horizon}"
-            )
         if tuple(observations.shape[:2]) != (n_steps, n_envs) or tuple(actions.shape[:2]) != (n_steps, n_envs):
             raise ValueError(
                 f"Expected observations and actions of shape ({n_steps}, {n_envs}, ...), got "
@@ -104,10 +101,11 @@ class RolloutWindows:
         self.observations = as_frames(observations)
         last = as_frames(last_observations)[None, :, -frame_channels:]
         self.frames = th.cat([self.observations[:, :, -frame_channels:], last])  # newest of observations 0 .. n_steps
-        starts = th.cat([th.as_tensor(np.asarray(episode_starts)), th.as_tensor(np.asarray(last_episode_starts))[None]])
-        self.continues = ~starts[1:].to(device=device, dtype=th.bool)  # observation t+1 is in t's episode
+        starts = th.cat([th.as_tensor(s, device=device).bool() for s in (episode_starts, last_episode_starts[None])])
+        self.continues = ~starts[1:]  # observation t+1 is in t's episode
         self.actions = actions.to(device)
         self.n_steps, self.horizon, self.device = n_steps, horizon, th.device(device)
+        self.size = n_steps * n_envs
 
     def __call__(self, indices: np.ndarray) -> RolloutWindow:
         """The windows starting at the flat indices ``indices`` (B,) of the rollout."""
@@ -120,3 +118,25 @@ class RolloutWindows:
         return RolloutWindow(
             self.observations[steps, envs[:, 0]], self.frames[ahead + 1, envs], self.actions[ahead, envs], mask
         )
+
+
+class RolloutRing:
+    """The last ``size`` rollouts (observations as uint8, encoded actions, episode starts), for windows that run from
+    one rollout into the next (each rollout continues where the one before it stopped, as in SB3's ``learn``)."""
+
+    def __init__(self, size: int):
+        self.rollouts: deque[tuple[th.Tensor, th.Tensor, th.Tensor]] = deque(maxlen=size)
+
+    def add(self, observations: np.ndarray, actions: th.Tensor, episode_starts: np.ndarray, device: th.device) -> None:
+        frames = th.as_tensor(observations, device=device).to(th.uint8)
+        self.rollouts.append((frames, actions.to(device), th.as_tensor(episode_starts, device=device)))
+
+    def windows(
+        self, last_observations: np.ndarray, last_episode_starts: np.ndarray, frame_channels: int, horizon: int
+    ) -> RolloutWindows:
+        """The windows of the rollouts held, oldest first, with the observations after the newest."""
+        observations, actions, starts = (th.cat(parts) for parts in zip(*self.rollouts, strict=True))
+        return RolloutWindows(
+            observations, actions, starts, last_observations, last_episode_starts, frame_channels, horizon,
+            observations.device,
+        )  # fmt: skip
