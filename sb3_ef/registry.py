@@ -31,6 +31,8 @@ class AlgorithmEntry:
     :param legacy_policy_module: the policy module of its sb3-ef 0.1.0 files (``sb3-ef upgrade``), if any.
     :param workbench: its class is the workbench's (a wrapper of another project's agent), not the library's: the
         root ``sb3_ef`` does not export it.
+    :param zoo_frame_stack: takes frames of any channel count stacked by rl-zoo3's ``frame_stack`` key (Atari's grey
+        frames); the others read RGB frames stacked inside the env.
     """
 
     key: str
@@ -41,6 +43,7 @@ class AlgorithmEntry:
     warm_start: bool = False
     legacy_policy_module: str | None = None
     workbench: bool = False
+    zoo_frame_stack: bool = False
 
     @property
     def module(self) -> str:
@@ -76,6 +79,8 @@ ALGORITHMS: dict[str, AlgorithmEntry] = {entry.key: entry for entry in (
     AlgorithmEntry("sac_ef", "sb3_ef.sb3_hosts:SACEF", ef=True, legacy_policy_module="stable_baselines3.sac.policies"),
     AlgorithmEntry("td3_ef", "sb3_ef.sb3_hosts:TD3EF", ef=True, legacy_policy_module="stable_baselines3.td3.policies"),
     AlgorithmEntry("tqc_ef", "sb3_ef.sb3_hosts:TQCEF", ef=True, legacy_policy_module="sb3_contrib.tqc.policies"),
+    AlgorithmEntry("ppo_ef", "sb3_ef.sb3_hosts:PPOEF", ef=True, own_exploration=True, zoo_frame_stack=True),
+    AlgorithmEntry("a2c_ef", "sb3_ef.sb3_hosts:A2CEF", ef=True, own_exploration=True, zoo_frame_stack=True),
     # sheeprl's Dreamer-v3 behind SB3's interface: a class of the workbench, which the library never imports.
     AlgorithmEntry("dreamerv3", "sb3_ef.dreamerv3:DreamerV3", paper=True, own_exploration=True, workbench=True),
 )}  # fmt: skip

@@ -178,6 +178,11 @@ def analyze_model(
     model = load_ef_model(path, algo)
     if getattr(model, "ef", None) is None:
         raise ValueError(f"{path} is a {type(model).__name__} without Ego-Foresight: nothing to analyze")
+    if model.frame_shape[0] != 3 or not isinstance(model.action_space, gym.spaces.Box):
+        raise ValueError(
+            f"`analyze model` reads RGB frames and Box actions; {path} holds a {type(model).__name__} of "
+            f"{model.frame_shape[0]}-channel frames and {model.action_space} actions"
+        )
     frame_stack = model.observation_space.shape[0] // 3
     if env_kwargs is None:
         env_kwargs = run_env_kwargs(path)

@@ -63,10 +63,17 @@ def load_config(path: str | Path) -> dict[str, dict[str, Any]]:
     return config
 
 
+def is_atari(env_id: str) -> bool:
+    """Whether ``env_id`` is an ALE game (rl-zoo3 gives it a config's ``atari`` entry)."""
+    return env_id in gym.envs.registry and "AtariEnv" in str(gym.envs.registry[env_id].entry_point)
+
+
 def select_entry(config: dict[str, dict[str, Any]], env_id: str) -> dict[str, Any]:
-    """The entry rl-zoo3 would use for ``env_id``: its own, else ``default`` (a copy)."""
+    """The entry rl-zoo3 would use for ``env_id``: its own, else ``atari`` (an ALE game), else ``default`` (a copy)."""
     if env_id in config:
         return dict(config[env_id])
+    if "atari" in config and is_atari(env_id):
+        return dict(config["atari"])
     if "default" in config:
         return dict(config["default"])
     raise ValueError(f"No entry for env {env_id!r} and no 'default' entry; entries: {sorted(config)}")
@@ -88,9 +95,13 @@ def allowed_keys(algo_class: type) -> frozenset[str]:
 
 def check_keys(algo: str, algo_class: type, keys: Any, where: str) -> None:
     """Raise ``ValueError`` naming the first key that ``algo_class`` (through rl-zoo3) would not accept."""
-    own_exploration = registry.entry(algo).own_exploration
-    allowed = allowed_keys(algo_class) | (frozenset() if own_exploration else NOISE_KEYS)
-    rejected = {**REJECTED_KEYS, **(REJECTED_PAPER_KEYS if own_exploration else {})}
+    item = registry.entry(algo)
+    allowed = allowed_keys(algo_class) | (frozenset() if item.own_exploration else NOISE_KEYS)
+    allowed |= {"frame_stack"} if item.zoo_frame_stack else frozenset()
+    rejected = {
+        **({} if item.zoo_frame_stack else REJECTED_KEYS),
+        **(REJECTED_PAPER_KEYS if item.own_exploration else {}),
+    }
     for key in keys:
         if key in rejected:
             raise ValueError(f"{where}: key {key!r} is not supported for {algo}: {rejected[key]}")
@@ -126,7 +137,7 @@ def validate_config(algo: str, algo_class: type, config: dict[str, dict[str, Any
     """Check every entry of a zoo config; a ``ValueError`` names the entry and the key or id."""
     for name, entry in config.items():
         where = f"{source}, entry {name!r}"
-        if name != "default" and name not in gym.envs.registry:
+        if name not in ("default", "atari") and name not in gym.envs.registry:
             raise ValueError(f"{where}: env id {name!r} is not registered with gymnasium (did `import sb3_ef` run?)")
         check_keys(algo, algo_class, entry, where)
         check_values(entry, where)

@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import gymnasium as gym
 import numpy as np
 import torch as th
+from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.monitor import Monitor
 
 from sb3_ef.envs.toy import ToyAgentEnv
 
@@ -21,6 +26,12 @@ def random_return(env: gym.Env, episodes: int) -> float:
             total, done = total + float(reward), terminated or truncated
         returns.append(total)
     return float(np.mean(returns))
+
+
+def trained_and_random_returns(model: Any, make_env: Callable[[], gym.Env], episodes: int = 20) -> tuple[float, float]:
+    """The model's mean deterministic return over ``episodes`` of a fresh env, and :func:`random_return`'s."""
+    trained, _ = evaluate_policy(model, Monitor(make_env()), n_eval_episodes=episodes)
+    return float(trained), random_return(make_env(), episodes)
 
 
 def toy_babbling_windows(size: int, episodes: int, seed: int, horizon: int, episode: int) -> dict[str, th.Tensor]:

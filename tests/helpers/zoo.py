@@ -27,8 +27,9 @@ _SB3_POLICY = (
 )
 _EF_POLICY = {"agent_dim": 8, "ef_kwargs": {"decoder_channels": 8, "rollout_hidden_dims": (16,)}}
 _EF_ALGO = {"ef_horizon": 3, "babbling_steps": 20}
+_ON_POLICY = {"agent_dim": 8, "ef_kwargs": _EF_POLICY["ef_kwargs"], **_EF_ALGO, "policy_kwargs": _SB3_POLICY}
 
-#: Per algorithm: hyperparameter overrides (buffer, batch, warm-up, network sizes).
+#: Per algorithm: hyperparameter overrides (buffer, batch, warm-up, network sizes; PPO-EF's and A2C-EF's rollouts).
 HYPERPARAMS: dict[str, dict[str, Any]] = {
     "drqv2_ef": {
         "buffer_size": 4000,
@@ -58,6 +59,8 @@ HYPERPARAMS: dict[str, dict[str, Any]] = {
         }
         for algo in ("sac_ef", "td3_ef", "tqc_ef")
     },
+    "ppo_ef": {"n_steps": 20, "batch_size": 20, "n_epochs": 1, **_ON_POLICY},
+    "a2c_ef": {"n_steps": 20, **_ON_POLICY},
     "sear": {
         "buffer_size": 4000,
         "batch_size": 8,

@@ -45,7 +45,7 @@ def check_entry(algo: str, env_id: str, model, overrides: dict[str, Any], size: 
         for key in ("buffer_size", "batch_size", "learning_starts", "tau", "n_steps", "horizon", "beta", "ef_horizon"):
             if key in entry:
                 assert getattr(model, key) == entry[key], key
-        assert model.replay_buffer is not None
+        assert getattr(model, "replay_buffer", None) is not None or model.rollout_buffer is not None
     finally:
         model.env.close()
 
@@ -64,7 +64,7 @@ def test_all_entries_build_env_and_model_at_paper_sizes(algo, tmp_path):
     overrides = {"buffer_size": 1000}
     config = load_config(default_config_path(algo))
     for env_id, entry in config.items():
-        if env_id == "default":
+        if env_id in ("default", "atari"):  # the atari entry: test_atari_entries_build_ef_on_grey_frame_stacks
             continue
         size = 64 if algo.startswith("tdmpc2") else 100 if algo == "curl" else 84
         env_kwargs = {**entry.get("env_kwargs", {}), "size": size, "fast_render": True}
@@ -72,3 +72,16 @@ def test_all_entries_build_env_and_model_at_paper_sizes(algo, tmp_path):
             env_kwargs["distraction"] = ["camera", "color"]
         model = build(algo, env_id, str(tmp_path), overrides, env_kwargs)
         check_entry(algo, env_id, model, overrides, size)
+
+
+@pytest.mark.parametrize(("algo", "n_envs"), [("ppo_ef", 8), ("a2c_ef", 16)])
+def test_atari_entries_build_ef_on_grey_frame_stacks(algo, n_envs, tmp_path):
+    """rl-zoo3 picks the ``atari`` entry for an ALE id: its AtariWrapper and 4 stacked grey frames, EF on the newest."""
+    pytest.importorskip("ale_py")
+    model = build(algo, "BreakoutNoFrameskip-v4", str(tmp_path), {"ef_kwargs": {"decoder_channels": 8}}, {})
+    try:
+        assert type(model) is algorithm_classes()[algo]
+        assert (model.n_envs, model.observation_space.shape, model.frame_shape) == (n_envs, (4, 84, 84), (1, 84, 84))
+        assert (model.ef.action_dim, model.ef_horizon, model.beta) == (4, 10 if algo == "ppo_ef" else 5, 0.01)
+    finally:
+        model.env.close()

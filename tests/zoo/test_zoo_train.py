@@ -40,7 +40,7 @@ def test_training_runs_and_saves_a_loadable_model(trained, algo):
     assert path.is_file()
     model = algorithm_classes()[algo].load(path, device="cpu")
     assert model.num_timesteps == STEPS
-    assert model.batch_size == HYPERPARAMS[algo]["batch_size"]
+    assert model.batch_size == HYPERPARAMS[algo]["batch_size"] if algo != "a2c_ef" else model.n_steps == 20
     assert model.observation_space.shape == (9, ENV_KWARGS[algo]["size"], ENV_KWARGS[algo]["size"])
     # Updates happened after the warm-up (learning_starts 40).
     assert model._n_updates > 0

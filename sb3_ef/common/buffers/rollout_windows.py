@@ -1,0 +1,142 @@
+"""Ego-Foresight windows cut from an on-policy rollout, actions encoded for EF (docs/ef.md, "EF on on-policy hosts")."""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Iterator
+from typing import NamedTuple
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.buffers import RolloutBuffer
+from stable_baselines3.common.type_aliases import RolloutBufferSamples
+from torch.nn import functional as F
+
+ENCODED_ACTION_SPACES = "Box (finite bounds), Discrete, MultiDiscrete or MultiBinary"
+
+
+def action_encoding_dim(space: spaces.Space) -> int:
+    """Size of one action as EF reads it: a Box's components, Discrete and MultiDiscrete one-hot, MultiBinary's bits."""
+    if isinstance(space, spaces.Box) and np.isfinite(space.low).all() and np.isfinite(space.high).all():
+        return int(np.prod(space.shape))
+    if isinstance(space, spaces.Discrete):
+        return int(space.n)
+    if isinstance(space, spaces.MultiDiscrete) and space.nvec.ndim == 1:
+        return int(space.nvec.sum())
+    if isinstance(space, spaces.MultiBinary):
+        return int(np.prod(space.shape))
+    raise ValueError(f"Ego-Foresight encodes actions of a {ENCODED_ACTION_SPACES} space, got {space}")
+
+
+def encode_actions(actions: th.Tensor, space: spaces.Space) -> th.Tensor:
+    """SB3's rollout actions ``(..., get_action_dim(space))`` as EF's float inputs ``(..., action_encoding_dim)``: a
+    Box's clipped to its bounds and scaled to [-1, 1] (what the env ran), one-hots, MultiBinary's bits."""
+    if isinstance(space, spaces.Box):
+        low, high = (
+            th.as_tensor(bound, dtype=th.float32, device=actions.device).flatten() for bound in (space.low, space.high)
+        )
+        return 2.0 * (th.minimum(th.maximum(actions, low), high) - low) / (high - low) - 1.0
+    if isinstance(space, spaces.MultiBinary):
+        return actions.float()
+    sizes = [int(space.n)] if isinstance(space, spaces.Discrete) else [int(n) for n in space.nvec]  # type: ignore[attr-defined]
+    one_hots = [F.one_hot(actions[..., i].long(), size) for i, size in enumerate(sizes)]
+    return th.cat(one_hots, dim=-1).float()
+
+
+def rollout_minibatches(
+    buffer: RolloutBuffer, batch_size: int | None
+) -> Iterator[tuple[np.ndarray, RolloutBufferSamples]]:
+    """SB3's ``buffer.get(batch_size)``, each minibatch with its flat indices ``env * n_steps + step``: ``get`` draws
+    one permutation from numpy's global generator, drawn here first from a copy of its state."""
+    state = np.random.get_state()
+    indices = np.random.permutation(buffer.buffer_size * buffer.n_envs)
+    np.random.set_state(state)
+    size = batch_size or len(indices)
+    batches = [indices[start : start + size] for start in range(0, len(indices), size)]
+    yield from zip(batches, buffer.get(batch_size), strict=True)
+
+
+class RolloutWindow(NamedTuple):
+    """EF's windows starting at some steps of a rollout (what ``ForesightLoss.prepare`` reads)."""
+
+    observations: th.Tensor  # (B, C * stack, h, w) uint8: the observation at t
+    future_frames: th.Tensor  # (B, H, C, h, w) uint8: the newest frame of the observations t+1 .. t+H
+    future_actions: th.Tensor  # (B, H, A) float: the encoded actions t .. t+H-1
+    future_mask: th.Tensor  # (B, H) bool: step t+i was taken in t's episode and its next observation is in the rollout
+
+
+class RolloutWindows:
+    """The EF windows of one rollout of ``n_steps`` x ``n_envs`` steps (or of several rollouts in a row, concatenated
+    along the steps: :class:`RolloutRing`), cut at SB3's flat indices ``env * n_steps + step``; frames kept as uint8.
+
+    :param observations: (n_steps, n_envs, C * stack, h, w) the rollout's observations, oldest frame first.
+    :param actions: (n_steps, n_envs, A) the encoded actions (:func:`encode_actions`).
+    :param episode_starts: (n_steps, n_envs) observation t is the first of its episode (SB3's ``episode_starts``).
+    :param last_observations: (n_envs, C * stack, h, w) the observations after the last step.
+    :param last_episode_starts: (n_envs,) whether those start an episode (the last step ended one).
+    :param frame_channels: channels of one frame: the last ``frame_channels`` channels are the newest frame.
+    :param horizon: H, the window's steps.
+    :param device: where the windows are gathered.
+    """
+
+    def __init__(
+        self,
+        observations: np.ndarray | th.Tensor,
+        actions: th.Tensor,
+        episode_starts: np.ndarray | th.Tensor,
+        last_observations: np.ndarray | th.Tensor,
+        last_episode_starts: np.ndarray | th.Tensor,
+        frame_channels: int,
+        horizon: int,
+        device: th.device | str = "cpu",
+    ):
+        n_steps, n_envs = episode_starts.shape
+        if tuple(observations.shape[:2]) != (n_steps, n_envs) or tuple(actions.shape[:2]) != (n_steps, n_envs):
+            raise ValueError(
+                f"Expected observations and actions of shape ({n_steps}, {n_envs}, ...), got "
+                f"{tuple(observations.shape)} and {tuple(actions.shape)}"
+            )
+        as_frames = lambda array: th.as_tensor(array, device=device).to(th.uint8)  # noqa: E731  (SB3 keeps float32)
+        self.observations = as_frames(observations)
+        last = as_frames(last_observations)[None, :, -frame_channels:]
+        self.frames = th.cat([self.observations[:, :, -frame_channels:], last])  # newest of observations 0 .. n_steps
+        starts = th.cat([th.as_tensor(s, device=device).bool() for s in (episode_starts, last_episode_starts[None])])
+        self.continues = ~starts[1:]  # observation t+1 is in t's episode
+        self.actions = actions.to(device)
+        self.n_steps, self.horizon, self.device = n_steps, horizon, th.device(device)
+        self.size = n_steps * n_envs
+
+    def __call__(self, indices: np.ndarray) -> RolloutWindow:
+        """The windows starting at the flat indices ``indices`` (B,) of the rollout."""
+        index = th.as_tensor(indices, device=self.device)
+        envs, steps = (index // self.n_steps)[:, None], index % self.n_steps
+        ahead = steps[:, None] + th.arange(self.horizon, device=self.device)  # steps t .. t+H-1
+        inside = ahead < self.n_steps
+        ahead = ahead.clamp(max=self.n_steps - 1)
+        mask = (self.continues[ahead, envs] & inside).int().cumprod(dim=1).bool()
+        return RolloutWindow(
+            self.observations[steps, envs[:, 0]], self.frames[ahead + 1, envs], self.actions[ahead, envs], mask
+        )
+
+
+class RolloutRing:
+    """The last ``size`` rollouts (observations as uint8, encoded actions, episode starts), for windows that run from
+    one rollout into the next (each rollout continues where the one before it stopped, as in SB3's ``learn``)."""
+
+    def __init__(self, size: int):
+        self.rollouts: deque[tuple[th.Tensor, th.Tensor, th.Tensor]] = deque(maxlen=size)
+
+    def add(self, observations: np.ndarray, actions: th.Tensor, episode_starts: np.ndarray, device: th.device) -> None:
+        frames = th.as_tensor(observations, device=device).to(th.uint8)
+        self.rollouts.append((frames, actions.to(device), th.as_tensor(episode_starts, device=device)))
+
+    def windows(
+        self, last_observations: np.ndarray, last_episode_starts: np.ndarray, frame_channels: int, horizon: int
+    ) -> RolloutWindows:
+        """The windows of the rollouts held, oldest first, with the observations after the newest."""
+        observations, actions, starts = (th.cat(parts) for parts in zip(*self.rollouts, strict=True))
+        return RolloutWindows(
+            observations, actions, starts, last_observations, last_episode_starts, frame_channels, horizon,
+            observations.device,
+        )  # fmt: skip
