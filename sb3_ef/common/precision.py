@@ -19,10 +19,9 @@ import torch as th
 from stable_baselines3.common.utils import get_device
 from torch import nn
 
-from sb3_ef.common.validation import check_choice
+from sb3_ef.common.validation import PRECISIONS, check_choice
 
-#: ``"fp32"``: float32 throughout (the authors' maths); ``"bf16"``: bfloat16 autocast of the forward and backward.
-PRECISIONS = ("fp32", "bf16")
+__all__ = ["PRECISIONS", "autocast", "check_precision", "float32", "float32_outputs"]
 
 
 def check_precision(precision: Any, device: th.device | str) -> str:

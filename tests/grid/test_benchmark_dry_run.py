@@ -173,7 +173,8 @@ def test_bad_keys_of_several_blocks_are_all_reported(tmp_path, capsys):
     status, errors = benchmark(tmp_path, capsys, first, second)
     assert status == 2
     assert len(errors) == 3
-    assert "grids[0]: hyperparams of 'drqv2': unknown key 'batch_sise' for drqv2 (did you mean 'batch_size'?)" in (
-        errors[1]
+    assert (
+        "grids[0]: hyperparams of 'drqv2': unknown key 'batch_sise' for drqv2 (did you mean 'batch_size'?)"
+        in (errors[1])
     )
     assert "grids[1]: hyperparams of 'curl': unknown key 'beta' for curl" in errors[2]
