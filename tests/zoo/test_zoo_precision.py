@@ -7,24 +7,11 @@ import torch as th
 
 from sb3_ef import DrQv2EF
 from sb3_ef.zoo import train
+from tests.helpers.zoo import HYPERPARAMS as TINY
 from tests.helpers.zoo import cli_pairs
 
 ENV_ID, ENV_NAME = "toy/agent-v0", "toy-agent-v0"
-HYPERPARAMS = {
-    "precision": "bf16",
-    "buffer_size": 300,
-    "batch_size": 8,
-    "learning_starts": 20,
-    "ef_horizon": 3,
-    "babbling_steps": 10,
-    "policy_kwargs": {
-        "net_arch": [16],
-        "trunk_dim": 8,
-        "features_dim": 16,
-        "agent_dim": 4,
-        "ef_kwargs": {"decoder_channels": 4, "rollout_hidden_dims": (8,)},
-    },
-}
+HYPERPARAMS = {**TINY["drqv2_ef"], "precision": "bf16", "learning_starts": 20, "babbling_steps": 10}
 
 
 def _argv(log_folder) -> list[str]:
