@@ -97,12 +97,17 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
         )
         with n_steps_given_to_buffer():
             super()._setup_model()
-        if self.precision != "fp32":  # the actor's Gaussian (SB3's log-probability maths) in float32
-            float32_outputs(self.actor.mu, getattr(self.actor, "log_std", None))  # type: ignore[attr-defined]
         auxiliary = self._build_auxiliary()
         if auxiliary is not None:
             self.auxiliary_module = auxiliary.to(self.device)
             self.auxiliary_optimizer = self._auxiliary_adam(auxiliary.parameters())
+        if self.precision == "bf16":
+            # The actor's Gaussian (SB3's log-probability maths) in float32; channels-last convolutions, 1.07x faster
+            # bf16 updates on a CPU (docs/precision.md; float32 keeps its layout, and its bits).
+            float32_outputs(self.actor.mu, getattr(self.actor, "log_std", None))  # type: ignore[attr-defined]
+            for module in (self.actor, self.critic, self.critic_target, auxiliary):  # type: ignore[attr-defined]
+                if module is not None:
+                    module.to(memory_format=th.channels_last)
 
     def _auxiliary_adam(self, parameters: Iterable[nn.Parameter]) -> th.optim.Optimizer:
         """An Adam over ``parameters`` and the critic's features extractor at the auxiliary learning rate."""
