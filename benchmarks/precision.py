@@ -240,45 +240,40 @@ def machine() -> str:
     return f"{model} ({os.cpu_count()} cores, {bf16}), torch {th.__version__}"
 
 
+#: Each section's table: its columns, and each row's cells from a measured row.
+TABLES: dict[str, tuple[str, Callable[[dict[str, Any]], str]]] = {
+    "updates": (
+        "update | threads | batch | authors ms | fp32 ms | bf16 ms | fp32 vs authors | bf16 vs authors | bf16 vs fp32",
+        lambda r: (
+            f"{r['update']} | {r['threads']} | {r['batch']} | {r['authors_ms']} | {r['fp32_ms']} | {r['bf16_ms']} "
+            f"| {r['fp32_vs_authors']:.2f}x | {r['bf16_vs_authors']:.2f}x | {r['bf16_vs_fp32']:.2f}x"
+        ),
+    ),
+    "plan": (
+        "TD-MPC2 plan, threads | GFLOP/action | authors ms | fp32 ms | bf16 ms | bf16 vs authors | bf16 vs fp32 "
+        "| fp32 GFLOP/s (GEMM's, share) | bf16 GFLOP/s (GEMM's, share)",
+        lambda r: (
+            f"{r['threads']} | {r['gflop_per_action']} | {r['authors_ms']} | {r['fp32_ms']} | {r['bf16_ms']} "
+            f"| {r['bf16_vs_authors']:.2f}x | {r['bf16_vs_fp32']:.2f}x "
+            f"| {r['fp32_gflops']} ({r['fp32_gemm_gflops']}, {r['fp32_of_gemm']:.0%}) "
+            f"| {r['bf16_gflops']} ({r['bf16_gemm_gflops']}, {r['bf16_of_gemm']:.0%})"
+        ),
+    ),
+    "loop": (
+        "DrQv2-EF learn loop, threads | batch | agent steps/s fp32 | agent steps/s bf16 | bf16 vs fp32",
+        lambda r: (
+            f"{r['threads']} | {r['batch']} | {r['fp32_steps_per_s']} | {r['bf16_steps_per_s']} "
+            f"| {r['bf16_vs_fp32']:.2f}x"
+        ),
+    ),
+}
+
+
 def markdown(results: dict[str, list[dict[str, Any]]], header: str) -> str:
-    lines = [header, ""]
-    if results.get("updates"):
-        lines += [
-            "| update | threads | batch | authors fp32 ms | fp32 ms | bf16 ms | fp32 vs authors | bf16 vs authors "
-            "| bf16 vs fp32 |",
-            "|---|---|---|---|---|---|---|---|---|",
-        ]
-        for r in results["updates"]:
-            lines.append(
-                f"| {r['update']} | {r['threads']} | {r['batch']} | {r['authors_ms']} | {r['fp32_ms']} "
-                f"| {r['bf16_ms']} | {r['fp32_vs_authors']:.2f}x | {r['bf16_vs_authors']:.2f}x "
-                f"| {r['bf16_vs_fp32']:.2f}x |"
-            )
-        lines.append("")
-    if results.get("plan"):
-        lines += [
-            "| TD-MPC2 plan | GFLOP/action | authors fp32 ms | fp32 ms | bf16 ms | bf16 vs authors | bf16 vs fp32 "
-            "| fp32 GFLOP/s (GEMM's) | bf16 GFLOP/s (GEMM's) |",
-            "|---|---|---|---|---|---|---|---|---|",
-        ]
-        for r in results["plan"]:
-            lines.append(
-                f"| {r['threads']} thread(s) | {r['gflop_per_action']} | {r['authors_ms']} | {r['fp32_ms']} "
-                f"| {r['bf16_ms']} | {r['bf16_vs_authors']:.2f}x | {r['bf16_vs_fp32']:.2f}x "
-                f"| {r['fp32_gflops']} ({r['fp32_gemm_gflops']}, {r['fp32_of_gemm']:.0%}) "
-                f"| {r['bf16_gflops']} ({r['bf16_gemm_gflops']}, {r['bf16_of_gemm']:.0%}) |"
-            )
-        lines.append("")
-    if results.get("loop"):
-        lines += [
-            "| DrQv2-EF learn loop | batch | agent steps/s fp32 | agent steps/s bf16 | bf16 vs fp32 |",
-            "|---|---|---|---|---|",
-        ]
-        for r in results["loop"]:
-            lines.append(
-                f"| {r['threads']} thread(s) | {r['batch']} | {r['fp32_steps_per_s']} | {r['bf16_steps_per_s']} "
-                f"| {r['bf16_vs_fp32']:.2f}x |"
-            )
+    lines = [header]
+    for section, rows in results.items():
+        columns, cells = TABLES[section]
+        lines += ["", f"| {columns} |", "|---" * (columns.count("|") + 1) + "|", *(f"| {cells(r)} |" for r in rows)]
     return "\n".join(lines) + "\n"
 
 
