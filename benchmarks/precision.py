@@ -11,11 +11,16 @@ In one process, on the CPU, with 1 and 2 torch threads and batches of 64 and 256
 - ``plan``: one TD-MPC2 action (MPPI, 6 iterations of 512 samples, horizon 3) for one env, sb3-ef's planner in
   float32 and bf16 and the authors' ``_plan``; its FLOP (matrix maths, counted by ``torch.utils.flop_counter``) and
   GFLOP/s, against a GEMM of the planner's main shape (512 x 512 by 512) in the same precision on the same threads.
-- ``loop``: agent steps/s of DrQv2-EF's whole ``learn`` loop (acting, rendering, buffer, an update every 2 steps at
-  the first batch size) on dmc/cartpole-balance at 84x84, float32 and bf16 in interleaved segments.
+- ``hosts``: ``train(1)`` of SEAR, CURL and SAC-EF, TD3-EF and TQC-EF (SB3's NatureCNN on 84x84 frames, CURL's
+  encoder on 84x84 crops; at the first thread count and batch size), in float32, in bf16, and in bf16 without the
+  channels-last convolutions bf16 adds (SEAR's decoders, the SB3 hosts' and CURL's encoders and EF decoders),
+  interleaved.
+- ``loop``: agent steps/s of DrQv2-EF's whole ``learn`` loop (acting, rendering, buffer, an update every 2 steps; at
+  the first thread count and batch size) on dmc/cartpole-balance at 84x84, float32 and bf16 in interleaved segments.
 
 The machine is shared: every figure is a median of interleaved repeats, and the load average is printed before and
-after. The defaults take about 8 minutes on 2 cores; ``--full`` repeats more (7 rounds, longer loop segments).
+after. The defaults take about 10 minutes on 2 cores; ``--full`` repeats more (7 rounds, longer loop segments) and
+runs every section at every thread count.
 
     MUJOCO_GL=egl python benchmarks/precision.py --out /tmp/precision
     MUJOCO_GL=egl python benchmarks/precision.py --sections plan --threads 1 --repeats 5
@@ -41,9 +46,12 @@ import torch as th
 from torch.utils.flop_counter import FlopCounterMode
 
 from sb3_ef.common.precision import PRECISIONS, autocast
+from sb3_ef.curl import CURL
 from sb3_ef.drqv2 import DrQv2, DrQv2EF
 from sb3_ef.envs import make_env
 from sb3_ef.envs.toy import ToyAgentEnv
+from sb3_ef.sb3_hosts import SACEF, TD3EF, TQCEF
+from sb3_ef.sear import SEAR
 from sb3_ef.tdmpc2 import TDMPC2
 from sb3_ef.tdmpc2.sequence import SHIFT_PAD, training_sequence
 
@@ -204,6 +212,53 @@ def measure_plan(threads: int, repeats: int) -> dict[str, Any]:
     return row
 
 
+def channels_last_modules(model: Any) -> list[Any]:
+    """The convolutions bf16 keeps channels-last where float32 does not: SEAR's decoders; the SB3 hosts' and CURL's
+    actor, critic, target and auxiliary module."""
+    if isinstance(model, SEAR):
+        return [model.auxiliary]
+    return [model.actor, model.critic, model.critic_target, model.auxiliary_module]
+
+
+#: The other hosts: name: (class, rendered frame size, extra arguments).
+HOSTS: dict[str, tuple[type, int, dict[str, Any]]] = {
+    "SEAR": (SEAR, 84, {}),
+    "CURL": (CURL, 100, {}),
+    "SACEF": (SACEF, 84, {"babbling_steps": 0}),
+    "TD3EF": (TD3EF, 84, {"babbling_steps": 0}),
+    "TQCEF": (TQCEF, 84, {"babbling_steps": 0}),
+}
+
+
+def measure_host(name: str, threads: int, batch_size: int, repeats: int) -> dict[str, Any]:
+    """``train(1)`` of a host in float32, in bf16, and in bf16 without its channels-last convolutions, interleaved."""
+    th.set_num_threads(threads)
+    algorithm, size, kwargs = HOSTS[name]
+    models = {}
+    for variant, precision in (("fp32", "fp32"), ("bf16", "bf16"), ("bf16_contiguous", "bf16")):
+        env = ToyAgentEnv(size=size, max_episode_steps=100, agent_masks=algorithm is SEAR)
+        models[variant] = algorithm(
+            "CnnPolicy", env, batch_size=batch_size, buffer_size=WARMUP_STEPS, learning_starts=WARMUP_STEPS - 10,
+            seed=0, device="cpu", precision=precision, **kwargs,
+        )  # fmt: skip
+        if variant == "bf16_contiguous":
+            for module in channels_last_modules(models[variant]):
+                module.to(memory_format=th.contiguous_format)
+        models[variant].learn(WARMUP_STEPS)  # the buffer filled, the first updates run
+    times: dict[str, list[float]] = {variant: [] for variant in models}
+    for _ in range(repeats):
+        for variant, model in models.items():
+            start = time.perf_counter()
+            model.train(1, batch_size)
+            times[variant].append(time.perf_counter() - start)
+    ms = {variant: median_ms(values) for variant, values in times.items()}
+    return {
+        "host": name, "threads": threads, "batch": batch_size, **{f"{v}_ms": value for v, value in ms.items()},
+        "bf16_vs_fp32": round(ms["fp32"] / ms["bf16"], 2),
+        "channels_last_in_bf16": round(ms["bf16_contiguous"] / ms["bf16"], 2),
+    }  # fmt: skip
+
+
 def measure_loop(threads: int, batch_size: int, steps: int, segments: int) -> dict[str, Any]:
     """Agent steps/s of DrQv2-EF's ``learn`` on a rendered DMC task, float32 and bf16 in interleaved segments."""
     th.set_num_threads(threads)
@@ -259,6 +314,14 @@ TABLES: dict[str, tuple[str, Callable[[dict[str, Any]], str]]] = {
             f"| {r['bf16_gflops']} ({r['bf16_gemm_gflops']}, {r['bf16_of_gemm']:.0%})"
         ),
     ),
+    "hosts": (
+        "host | threads | batch | fp32 ms | bf16 ms | bf16 without channels-last ms | bf16 vs fp32 "
+        "| channels-last in bf16",
+        lambda r: (
+            f"{r['host']} | {r['threads']} | {r['batch']} | {r['fp32_ms']} | {r['bf16_ms']} "
+            f"| {r['bf16_contiguous_ms']} | {r['bf16_vs_fp32']:.2f}x | {r['channels_last_in_bf16']:.2f}x"
+        ),
+    ),
     "loop": (
         "DrQv2-EF learn loop, threads | batch | agent steps/s fp32 | agent steps/s bf16 | bf16 vs fp32",
         lambda r: (
@@ -279,15 +342,13 @@ def markdown(results: dict[str, list[dict[str, Any]]], header: str) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument(
-        "--sections", nargs="+", choices=["updates", "plan", "loop"], default=["updates", "plan", "loop"]
-    )
+    parser.add_argument("--sections", nargs="+", choices=list(TABLES), default=list(TABLES))
     parser.add_argument("--updates", nargs="+", choices=list(UPDATES), default=list(UPDATES))
     parser.add_argument("--threads", nargs="+", type=int, default=[1, 2])
     parser.add_argument("--batch-sizes", nargs="+", type=int, default=[64, 256])
     parser.add_argument("--repeats", type=int, default=3, help="timed rounds (after one untimed round)")
     parser.add_argument("--loop-steps", type=int, default=20, help="agent steps per timed segment of the learn loop")
-    parser.add_argument("--full", action="store_true", help="7 rounds, loop segments of 100 steps")
+    parser.add_argument("--full", action="store_true", help="7 rounds, loop segments of 100 steps, every section")
     parser.add_argument("--out", type=Path, help="writes OUT.json and OUT.md")
     args = parser.parse_args(argv)
     if args.full:
@@ -298,18 +359,24 @@ def main(argv: list[str] | None = None) -> None:
     print(header, flush=True)
     started = time.perf_counter()
     results: dict[str, list[dict[str, Any]]] = {section: [] for section in args.sections}
+
+    def record(section: str, row: dict[str, Any]) -> None:
+        results[section].append(row)
+        print(json.dumps(row), flush=True)
+
     for threads in args.threads:
         if "updates" in args.sections:
             for batch_size in args.batch_sizes:
                 for name in args.updates:
-                    results["updates"].append(measure_updates(name, threads, batch_size, args.repeats))
-                    print(json.dumps(results["updates"][-1]), flush=True)
+                    record("updates", measure_updates(name, threads, batch_size, args.repeats))
         if "plan" in args.sections:
-            results["plan"].append(measure_plan(threads, args.repeats))
-            print(json.dumps(results["plan"][-1]), flush=True)
-        if "loop" in args.sections:
-            results["loop"].append(measure_loop(threads, args.batch_sizes[0], args.loop_steps, args.repeats))
-            print(json.dumps(results["loop"][-1]), flush=True)
+            record("plan", measure_plan(threads, args.repeats))
+        # The slower sections at the first thread count and batch size only (``--full``: at every thread count).
+        if threads == args.threads[0] or args.full:
+            for name in HOSTS if "hosts" in args.sections else ():
+                record("hosts", measure_host(name, threads, args.batch_sizes[0], args.repeats))
+            if "loop" in args.sections:
+                record("loop", measure_loop(threads, args.batch_sizes[0], args.loop_steps, args.repeats))
     header += f", after: {os.getloadavg()[0]:.1f}; {time.perf_counter() - started:.0f} s"
     table = markdown(results, header)
     print(table)
