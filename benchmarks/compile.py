@@ -1,4 +1,5 @@
-"""Updates/s of eager and compiled (``compile=...``) updates of DrQv2EF and TDMPC2EF, measured side by side.
+"""Updates/s of eager and compiled (``compile=...``) updates of DrQv2EF and TDMPC2EF, measured side by side, in
+float32 or (``--precision bf16``) bfloat16 mixed precision.
 
 Both models of an algorithm are built alike (fast-rendering cartpole, buffer filled by warm-up steps, first updates
 done, which for the compiled model includes compiling: its build time is reported); then ``train()`` is timed in
@@ -7,6 +8,7 @@ interleaved rounds and the medians are reported.
 Usage (headless rendering needs EGL)::
 
     MUJOCO_GL=egl python benchmarks/compile.py --threads 1
+    MUJOCO_GL=egl python benchmarks/compile.py --threads 1 --precision bf16
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import torch as th
 from throughput import Setting, build, timed
 
 from sb3_ef.common.compile import COMPILE_MODES
+from sb3_ef.common.precision import PRECISIONS
 from sb3_ef.drqv2 import DrQv2EF
 from sb3_ef.tdmpc2 import TDMPC2EF
 
@@ -39,12 +42,16 @@ def main() -> None:
     parser.add_argument("--updates", type=int, default=10, help="updates per timed round")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
+    parser.add_argument("--precision", choices=PRECISIONS, default="fp32", help="both models' precision")
     args = parser.parse_args()
     th.set_num_threads(args.threads)
     compile_option = True if args.mode == "True" else args.mode
 
     device = "CUDA " + th.cuda.get_device_name() if th.cuda.is_available() else f"CPU, {args.threads} torch threads"
-    print(f"{device}, compile={compile_option!r}, load average before: {os.getloadavg()[0]:.1f}")
+    print(
+        f"{device}, compile={compile_option!r}, precision={args.precision}, "
+        f"load average before: {os.getloadavg()[0]:.1f}"
+    )
     print(
         "| algorithm | frames, batch | updates/s eager | updates/s compiled | compiled/eager "
         "| build s (eager, compiled) |"
@@ -57,7 +64,8 @@ def main() -> None:
         models, build_seconds = {}, {}
         for variant, option in (("eager", False), ("compiled", compile_option)):
             start = time.perf_counter()
-            models[variant] = build(algorithm, setting, {**kwargs, "babbling_steps": 0, "compile": option})
+            options = {**kwargs, "babbling_steps": 0, "compile": option, "precision": args.precision}
+            models[variant] = build(algorithm, setting, options)
             build_seconds[variant] = time.perf_counter() - start
         rates: dict[str, list[float]] = {variant: [] for variant in models}
         for _ in range(args.repeats):

@@ -17,6 +17,8 @@ Dreamer-v3 trains in sheeprl's loop at its own settings (the S model, batch 16 s
 ``loop_steps`` steps of that loop after a warm-up (``warmup_steps`` random steps, then ``loop_steps`` of training),
 and it has no sample or ``train()`` timing; it runs eager (sheeprl's own ``algo.compile`` is not measured here).
 
+``--precision bf16`` runs every algorithm in bfloat16 mixed precision (its ``precision`` argument, docs/precision.md).
+
 Writes JSON and a Markdown table (``--out PATH`` gives ``PATH.json`` and ``PATH.md``). Eager runs go first; a run
 that would start past ``--budget-s`` is recorded as skipped, so the script ends in time (under 8 minutes on one
 H200 with the defaults). ``--device cpu --smoke`` runs every code path on a CPU with tiny sizes, in under 2 minutes
@@ -24,6 +26,7 @@ H200 with the defaults). ``--device cpu --smoke`` runs every code path on a CPU 
 without Inductor's minutes of C++ code generation on a CPU).
 
     MUJOCO_GL=egl python benchmarks/gpu.py --out /tmp/gpu
+    MUJOCO_GL=egl python benchmarks/gpu.py --precision bf16 --out /tmp/gpu-bf16
     MUJOCO_GL=egl python benchmarks/gpu.py --device cpu --smoke --out /tmp/gpu-smoke
 """
 
@@ -44,6 +47,7 @@ from typing import Any
 
 import torch as th
 
+from sb3_ef.common.precision import PRECISIONS
 from sb3_ef.curl import CURL
 from sb3_ef.dreamerv3 import DreamerV3
 from sb3_ef.drqv2 import DrQv2, DrQv2EF
@@ -139,7 +143,7 @@ def synchronize(device: th.device) -> None:
         th.cuda.synchronize(device)
 
 
-def build(name: str, compiled: bool | str | dict, device: th.device, sizes: Sizes, smoke: bool):
+def build(name: str, compiled: bool | str | dict, device: th.device, sizes: Sizes, smoke: bool, precision: str):
     """The model on a fast-rendering cartpole, its 1M-frame (smoke: small) buffer in ``auto`` storage."""
     algorithm, frame_size = ALGORITHMS[name]
     env = make_env(ENV_NAME, size=frame_size, fast_render=True, seed=0, **ENV_KWARGS.get(name, {}))
@@ -150,6 +154,7 @@ def build(name: str, compiled: bool | str | dict, device: th.device, sizes: Size
         "learning_starts": sizes.warmup_steps,
         "seed": 0,
         "device": device,
+        "precision": precision,
         "replay_buffer_kwargs": {"storage_device": "auto"},
     }
     uses_ef = name.endswith("EF")
@@ -166,7 +171,9 @@ def build(name: str, compiled: bool | str | dict, device: th.device, sizes: Size
         raise
 
 
-def measure(name: str, compiled: bool | str | dict, device: th.device, sizes: Sizes, smoke: bool) -> Result:
+def measure(
+    name: str, compiled: bool | str | dict, device: th.device, sizes: Sizes, smoke: bool, precision: str = "fp32"
+) -> Result:
     """Build, warm up and time one algorithm (``compiled``: the algorithm's ``compile`` argument); errors become the
     result's status, so later runs still happen."""
     result = Result(name, bool(compiled), ALGORITHMS[name][1])
@@ -177,12 +184,12 @@ def measure(name: str, compiled: bool | str | dict, device: th.device, sizes: Si
     if device.type == "cuda":
         th.cuda.reset_peak_memory_stats(device)
     if name == "DreamerV3":
-        measure_dreamer(result, device, sizes, smoke)
+        measure_dreamer(result, device, sizes, smoke, precision)
         result.seconds = round(time.perf_counter() - started, 1)
         return result
     model = buffer = None
     try:
-        model = build(name, compiled, device, sizes, smoke)
+        model = build(name, compiled, device, sizes, smoke, precision)
         buffer = model.replay_buffer
         result.storage_device = str(buffer.storage_device)
         result.buffer_gb = round(buffer.nbytes / 1e9, 3)
@@ -225,7 +232,7 @@ def measure(name: str, compiled: bool | str | dict, device: th.device, sizes: Si
     return result
 
 
-def measure_dreamer(result: Result, device: th.device, sizes: Sizes, smoke: bool) -> None:
+def measure_dreamer(result: Result, device: th.device, sizes: Sizes, smoke: bool, precision: str) -> None:
     """Dreamer-v3's env steps/s over ``loop_steps`` steps of sheeprl's loop, after ``warmup_steps`` random steps and
     ``loop_steps`` steps of training (untimed); errors become the result's status."""
     from dreamer_timing import timed_training  # beside this file
@@ -238,7 +245,8 @@ def measure_dreamer(result: Result, device: th.device, sizes: Sizes, smoke: bool
         with tempfile.TemporaryDirectory(prefix="gpu_dreamerv3_") as folder:
             model = DreamerV3(
                 "CnnPolicy", env, buffer_size=sizes.buffer_size, learning_starts=sizes.warmup_steps, work_dir=folder,
-                seed=0, device=str(device), **(SMOKE_DREAMER_KWARGS if smoke else DREAMER_KWARGS),
+                seed=0, device=str(device), precision=precision,
+                **(SMOKE_DREAMER_KWARGS if smoke else DREAMER_KWARGS),
             )  # fmt: skip
             marks = {mark.step: mark for mark in timed_training(model, first + every, every)}
             start, end = marks[first], marks[first + every]
@@ -300,6 +308,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--compile-mode", default="default", help="torch.compile mode of the compiled runs (default, reduce-overhead)"
     )
+    parser.add_argument("--precision", choices=PRECISIONS, default="fp32", help="every algorithm's precision")
     parser.add_argument("--budget-s", type=float, default=330.0, help="no run starts after this many seconds")
     args = parser.parse_args(argv)
     device = th.device(args.device)
@@ -312,7 +321,8 @@ def main(argv: list[str] | None = None) -> None:
     else:
         machine = f"CPU ({os.cpu_count()} cores, {th.get_num_threads()} torch threads)"
     header = (
-        f"{ENV_NAME}, fast_render, batch {sizes.batch_size}, buffer {sizes.buffer_size} frames (storage auto); "
+        f"{ENV_NAME}, fast_render, batch {sizes.batch_size}, buffer {sizes.buffer_size} frames (storage auto), "
+        f"precision {args.precision}; "
         f"{machine}; torch {th.__version__}, Python {platform.python_version()}; "
         f"MUJOCO_GL={os.environ.get('MUJOCO_GL', 'unset')}"
     )
@@ -327,7 +337,7 @@ def main(argv: list[str] | None = None) -> None:
                 results.append(Result(name, mode == "compiled", ALGORITHMS[name][1], status="skipped (time budget)"))
                 continue
             compiled = mode == "compiled" and ({"backend": "aot_eager"} if args.smoke else args.compile_mode)
-            results.append(measure(name, compiled, device, sizes, args.smoke))
+            results.append(measure(name, compiled, device, sizes, args.smoke, args.precision))
             print(json.dumps(asdict(results[-1])), flush=True)
     table = markdown(results, header)
     args.out.parent.mkdir(parents=True, exist_ok=True)

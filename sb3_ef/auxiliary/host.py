@@ -21,6 +21,7 @@ from sb3_ef.common.buffers import SequenceReplayBufferSamples
 from sb3_ef.common.env_checks import FRAME_CHANNELS
 from sb3_ef.common.exploration import ActionOverrideMixin
 from sb3_ef.common.interrupt import progress_bar_callback
+from sb3_ef.common.precision import check_precision
 from sb3_ef.common.saved_models import check_saved_model, save_model_atomically, saved_data
 from sb3_ef.common.validation import check_learn, check_model_path, check_observation
 
@@ -88,6 +89,8 @@ class AuxiliaryHostMixin(ActionOverrideMixin):
     #: The class name, saved with the model: ``load`` refuses a file saved by another algorithm.
     algorithm: str
     check_finite_losses: bool = False
+    #: ``"fp32"`` or ``"bf16"`` (:mod:`sb3_ef.common.precision`); files saved without it load as ``"fp32"``.
+    precision: str = "fp32"
     # The auxiliary loss's draws, saved with the model so that a resumed run continues its stream.
     _auxiliary_generator: th.Generator | None = None
     # The exponential average of the measured ``aux_grad_ratio`` values (a diagnostic, not saved).
@@ -102,8 +105,10 @@ class AuxiliaryHostMixin(ActionOverrideMixin):
         return 0
 
     def _setup_model(self) -> None:
-        """SB3's ``_setup_model``, then the auxiliary loss's random generator (seeded from ``seed``)."""
+        """SB3's ``_setup_model`` (``precision`` checked against the device, also on ``load``), then the auxiliary
+        loss's random generator (seeded from ``seed``)."""
         self.algorithm = type(self).__name__
+        check_precision(self.precision, self.device)
         super()._setup_model()  # type: ignore[misc]
         if self._auxiliary_generator is None:
             # On the CPU, so that a saved model loads on any device.

@@ -26,6 +26,10 @@ def check_choice(what: str, value: Any, choices: Iterable[str]) -> None:
         raise ValueError(f"Unknown {what} {value!r}{hint}; expected one of {', '.join(map(repr, choices))}")
 
 
+#: The ``precision`` option's values (:mod:`sb3_ef.common.precision`), here without torch for the CLI's choices.
+PRECISIONS = ("fp32", "bf16")
+
+
 def _is_number(value: Any) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(float(value))
 

@@ -16,6 +16,7 @@ from sb3_ef.auxiliary.host import aux_grad_ratio_due, gradient_norm, gradient_no
 from sb3_ef.auxiliary.momentum import momentum_update
 from sb3_ef.common.buffers import SequenceReplayBufferSamples
 from sb3_ef.common.layers import frozen
+from sb3_ef.common.precision import autocast
 from sb3_ef.curl.crop import check_crop_size, random_crops
 from sb3_ef.curl.loss import CURLLoss
 from sb3_ef.curl.policies import CURLActor, CURLPolicy
@@ -159,7 +160,8 @@ class CURL(AuxiliaryStepMixin, SAC):
         updates = []
         for gradient_step in range(gradient_steps):
             batch = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
-            updates.append(self._update(self._crop(batch), step=self._n_updates + gradient_step))  # type: ignore[arg-type]
+            with autocast(self.precision, self.device):
+                updates.append(self._update(self._crop(batch), step=self._n_updates + gradient_step))  # type: ignore[arg-type]
         self._n_updates += gradient_steps
         self._record_updates(updates)
 

@@ -12,6 +12,7 @@ from torch.nn import functional as F
 
 from sb3_ef.auxiliary.loss import AuxiliaryLoss
 from sb3_ef.auxiliary.momentum import momentum_update
+from sb3_ef.common.precision import float32
 from sb3_ef.curl.crop import check_crop_size, random_crops
 
 
@@ -86,7 +87,8 @@ class CURLLoss(AuxiliaryLoss):
 
     def logits(self, anchors: th.Tensor, positives: th.Tensor) -> th.Tensor:
         """``z_a W z_pos^T`` minus each row's maximum: (batch, batch), the positives on the diagonal."""
-        logits = anchors @ (self.W @ positives.T)
+        with float32(anchors.device.type):  # the softmax's input in float32: bf16 keeps 3 digits of large logits
+            logits = anchors.float() @ (self.W @ positives.float().T)
         return logits - logits.max(dim=1, keepdim=True).values
 
     def forward(self, features: th.Tensor, targets: th.Tensor) -> tuple[th.Tensor, dict[str, th.Tensor]]:

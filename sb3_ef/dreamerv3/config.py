@@ -7,7 +7,7 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from sb3_ef.common.validation import did_you_mean
+from sb3_ef.common.validation import PRECISIONS, check_choice, did_you_mean
 
 #: The sheeprl release this package drives (its configuration keys and checkpoint contents).
 SHEEPRL_VERSION = "0.8.4"
@@ -18,6 +18,8 @@ _OVERRIDES_FORM = (
     "sheeprl_overrides must be a dict of sheeprl's keys to values, dotted ({'algo.horizon': 15}) or nested "
     "({'algo': {'horizon': 15}})"
 )
+#: Lightning Fabric's precision for each value of ``precision``.
+FABRIC_PRECISION = {"fp32": "32-true", "bf16": "bf16-mixed"}
 #: Keys (and the sections below them) that the run sets itself, with the argument that sets them instead.
 SESSION_KEYS = {
     "seed": "seed", "algo.total_steps": "learn(total_timesteps)", "algo.per_rank_batch_size": "batch_size",
@@ -26,7 +28,8 @@ SESSION_KEYS = {
     "algo.mlp_keys": "the env (frames only)", "algo.run_test": "learn's evaluation", "buffer.size": "buffer_size",
     "buffer.checkpoint": "the run (replay buffers are checkpointed)", "env": "env",
     "checkpoint": "learn's checkpoint_freq / keep_checkpoints", "fabric.accelerator": "device",
-    "fabric.devices": "device", "fabric.num_nodes": "the run (one device)", "fabric.strategy": "the run (one device)",
+    "fabric.devices": "device", "fabric.precision": "precision", "fabric.num_nodes": "the run (one device)",
+    "fabric.strategy": "the run (one device)",
     "fabric.callbacks": "the run (evaluation and checkpoints)", "log_root": "work_dir", "root_dir": "work_dir",
     "run_name": "work_dir", "model_manager": "the run (no MLflow)", "dry_run": "the run",
 }  # fmt: skip
@@ -54,8 +57,10 @@ class Recipe:
     buffer_size: int = 1_000_000
     learning_starts: int = 1024
     sheeprl_overrides: Mapping[str, Any] = field(default_factory=dict)
+    precision: str = "fp32"
 
     def __post_init__(self) -> None:
+        check_choice("precision", self.precision, PRECISIONS)
         if self.model_size not in MODEL_SIZES:
             raise ValueError(f"model_size must be one of {MODEL_SIZES}, got {self.model_size!r}")
         if isinstance(self.replay_ratio, bool) or not isinstance(self.replay_ratio, (int, float)):
@@ -155,7 +160,7 @@ def compose_config(recipe: Recipe) -> Any:
         "algo.replay_ratio": float(recipe.replay_ratio), "algo.learning_starts": recipe.learning_starts,
         "algo.cnn_keys.encoder": [FRAME_KEY], "algo.mlp_keys.encoder": [], "algo.run_test": False,
         "buffer.size": recipe.buffer_size, "buffer.checkpoint": True, "metric.log_level": 0,
-        "model_manager.disabled": True,
+        "model_manager.disabled": True, "fabric.precision": FABRIC_PRECISION[recipe.precision],
     }.items():  # fmt: skip
         _set(cfg, key, value, typed=False)  # the recipe's own values (a float replay ratio where sheeprl has 1)
     for key, value in recipe.sheeprl_overrides.items():

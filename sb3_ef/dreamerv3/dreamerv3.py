@@ -23,6 +23,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from sb3_ef.common.env_checks import FRAME_CHANNELS
 from sb3_ef.common.interrupt import progress_bar_callback
+from sb3_ef.common.precision import check_precision
 from sb3_ef.common.validation import check_device
 from sb3_ef.dreamerv3 import live
 from sb3_ef.dreamerv3.callbacks import Evaluation, RunCallback, StopTraining, read_latest
@@ -63,6 +64,7 @@ class DreamerV3:
     :param buffer_size: replay capacity in steps.
     :param learning_starts: random-action steps before training (sheeprl also waits for one whole sequence).
     :param sheeprl_overrides: other keys of sheeprl's configuration, dotted (``{"algo.horizon": 15}``) or nested.
+    :param precision: ``"fp32"`` or ``"bf16"`` (Lightning Fabric's ``bf16-mixed``, docs/precision.md).
     :param work_dir: where sheeprl writes its runs, checkpoints and replay buffer (default: a new temporary folder).
     :param seed: the run's seed (of Python, NumPy, torch and the env); default a random one.
     :param device: ``auto``, ``cpu``, ``cuda`` or ``cuda:<index>`` (missing CUDA: the CPU, with a warning).
@@ -80,6 +82,7 @@ class DreamerV3:
         buffer_size: int = 1_000_000,
         learning_starts: int = 1024,
         sheeprl_overrides: dict[str, Any] | None = None,
+        precision: str = "fp32",
         work_dir: str | os.PathLike | None = None,
         seed: int | None = None,
         device: str = "auto",
@@ -91,9 +94,10 @@ class DreamerV3:
             )
         self.recipe = Recipe(
             model_size, replay_ratio, batch_size, sequence_length, buffer_size, learning_starts,
-            {} if sheeprl_overrides is None else sheeprl_overrides,
+            {} if sheeprl_overrides is None else sheeprl_overrides, precision,
         )  # fmt: skip
         fabric_device(device)  # checks the device string
+        check_precision(precision, device)
         check_device(device)  # warns when CUDA is asked for and not there
         if device.startswith("cuda") and not th.cuda.is_available():
             device = "cpu"

@@ -29,6 +29,7 @@ from sb3_ef.common.env_checks import (
 from sb3_ef.common.exploration import OwnExplorationMixin
 from sb3_ef.common.forwarding import base_arguments
 from sb3_ef.common.layers import frozen
+from sb3_ef.common.precision import autocast
 from sb3_ef.common.schedules import StepSchedule, get_step_schedule
 from sb3_ef.common.validation import check_algorithm_arguments
 from sb3_ef.drqv2.policies import DrQv2Actor, DrQv2Critic, DrQv2EFPolicy, DrQv2Policy
@@ -58,6 +59,7 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     :param target_noise_clip: clip of the noise added to the actions of the target and the actor loss.
     :param check_finite_losses: raise a ``ValueError`` naming a NaN or infinite loss before the step (debugging).
     :param compile: ``torch.compile`` the losses: ``False``, ``True``, a mode name or a dict of its arguments.
+    :param precision: ``"fp32"`` or ``"bf16"`` (bfloat16 mixed precision of the updates, docs/precision.md).
     :param replay_buffer_class: a :class:`SequenceReplayBuffer` (sub)class; ``None`` picks it.
     :param replay_buffer_kwargs: extra buffer arguments (``n_steps``, ``gamma`` and the horizon are filled in).
     :param stats_window_size: episodes averaged for the rollout logs.
@@ -93,6 +95,7 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         target_noise_clip: float = 0.3,
         check_finite_losses: bool = False,
         compile: CompileOption = False,
+        precision: str = "fp32",
         replay_buffer_class: type[ReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
         stats_window_size: int = 100,
@@ -124,6 +127,7 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         self.check_finite_losses = check_finite_losses
         compile_kwargs(compile)
         self.compile = compile
+        self.precision = precision
 
         if _init_setup_model:
             self._setup_model()
@@ -164,7 +168,8 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         for _ in range(gradient_steps):
             self._n_updates += 1
             batch = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
-            updates.append(self._update(batch))
+            with autocast(self.precision, self.device):
+                updates.append(self._update(batch))
         self._record_updates(updates)
         self.logger.record("train/exploration_std", self.exploration_schedule(self.num_timesteps))
 
@@ -239,7 +244,7 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
 
     def _noisy_actions(self, features: th.Tensor, std: float | th.Tensor) -> th.Tensor:
         """Actor mean plus clipped noise, clamped straight-through (DrQ-v2's truncated normal sample)."""
-        mean = self.actor(features)
+        mean = self.actor(features).float()  # the noise and the clamp to 1 - 1e-6 in float32 (bf16 rounds to 1)
         noise = (th.randn_like(mean) * std).clamp(-self.target_noise_clip, self.target_noise_clip)
         actions = mean + noise
         clamped = actions.clamp(-1.0 + _ACTION_EPS, 1.0 - _ACTION_EPS)
@@ -253,14 +258,15 @@ class DrQv2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
             next_actions = self._noisy_actions(next_features, std)
             next_q = th.cat(self.critic_target(next_features, next_actions), dim=1).min(dim=1, keepdim=True).values
             target_q = batch.rewards + (1.0 - batch.dones) * batch.discounts * next_q
-        current_q = self.critic(features, batch.actions)
+        # Q in float32 for the loss and its reductions (a no-op in float32; under bf16 autocast, the heads' output).
+        current_q = [q.float() for q in self.critic(features, batch.actions)]
         loss = sum(F.mse_loss(q, target_q) for q in current_q)
         assert isinstance(loss, th.Tensor)
         return loss, th.cat(current_q, dim=1).mean().detach()
 
     def _actor_loss(self, features: th.Tensor, std: float | th.Tensor) -> th.Tensor:
         """Minus the smaller Q of the noisy actor actions (the critic is frozen by the caller)."""
-        q_values = th.cat(self.critic(features, self._noisy_actions(features, std)), dim=1)
+        q_values = th.cat(self.critic(features, self._noisy_actions(features, std)), dim=1).float()
         return -q_values.min(dim=1).values.mean()
 
     def _exploration_action(self, n_envs: int) -> np.ndarray:
@@ -321,6 +327,7 @@ class DrQv2EF(EFMixin, DrQv2):
         babbling_in_eval: bool = False,
         check_finite_losses: bool = False,
         compile: CompileOption = False,
+        precision: str = "fp32",
         replay_buffer_class: type[ReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
         stats_window_size: int = 100,

@@ -16,6 +16,7 @@ from sb3_ef.auxiliary.momentum import momentum_copy, momentum_update
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.env_checks import FRAME_CHANNELS
 from sb3_ef.common.layers import mlp
+from sb3_ef.common.precision import float32
 
 if TYPE_CHECKING:
     from sb3_ef.common.buffers import SequenceReplayBufferSamples
@@ -102,7 +103,8 @@ def info_nce(
     :param temperature: divides the similarities.
     :param candidates_valid: optional (N,) bool: invalid candidates are left out of all softmaxes but their own.
     """
-    logits = F.normalize(prediction, dim=-1) @ F.normalize(candidates, dim=-1).T / temperature
+    with float32(prediction.device.type):  # the softmax's input in float32 (a small matmul), as CURL's
+        logits = F.normalize(prediction.float(), dim=-1) @ F.normalize(candidates.float(), dim=-1).T / temperature
     rows = th.arange(prediction.shape[0], device=prediction.device)
     if candidates_valid is not None:
         left_out = (~candidates_valid.to(device=logits.device, dtype=th.bool))[None, :].expand_as(logits).clone()

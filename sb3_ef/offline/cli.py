@@ -9,6 +9,7 @@ from collections.abc import Callable
 from typing import Any, TypeVar
 
 from sb3_ef import registry
+from sb3_ef.common.validation import PRECISIONS
 
 N = TypeVar("N", int, float)
 
@@ -120,6 +121,9 @@ def pretrain_parser() -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--device", default="cpu")
     parser.add_argument(
+        "--precision", choices=PRECISIONS, default="fp32", help="bf16: bfloat16 mixed precision (docs/precision.md)"
+    )
+    parser.add_argument(
         "--threads", type=positive_int, help="torch CPU threads (1 is fastest on a busy shared machine)"
     )
     parser.add_argument("--no-resume", action="store_true", help="start over even if OUT/checkpoint.pt exists")
@@ -180,7 +184,8 @@ def pretrain_main(argv: list[str] | None = None) -> int:
     options = reader_options(args)
     dataset = open_dataset(args.dataset, args.context + args.horizon, **options) if options else args.dataset
     names = "encoder context horizon agent_dim steps batch_size shift_pad eval_every checkpoint_every encoder_kwargs"
-    kwargs = {name: getattr(args, name) for name in (*names.split(), "ef_kwargs", "seed", "device", "overwrite")}
+    names += " ef_kwargs seed device precision overwrite"
+    kwargs = {name: getattr(args, name) for name in names.split()}
     _, scores = pretrain(
         dataset, args.out, learning_rate=args.lr, holdout=holdout, resume=not args.no_resume,
         progress_bar=not args.no_progress, cache_mb=args.cache_mb, workers=args.workers, **kwargs,

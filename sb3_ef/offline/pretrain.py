@@ -15,6 +15,7 @@ from sb3_ef.analysis.prediction import frame_grid, to_uint8_frames
 from sb3_ef.common.augmentation import random_shift
 from sb3_ef.common.files import write_atomically, write_text_atomically
 from sb3_ef.common.interrupt import Interrupted, sigint_deferred
+from sb3_ef.common.precision import autocast, check_precision
 from sb3_ef.ef.arguments import check_ef_kwargs
 from sb3_ef.ef.foresight import LatentEgoForesight
 from sb3_ef.ef.probe import latent_window_losses
@@ -32,12 +33,13 @@ MODEL = "model.pt"
 METRICS = "metrics.json"
 #: ``pretrain``'s arguments and the ``sb3-ef pretrain`` options that set them, for the messages.
 _DASHED = (
-    "steps batch_size shift_pad holdout eval_every checkpoint_every encoder context horizon agent_dim cache_mb workers"
+    "steps batch_size shift_pad holdout eval_every checkpoint_every encoder context horizon agent_dim cache_mb workers "
+    "precision"
 )
 OPTIONS = {name: f"--{name.replace('_', '-')}" for name in (*_DASHED.split(), "encoder_kwargs", "ef_kwargs")}
 OPTIONS.update(learning_rate="--lr", frame_shape="the dataset's frames", action_dim="the dataset's actions")
 #: The training settings a resumed run shares with the checkpoint it continues (recorded in every checkpoint).
-RESUMED_SETTINGS = ("learning_rate", "batch_size", "shift_pad", "holdout")
+RESUMED_SETTINGS = ("learning_rate", "batch_size", "shift_pad", "holdout", "precision")
 T = TypeVar("T")
 
 
@@ -99,6 +101,7 @@ def pretrain(
     ef_kwargs: dict[str, Any] | None = None,
     seed: int = 0,
     device: str = "cpu",
+    precision: str = "fp32",
     resume: bool = True,
     overwrite: bool = False,
     progress_bar: bool = True,
@@ -114,16 +117,19 @@ def pretrain(
     :param shift_pad: random-shift pad of context and target together (DrQ-v2's is 4), 0 for none.
     :param saliency_windows: held-out windows whose h_a saliency is scored at the end (slow: a backward per patch).
     :param holdout: held-out episodes (count, or fraction when < 1), the last ones of the dataset.
+    :param precision: ``"fp32"`` or ``"bf16"`` (bfloat16 mixed precision of the updates, docs/precision.md).
     :param resume: continue from ``checkpoint.pt`` of an unfinished (or shorter) run in ``out_dir``.
     :param overwrite: train again over a finished run (``model.pt`` at ``steps`` or more); refused otherwise.
     :param cache_mb: memory for decoded training episodes; a dataset that does not fit is streamed.
     :param workers: ``DataLoader`` worker processes decoding windows (0: in this process).
     :return: the trained model (eval mode) and the final held-out scores.
     """
-    settings = {"steps": steps, "batch_size": batch_size, "learning_rate": learning_rate, "shift_pad": shift_pad}
-    settings.update(holdout=holdout, eval_every=eval_every, checkpoint_every=checkpoint_every)
+    settings: dict[str, Any] = {"steps": steps, "batch_size": batch_size, "learning_rate": learning_rate}
+    settings["shift_pad"] = shift_pad
+    settings.update(holdout=holdout, eval_every=eval_every, checkpoint_every=checkpoint_every, precision=precision)
     _check_settings({**settings, "saliency_windows": saliency_windows, "cache_mb": cache_mb, "workers": workers})
     check_ef_kwargs(ef_kwargs or {})
+    check_precision(precision, device)
     th.manual_seed(seed)
     out_dir = os.fspath(out_dir)
     _refuse_finished_run(out_dir, steps, resume, overwrite)
@@ -212,7 +218,8 @@ def _start(
     except ValueError as error:
         raise ValueError(f"{error}: {start_over}") from None
     requested = {**vars(config), **{name: settings[name] for name in RESUMED_SETTINGS}}
-    recorded = {**vars(model.config), **checkpoint.get("training", requested)}
+    # A checkpoint written before the precision option trained in float32.
+    recorded = {**vars(model.config), "precision": "fp32", **checkpoint.get("training", requested)}
     differences = [
         f"{name} {recorded[name]!r} ({OPTIONS[name]}), not {requested[name]!r}"
         for name in requested
@@ -248,8 +255,8 @@ def _train(run: _Run, batches: Iterator[Windows], start: int, show_progress: boo
     try:
         for step in range(start, run.steps):
             batch = next(batches)
-            with sigint_deferred():  # Ctrl-C lands between updates, never inside one
-                loss = _update(run, batch)
+            with sigint_deferred(), autocast(run.settings["precision"], th.device(run.device)):
+                loss = _update(run, batch)  # Ctrl-C lands between updates, never inside one
                 done = step + 1
             bar.update(1)
             bar.set_postfix(loss=f"{loss:.1f}")

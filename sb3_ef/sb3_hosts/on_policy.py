@@ -27,6 +27,7 @@ from sb3_ef.common.buffers.rollout_windows import (
     rollout_minibatches,
 )
 from sb3_ef.common.env_checks import policy_observation_space
+from sb3_ef.common.precision import autocast, float32_outputs
 from sb3_ef.common.validation import check_algorithm_arguments
 from sb3_ef.ef.arguments import check_ef_kwargs
 from sb3_ef.ef.babbling import babble_env_actions
@@ -75,6 +76,7 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
     :param babbling_steps: motor babbling at the start: rollouts of random actions that train EF alone (0: none).
     :param babbling_mode: ``"sign"`` or ``"clamped_uniform"`` for Box actions (discrete ones are drawn uniformly).
     :param check_finite_losses: raise a ``ValueError`` naming a NaN or infinite loss before its step.
+    :param precision: ``"fp32"`` or ``"bf16"``: the updates' matrix maths in bfloat16 (docs/precision.md).
     """
 
     rollout_buffer: Any
@@ -102,6 +104,7 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
         babbling_steps: int = 0,
         babbling_mode: str = "sign",
         check_finite_losses: bool = False,
+        precision: str = "fp32",
         _init_setup_model: bool = True,
         **kwargs: Any,
     ):
@@ -135,6 +138,7 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
         self.frame_channels = frame_channels
         self.babbling_steps, self.babbling_mode = babbling_steps, babbling_mode
         self.check_finite_losses = check_finite_losses
+        self.precision = precision
         self.babbling = False  # whether the last rollout babbled
         if _init_setup_model:
             self._setup_model()
@@ -181,6 +185,8 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
         # EF's modules step in the policy's Adam, in a group of their own (the encoder is in SB3's group): one step
         # per minibatch on the host's clipped gradient plus EF's (_step).
         self.policy.optimizer.add_param_group({"name": "auxiliary", "params": list(auxiliary.parameters())})
+        if self.precision == "bf16":  # SB3's distributions and value loss read float32 heads
+            float32_outputs(self.policy.action_net, self.policy.value_net)
         self._ef_ring = RolloutRing(self.ef_rollouts)
         if self._babbling_rng is None:
             self._babbling_rng = np.random.default_rng(self.seed)
@@ -340,26 +346,28 @@ class PPOEF(OnPolicyEFMixin, PPO):
         self._update_learning_rate(self.policy.optimizer)
         clip_range = self.clip_range(self._current_progress_remaining)  # type: ignore[operator]
         clip_range_vf = None if self.clip_range_vf is None else self.clip_range_vf(self._current_progress_remaining)  # type: ignore[operator]
-        windows = self._rollout_windows()
-        updates: list[dict[str, th.Tensor]] = []
-        continue_training = True
-        for epoch in range(self.n_epochs):
-            for indices, data in rollout_minibatches(self.rollout_buffer, self.batch_size):
-                features, ef_loss, logs = self._ef_loss_at(windows, indices, data)
-                loss = None
-                if not self.babbling:
-                    loss, ppo_logs = self._ppo_loss(data, features, clip_range, clip_range_vf)
-                    logs.update(ppo_logs)
-                    if self.target_kl is not None and ppo_logs["approx_kl"] > 1.5 * self.target_kl:
-                        continue_training = False
-                        if self.verbose >= 1:
-                            print(f"Early stopping at step {epoch} due to reaching max kl: {ppo_logs['approx_kl']:.2f}")
-                        break
-                logs.update(self._step(loss, ef_loss))
-                updates.append(logs)
-            self._n_updates += 1
-            if not continue_training:
-                break
+        with autocast(self.precision, self.device):
+            windows = self._rollout_windows()
+            updates: list[dict[str, th.Tensor]] = []
+            continue_training = True
+            for epoch in range(self.n_epochs):
+                for indices, data in rollout_minibatches(self.rollout_buffer, self.batch_size):
+                    features, ef_loss, logs = self._ef_loss_at(windows, indices, data)
+                    loss = None
+                    if not self.babbling:
+                        loss, ppo_logs = self._ppo_loss(data, features, clip_range, clip_range_vf)
+                        logs.update(ppo_logs)
+                        if self.target_kl is not None and ppo_logs["approx_kl"] > 1.5 * self.target_kl:
+                            continue_training = False
+                            if self.verbose >= 1:
+                                kl = ppo_logs["approx_kl"]
+                                print(f"Early stopping at step {epoch} due to reaching max kl: {kl:.2f}")
+                            break
+                    logs.update(self._step(loss, ef_loss))
+                    updates.append(logs)
+                self._n_updates += 1
+                if not continue_training:
+                    break
         self._record_updates(updates)
         if not self.babbling:
             self._record_value_fit()
@@ -411,14 +419,15 @@ class A2CEF(OnPolicyEFMixin, A2C):
         EF alone."""
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
-        windows = self._rollout_windows()
-        for indices, data in rollout_minibatches(self.rollout_buffer, None):  # one minibatch, as SB3's A2C
-            features, ef_loss, logs = self._ef_loss_at(windows, indices, data)
-            loss = None
-            if not self.babbling:
-                loss, a2c_logs = self._a2c_loss(data, features)
-                logs.update(a2c_logs)
-            logs.update(self._step(loss, ef_loss))
+        with autocast(self.precision, self.device):
+            windows = self._rollout_windows()
+            for indices, data in rollout_minibatches(self.rollout_buffer, None):  # one minibatch, as SB3's A2C
+                features, ef_loss, logs = self._ef_loss_at(windows, indices, data)
+                loss = None
+                if not self.babbling:
+                    loss, a2c_logs = self._a2c_loss(data, features)
+                    logs.update(a2c_logs)
+                logs.update(self._step(loss, ef_loss))
         self._n_updates += 1
         self._record_updates([logs])
         if not self.babbling:

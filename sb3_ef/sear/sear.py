@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any, ClassVar
 
+import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
@@ -101,4 +102,8 @@ class SEAR(DrQv2):
         check_agent_masks(self.env)
 
     def _build_auxiliary(self) -> SEARLoss:
-        return SEARLoss(self.policy.encoder.features_dim, self.observation_space.shape, self.coefficients)  # type: ignore[arg-type]
+        loss = SEARLoss(self.policy.encoder.features_dim, self.observation_space.shape, self.coefficients)  # type: ignore[arg-type]
+        # Channels-last decoders in bf16 (1.5x faster updates on a CPU, docs/precision.md); float32 keeps its bits.
+        if self.precision == "bf16" and self.policy.channels_last:
+            loss.to(memory_format=th.channels_last)  # type: ignore[call-overload]
+        return loss

@@ -43,12 +43,13 @@ class TwoHot:
 
     def decode(self, logits: th.Tensor) -> th.Tensor:
         """Logits ``(..., num_bins)`` -> expected scalar ``(...)`` (softmax mean in symlog space, then symexp)."""
+        logits = logits.float()  # bf16 logits (mixed precision): softmax and symexp in float32
         bins = th.linspace(self.vmin, self.vmax, self.num_bins, dtype=logits.dtype, device=logits.device)
         return symexp((F.softmax(logits, dim=-1) * bins).sum(-1))
 
     def cross_entropy(self, logits: th.Tensor, target: th.Tensor) -> th.Tensor:
         """Cross-entropy between logits ``(..., num_bins)`` and the two-hot encoding of scalars ``(...)``."""
-        return -(self.encode(target) * F.log_softmax(logits, dim=-1)).sum(-1)
+        return -(self.encode(target) * F.log_softmax(logits.float(), dim=-1)).sum(-1)  # float32, as decode
 
 
 def discount_from_episode_length(

@@ -15,6 +15,8 @@ from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from sb3_ef.auxiliary.loss import AuxiliaryLoss, CarriesAuxiliary
 from sb3_ef.common.env_checks import FRAME_CHANNELS, check_stacked_frames
 from sb3_ef.common.forwarding import base_arguments
+from sb3_ef.common.precision import PRECISIONS, autocast
+from sb3_ef.common.validation import check_choice
 from sb3_ef.ef.host import EFPolicyMixin
 from sb3_ef.tdmpc2.math import TwoHot, planning_iterations
 from sb3_ef.tdmpc2.planner import MPPIPlanner
@@ -78,6 +80,7 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
     :param optimizer_class: optimiser of both parameter sets.
     :param optimizer_kwargs: extra optimiser arguments; ``None`` with Adam gives its fused kernel.
     :param channels_last: keep the conv weights (encoder, auxiliary decoder) channels-last (faster convolutions).
+    :param precision: the planner's ``"fp32"`` or ``"bf16"`` (set by the algorithm's ``precision``).
     """
 
     q_scale: th.Tensor  # a registered buffer
@@ -102,6 +105,7 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
         channels_last: bool = True,
+        precision: str = "fp32",
         **unknown: Any,
     ):
         for name in unknown:
@@ -121,6 +125,8 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
         self.frame_shape = (FRAME_CHANNELS, height, width)
         self._constructor_kwargs = base_arguments(TDMPC2Policy, locals())
         self.channels_last = channels_last
+        check_choice("precision", precision, PRECISIONS)  # the algorithm checks it against its device
+        self.precision = precision
         self.auxiliary: AuxiliaryLoss | None = None
         action_dim = int(np.prod(action_space.shape))
         two_hot = TwoHot(num_bins, vmin, vmax)
@@ -170,7 +176,7 @@ class TDMPC2Policy(CarriesAuxiliary, BasePolicy):
         self, observations: th.Tensor, previous_mean: th.Tensor | None, deterministic: bool
     ) -> tuple[th.Tensor, th.Tensor]:
         """MPPI actions ``(n_envs, action_dim)`` for stacked observations and the plan mean for the next call."""
-        with th.no_grad():
+        with th.no_grad(), autocast(self.precision, observations.device):
             return self.planner.plan(self.world_model, self.encode(observations), previous_mean, deterministic)
 
     def predict(

@@ -23,6 +23,7 @@ from sb3_ef.common.exploration import OwnExplorationMixin
 from sb3_ef.common.forwarding import base_arguments
 from sb3_ef.common.layers import frozen
 from sb3_ef.common.policy_arguments import policy_built_with
+from sb3_ef.common.precision import autocast
 from sb3_ef.common.validation import check_algorithm_arguments
 from sb3_ef.tdmpc2.arguments import check_arguments, known_episode_steps
 from sb3_ef.tdmpc2.gradients import clipped_world_model_gradients
@@ -53,6 +54,7 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     :param seed_burst: run as many updates as seed steps when they end (TD-MPC2); ``False``: one update per step.
     :param check_finite_losses: raise a ``ValueError`` naming a NaN or infinite loss before the step (debugging).
     :param compile: ``torch.compile`` the losses: ``False``, ``True``, a mode name or a dict of its arguments.
+    :param precision: ``"fp32"`` or ``"bf16"`` (bfloat16 mixed precision of the updates, docs/precision.md).
     :param replay_buffer_class: a :class:`SequenceReplayBuffer` (sub)class; ``None`` picks it.
     :param replay_buffer_kwargs: extra buffer arguments (``n_steps`` and the window horizon are filled in).
     :param stats_window_size: episodes averaged for the rollout logs.
@@ -88,6 +90,7 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         seed_burst: bool = True,
         check_finite_losses: bool = False,
         compile: CompileOption = False,
+        precision: str = "fp32",
         replay_buffer_class: type[ReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
         stats_window_size: int = 100,
@@ -128,6 +131,7 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         self.check_finite_losses = check_finite_losses
         compile_kwargs(compile)
         self.compile = compile
+        self.precision = precision
         self._rollout_plan: th.Tensor | None = None
 
         if _init_setup_model:
@@ -144,7 +148,7 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
             horizon=self.window,
             n_steps=1,
         )
-        with policy_built_with(self, horizon=self.horizon, gamma=self.gamma):
+        with policy_built_with(self, horizon=self.horizon, gamma=self.gamma, precision=self.precision):
             super()._setup_model()
         auxiliary = self._build_auxiliary()
         if auxiliary is not None:
@@ -186,7 +190,8 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
         for _ in range(gradient_steps):
             self._n_updates += 1
             batch = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
-            updates.append(self._update(batch))
+            with autocast(self.precision, self.device):
+                updates.append(self._update(batch))
         self._record_updates(updates)
 
     def _update(self, batch: SequenceReplayBufferSamples) -> dict[str, th.Tensor]:

@@ -57,6 +57,7 @@ class TDMPC2EF(EFMixin, TDMPC2):
         babbling_in_eval: bool = False,
         check_finite_losses: bool = False,
         compile: CompileOption = False,
+        precision: str = "fp32",
         replay_buffer_class: type[ReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
         stats_window_size: int = 100,

@@ -116,7 +116,7 @@ class WorldModel(nn.Module):
 
     def pi(self, z: th.Tensor) -> PolicyOutput:
         """A reparameterised sample of the tanh-squashed Gaussian policy prior."""
-        mean, log_std = self.pi_head(z).chunk(2, dim=-1)
+        mean, log_std = self.pi_head(z).float().chunk(2, dim=-1)  # the log-prob maths in float32 (mixed precision)
         log_std = self.log_std_min + 0.5 * (self.log_std_max - self.log_std_min) * (th.tanh(log_std) + 1)
         noise = th.randn_like(mean)
         action = mean + noise * log_std.exp()

@@ -35,6 +35,18 @@ def test_smoke_run_of_one_algorithm_writes_its_results(tmp_path):
     assert "SMOKE RUN" in table and "| DrQv2 | 84x84 | eager | ok | cpu |" in table
 
 
+def test_precision_bf16_runs_the_algorithms_in_bf16(tmp_path):
+    gpu = load_script()
+    out = tmp_path / "gpu"
+    argv = ["--device", "cpu", "--smoke", "--algorithms", "TDMPC2EF", "--modes", "eager", "--precision", "bf16"]
+    gpu.main([*argv, "--out", str(out)])
+    written = json.loads(out.with_suffix(".json").read_text())
+    assert "precision bf16" in written["header"] and [r["status"] for r in written["results"]] == ["ok"]
+    model = gpu.build("TDMPC2EF", False, gpu.th.device("cpu"), gpu.SMOKE, True, "bf16")
+    assert model.precision == "bf16"
+    model.env.close()
+
+
 def test_a_run_past_the_budget_is_recorded_as_skipped(tmp_path):
     gpu = load_script()
     out = tmp_path / "gpu"

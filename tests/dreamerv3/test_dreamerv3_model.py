@@ -102,6 +102,14 @@ def test_a_loaded_model_goes_on_training_with_a_new_replay_buffer(trained, tmp_p
         assert [row["step"] for row in csv.DictReader(file)] == ["60"]
 
 
+def test_bf16_trains_in_fabrics_bf16_mixed_and_load_keeps_it(tmp_path):
+    bf16 = model(tmp_path / "run", precision="bf16").learn(20)
+    assert bf16.resolved.fabric.precision == "bf16-mixed"
+    bf16.save(tmp_path / "model.zip")
+    loaded = DreamerV3.load(tmp_path / "model.zip", device="cpu", work_dir=tmp_path / "loaded")
+    assert loaded.settings["precision"] == "bf16" and loaded.cfg.fabric.precision == "bf16-mixed"
+
+
 def test_a_trained_model_continues_its_step_count_only(trained):
     model, _ = trained
     with pytest.raises(ValueError, match="has trained 40 steps: continue with learn"):
@@ -161,6 +169,11 @@ def test_evaluations_leave_the_training_as_it_is_without_them(tmp_path):
             "'algo.horizonn' is not a key of sheeprl",
         ),
         (lambda tmp: DreamerV3("CnnPolicy", toy(), device="tpu", work_dir=tmp), "device must be"),
+        (lambda tmp: DreamerV3("CnnPolicy", toy(), precision="fp16", work_dir=tmp), "Unknown precision 'fp16'"),
+        (
+            lambda tmp: DreamerV3("CnnPolicy", toy(), sheeprl_overrides={"fabric.precision": "16-mixed"}, work_dir=tmp),
+            "'fabric.precision' is set by DreamerV3 from precision",
+        ),
         (lambda tmp: model(tmp).learn(10, callback=5), "callback must be an SB3 BaseCallback, a function"),
         (lambda tmp: model(tmp).learn(0), "total_timesteps must be a positive integer"),
         (lambda tmp: model(tmp).learn(10, checkpoint_freq=0), "checkpoint_freq must be a positive integer, got 0"),

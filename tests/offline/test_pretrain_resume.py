@@ -64,6 +64,18 @@ def test_a_resumed_run_keeps_its_learning_rate_and_the_refusal_names_the_options
     assert th.load(run / CHECKPOINT, weights_only=True)["step"] == 2  # untouched by the refused runs
 
 
+def test_bf16_pretraining_is_recorded_and_resumed_only_in_bf16(data, tmp_path, capsys):
+    run = tmp_path / "run"
+    assert main(["pretrain", str(data), str(run), *CLI, "--steps", "2", "--precision", "bf16"]) == 0
+    assert th.load(run / CHECKPOINT, weights_only=True)["training"]["precision"] == "bf16"
+    status, err = run_cli(["pretrain", str(data), str(run), *CLI, "--steps", "4"], capsys)
+    assert status == 2 and "precision 'bf16' (--precision), not 'fp32'" in err
+    assert main(["pretrain", str(data), str(run), *CLI, "--steps", "4", "--precision", "bf16"]) == 0
+    assert th.load(run / MODEL, weights_only=True)["step"] == 4
+    status, err = run_cli(["pretrain", str(data), str(run), *CLI, "--precision", "fp16"], capsys)
+    assert status == 2 and "argument --precision: invalid choice: 'fp16'" in err
+
+
 def test_a_damaged_checkpoint_or_model_is_one_line_never_a_traceback(data, tmp_path, capsys):
     run = tmp_path / "run"
     tiny_pretrain(data, run, steps=2)

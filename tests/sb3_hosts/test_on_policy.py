@@ -17,6 +17,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecFrameStack
 from torch import nn
 
 from sb3_ef import A2CEF, PPOEF
+from sb3_ef.common.precision import autocast
 from sb3_ef.envs.toy import ToyAgentEnv
 
 HOSTS = {PPOEF: PPO, A2CEF: A2C}
@@ -355,3 +356,23 @@ def test_a_ring_of_rollouts_gives_windows_longer_than_a_rollout(algorithm, tmp_p
     loaded = algorithm.load(tmp_path / "model", env=grey_stack())
     assert loaded.ef_rollouts == 3 and not loaded._ef_ring.rollouts  # rollouts are not saved, as SB3's buffer is not
     loaded.learn(8)
+
+
+@pytest.mark.parametrize("algorithm", HOSTS)
+def test_bf16_updates_stay_close_to_float32_and_the_option_is_saved(algorithm, tmp_path):
+    """One rollout's update in bf16 against float32's from the same weights and data: losses within 5%, every
+    logged value finite, the distribution heads' outputs float32; ``load`` keeps the option."""
+    logs = {}
+    for precision in ("fp32", "bf16"):
+        model = make(algorithm, toy_env(), precision=precision, check_finite_losses=True)
+        model.learn(8)
+        logs[precision] = dict(model.logger.name_to_value)
+        if precision == "bf16":
+            features = model.policy.extract_features(th.zeros(2, 9, 32, 32, dtype=th.uint8))
+            with autocast("bf16", model.device):
+                assert model.policy.action_net(model.policy.mlp_extractor(features)[0]).dtype == th.float32
+            model.save(tmp_path / "model.zip")
+    assert algorithm.load(tmp_path / "model.zip", device="cpu").precision == "bf16"
+    for key in ("train/ef_loss", "train/value_loss"):
+        assert np.isfinite(logs["bf16"][key])
+        assert logs["bf16"][key] == pytest.approx(logs["fp32"][key], rel=0.05), key
