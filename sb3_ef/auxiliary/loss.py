@@ -31,9 +31,14 @@ class AuxiliaryLoss(nn.Module, ABC):
     _coefficients: tuple[str, ...] = ()
 
     def register_coefficient(self, name: str, value: float) -> None:
-        """Keep the loss weight ``name`` as a float buffer of this module."""
-        self.register_buffer(name, th.tensor(float(value)))
+        """Keep the loss weight ``name`` as a float64 buffer of this module (the value as given: ``model.beta``
+        reads back 0.01, not its float32 neighbour); :meth:`weighted` applies it in the loss's dtype."""
+        self.register_buffer(name, th.tensor(float(value), dtype=th.float64))
         self._coefficients = (*self._coefficients, name)
+
+    def weighted(self, weight: th.Tensor, loss: th.Tensor) -> th.Tensor:
+        """``weight * loss`` in ``loss``'s dtype: the coefficient rounded once, as a Python float would be."""
+        return weight.to(loss.dtype) * loss
 
     @abstractmethod
     def prepare(self, batch: Any, pad: int, generator: th.Generator | None = None) -> tuple[th.Tensor, Any]:

@@ -84,7 +84,7 @@ class ForesightLoss(AuxiliaryLoss):
     def forward(self, features: th.Tensor, targets: ForesightTargets) -> tuple[th.Tensor, dict[str, th.Tensor]]:
         """``beta`` times EF's squared error (summed over pixels, averaged over valid samples); logs ``ef_loss``."""
         loss = self.ef.loss(features, targets.actions, targets.steps, targets.target, targets.valid)
-        return self.beta * self.ef.loss_scale * loss, {"ef_loss": loss.detach()}
+        return self.weighted(self.beta * self.ef.loss_scale, loss), {"ef_loss": loss.detach()}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         """A loss pickled by an earlier version (policy files): ``beta`` a float, latent EF in this class."""
@@ -129,7 +129,7 @@ class LatentForesightLoss(ForesightLoss):
         loss = self.ef.loss(
             features, targets.actions, targets.steps, target, targets.valid, targets.candidates_valid()
         )
-        return self.beta * self.ef.loss_scale * loss, {"ef_loss": loss.detach()}
+        return self.weighted(self.beta * self.ef.loss_scale, loss), {"ef_loss": loss.detach()}
 
     def after_update(self, encoder: nn.Module) -> None:
         """The target encoder and projection follow the online ones."""

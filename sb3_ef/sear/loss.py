@@ -129,5 +129,5 @@ class SEARLoss(AuxiliaryLoss):
         mask_logits = self.mask_decoder(second)
         mask = F.binary_cross_entropy_with_logits(mask_logits, targets.masks.float(), reduction="none")
         mask = mask.flatten(1).sum(dim=1).mean()
-        loss = self.reconstruction_coef * reconstruction + self.mask_coef * mask
+        loss = self.weighted(self.reconstruction_coef, reconstruction) + self.weighted(self.mask_coef, mask)
         return loss, {"reconstruction_loss": reconstruction.detach(), "mask_loss": mask.detach()}

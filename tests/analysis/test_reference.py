@@ -88,7 +88,7 @@ def test_every_reference_names_its_unit_and_source():
 
 def test_both_dreamerv3_score_sets_name_their_version_model_size_and_commit():
     current, paper = get_reference("dreamerv3"), get_reference("dreamerv3-2023")
-    assert "2024 release" in current.label and "model 12M" in current.label and "e3f0224" in current.source
+    assert "2024 release" in current.label and "model 12M" in current.label and "2411f7d" in current.source
     assert "2023 release" in paper.label and "model S" in paper.label and "8fa35f8" in paper.source
     assert (current.x_column, paper.x_column) == ("frame", "frame")
     records = _records("mine", "dmc/walker-walk-v0", {0: [0.0, 10.0]})

@@ -131,7 +131,7 @@ def test_nested_sheeprl_overrides_are_merged_key_by_key(tmp_path):
         ({"algo.horizon": 2.5}, r"'algo.horizon' must be a whole number \(sheeprl's default is 15\), got 2.5"),
         ({"algo.actor.optimizer.lr": "1e-4"}, r"'algo.actor.optimizer.lr' must be a number .* got '1e-4' \(str\)"),
         ({"algo.world_model": 5}, r"'algo.world_model' must be a dict \(a section\)"),
-        ({"fabric.precision": 16}, r"'fabric.precision' must be a string"),
+        ({"fabric.precision": 16}, r"'fabric.precision' is set by DreamerV3 from precision"),
     ],
 )
 def test_sheeprl_overrides_are_checked_at_construction(overrides, message, tmp_path):

@@ -86,7 +86,7 @@ def _block(**changes) -> dict:
 @pytest.mark.parametrize(
     ("document", "message"),
     [
-        ({"grids": [_block(algorithms=["ppo"])]}, "algo 'ppo' is not a known algorithm"),
+        ({"grids": [_block(algorithms=["ppo"])]}, "algo 'ppo' (did you mean 'ppo_ef'?) is not a known algorithm"),
         ({"grids": [_block(tasks=["dmc/cartpole-balanse"])]}, "Unknown task 'dmc/cartpole-balanse'"),
         ({"grids": [_block(hyperparams={"batch_sise": 8})]}, "unknown key 'batch_sise'"),
         ({"grids": [_block(hyperparams={"normalize": True})]}, "['normalize'] are not supported by the runner"),
