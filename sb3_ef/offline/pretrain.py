@@ -122,8 +122,9 @@ def pretrain(
     :param workers: ``DataLoader`` worker processes decoding windows (0: in this process).
     :return: the trained model (eval mode) and the final held-out scores.
     """
-    settings = {"steps": steps, "batch_size": batch_size, "learning_rate": learning_rate, "shift_pad": shift_pad}
-    settings.update(holdout=holdout, eval_every=eval_every, checkpoint_every=checkpoint_every, precision=precision)
+    settings: dict[str, Any] = {"steps": steps, "batch_size": batch_size, "learning_rate": learning_rate}
+    settings.update(shift_pad=shift_pad, holdout=holdout, eval_every=eval_every, checkpoint_every=checkpoint_every)
+    settings["precision"] = precision
     _check_settings({**settings, "saliency_windows": saliency_windows, "cache_mb": cache_mb, "workers": workers})
     check_precision(precision, device)
     th.manual_seed(seed)

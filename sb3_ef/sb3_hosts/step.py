@@ -107,7 +107,7 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
             float32_outputs(self.actor.mu, getattr(self.actor, "log_std", None))  # type: ignore[attr-defined]
             for module in (self.actor, self.critic, self.critic_target, auxiliary):  # type: ignore[attr-defined]
                 if module is not None:
-                    module.to(memory_format=th.channels_last)
+                    module.to(memory_format=th.channels_last)  # type: ignore[call-overload]
 
     def _auxiliary_adam(self, parameters: Iterable[nn.Parameter]) -> th.optim.Optimizer:
         """An Adam over ``parameters`` and the critic's features extractor at the auxiliary learning rate."""
@@ -129,7 +129,7 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
         host_norms: dict[int, th.Tensor] = {}
         hook = self._read_host_gradients(first, host_norms) if self.auxiliary is not None else None
         try:
-            with autocast(self.precision, self.device):  # type: ignore[attr-defined]
+            with autocast(self.precision, self.device):
                 super().train(gradient_steps, batch_size)  # type: ignore[misc]
         finally:
             if hook is not None:
@@ -139,7 +139,7 @@ class AuxiliaryStepMixin(AuxiliaryHostMixin):
         if self.auxiliary_learning_rate is None:
             self._update_learning_rate(self.auxiliary_optimizer)  # type: ignore[attr-defined]
         self.auxiliary.train(True)
-        with autocast(self.precision, self.device):  # type: ignore[attr-defined]
+        with autocast(self.precision, self.device):
             updates = [
                 self._auxiliary_step(
                     self.replay_buffer.sample(batch_size, env=self._vec_normalize_env),  # type: ignore[attr-defined]
