@@ -11,7 +11,7 @@ MAX_FILE_LINES = 500
 #: Lines in one function or method (its ``def`` line to its last line, decorators not counted), at most.
 MAX_FUNCTION_LINES = 80
 #: Lines of Python in the whole package (``find sb3_ef -name '*.py' | xargs cat | wc -l``), at most.
-MAX_PACKAGE_LINES = 18_525
+MAX_PACKAGE_LINES = 19_150
 
 
 def _modules() -> dict[str, str]:

@@ -64,8 +64,8 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
     :param beta: weight of the EF loss, added to the host's loss on each minibatch (its gradient clipped apart to
         ``beta * max_grad_norm``: ``beta`` sets EF's pull on the shared encoder against the host's, docs/ef.md).
     :param ef_horizon: EF's horizon H, at most ``n_steps * ef_rollouts``.
-    :param ef_rollouts: rollouts EF's windows are cut from: 1, the current one, where they start at the minibatch's
-        steps (one encoder pass serves both losses); more, a ring of the last ones, drawn uniformly and encoded apart.
+    :param ef_rollouts: rollouts EF's windows are cut from: a ring of the last ones, drawn uniformly and encoded
+        apart; 1, the current one, where they start at the minibatch's steps (one encoder pass serves both losses).
     :param agent_dim: size of h_a, the first features of the policy's shared features extractor.
     :param ef_kwargs: extra arguments of :class:`sb3_ef.ef.EgoForesight`.
     :param frame_channels: channels of one frame (``None``: the observation's channels over the frames stacked).
@@ -92,7 +92,7 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
         *,
         beta: float = 1.0,
         ef_horizon: int = 10,
-        ef_rollouts: int = 1,
+        ef_rollouts: int = 4,
         agent_dim: int = 32,
         ef_kwargs: dict[str, Any] | None = None,
         frame_channels: int | None = None,
@@ -393,16 +393,10 @@ class PPOEF(OnPolicyEFMixin, PPO):
 
 
 class A2CEF(OnPolicyEFMixin, A2C):
-    """A2C (Mnih et al., 2016) from stacked uint8 frames with Ego-Foresight (arguments: :class:`OnPolicyEFMixin`;
-    ``ef_horizon`` defaults to A2C's ``n_steps``, 5)."""
+    """A2C (Mnih et al., 2016) from stacked frames with Ego-Foresight (arguments: :class:`OnPolicyEFMixin`)."""
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"CnnPolicy": ActorCriticCnnPolicy}
     default_log_interval = 100
-
-    def __init__(
-        self, policy: str | type[ActorCriticCnnPolicy], env: GymEnv | str, *, ef_horizon: int = 5, **kwargs: Any
-    ):
-        super().__init__(policy, env, ef_horizon=ef_horizon, **kwargs)
 
     def train(self) -> None:
         """SB3's ``A2C.train`` (one update on the whole rollout) with EF's loss joining it; a babbling rollout trains

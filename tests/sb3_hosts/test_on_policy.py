@@ -292,7 +292,7 @@ class UnboundedActions(gym.ActionWrapper):
         (VectorEnv(), {}, r"PPOEF needs image observations: a uint8 Box"),
         (toy_env(), {"policy": "MultiInputPolicy"}, r"PPOEF supports policy 'CnnPolicy'"),
         (UnboundedActions(toy_env()), {}, r"encodes actions of a Box \(finite bounds\), Discrete, MultiDiscrete"),
-        (toy_env(), {"ef_horizon": 9}, r"ef_horizon <= n_steps \* ef_rollouts = 8 \* 1, got ef_horizon=9"),
+        (toy_env(), {"ef_horizon": 33}, r"ef_horizon <= n_steps \* ef_rollouts = 8 \* 4, got ef_horizon=33"),
         (toy_env(), {"beta": 0.0}, r"use PPO to train without Ego-Foresight"),
         (toy_env(), {"agent_dim": 32}, r"features_dim=32, agent_dim=32"),
         (toy_env(), {"frame_channels": 2}, r"frame_channels must divide the observation's 9 channels, got 2"),
