@@ -1,5 +1,9 @@
 """PPO-EF and A2C-EF: SB3's contract (parts of SB3's test_run, test_save_load and test_predict, adapted), the host's
-update left as SB3's, EF's gradient routes, babbling, Atari frames and bad input."""
+update left as SB3's, EF's gradient routes, babbling, Atari frames and bad input.
+
+Differences from SB3's tests: image envs (the toy world, FakeImageEnv frames stacked as Atari's) with a small CNN
+instead of MlpPolicy on vector envs (EF needs frames); CPU only (no CUDA here) and no torch.compile round trip;
+CnnPolicy only (MlpPolicy and MultiInputPolicy are refused)."""
 
 from copy import deepcopy
 from pathlib import Path
