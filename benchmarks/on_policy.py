@@ -2,8 +2,9 @@
 
     python benchmarks/on_policy.py --game Pong --rounds 5
 
-Each round collects a rollout for each model (timed apart) and runs one epoch of its minibatch updates; the table
-gives medians per rollout and per update, and a whole PPO iteration (rollout + ``--epochs`` epochs) for each.
+Each round collects a rollout for each model (timed apart) and runs one epoch of its minibatch updates, the models
+in turn (the order reversed every round); the table gives medians per rollout and per update, and a whole PPO
+iteration (rollout + ``--epochs`` epochs) for each. PPO-EF runs with its defaults and with a ring of rollouts.
 """
 
 from __future__ import annotations
@@ -22,9 +23,9 @@ from stable_baselines3.common.vec_env import VecFrameStack
 from sb3_ef import PPOEF
 
 
-def build(algorithm: type, game: str, envs: int, n_steps: int, batch_size: int, seed: int) -> PPO:
-    env = VecFrameStack(make_atari_env(f"{game}NoFrameskip-v4", n_envs=envs, seed=seed), 4)
-    model = algorithm("CnnPolicy", env, n_steps=n_steps, batch_size=batch_size, n_epochs=1, seed=seed, device="cpu")
+def build(algorithm: type, game: str, envs: int, n_steps: int, batch_size: int, **kwargs: int) -> PPO:
+    env = VecFrameStack(make_atari_env(f"{game}NoFrameskip-v4", n_envs=envs, seed=0), 4)
+    model = algorithm("CnnPolicy", env, n_steps=n_steps, batch_size=batch_size, n_epochs=1, seed=0, **kwargs)
     model._setup_learn(10**9)
     return model
 
@@ -47,13 +48,18 @@ def main() -> None:
     parser.add_argument("--batch-size", type=int, default=256)
     parser.add_argument("--epochs", type=int, default=4, help="epochs of a PPO iteration in the last column")
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--ef-rollouts", type=int, default=4, help="the ring of the third model")
     args = parser.parse_args()
     import ale_py
 
     gym.register_envs(ale_py)
     th.set_num_threads(args.threads)
-    models = {name: build(cls, args.game, args.envs, args.n_steps, args.batch_size, 0) for name, cls in
-              (("PPO", PPO), ("PPO-EF", PPOEF))}  # fmt: skip
+    sizes = (args.game, args.envs, args.n_steps, args.batch_size)
+    models = {
+        "PPO": build(PPO, *sizes),
+        "PPO-EF": build(PPOEF, *sizes),
+        f"PPO-EF, ef_rollouts={args.ef_rollouts}": build(PPOEF, *sizes, ef_rollouts=args.ef_rollouts),
+    }
     times: dict[str, list[tuple[float, float]]] = {name: [] for name in models}
     for index in range(args.rounds):
         for name in list(models)[:: 1 if index % 2 == 0 else -1]:

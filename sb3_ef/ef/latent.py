@@ -14,7 +14,6 @@ from torch.nn import functional as F
 
 from sb3_ef.auxiliary.momentum import momentum_copy, momentum_update
 from sb3_ef.common.augmentation import random_shift
-from sb3_ef.common.env_checks import FRAME_CHANNELS
 from sb3_ef.common.layers import mlp
 from sb3_ef.common.precision import float32
 
@@ -66,23 +65,24 @@ def draw_other_steps(
 def stacked_observations_at(observations: th.Tensor, future_frames: th.Tensor, steps: th.Tensor) -> th.Tensor:
     """The stacked observation at t+k of each sample, rebuilt from the replay window (oldest frame first).
 
-    :param observations: (B, 3 * frame_stack, h, w) stacked observations at t.
-    :param future_frames: (B, H, 3, h, w) the newest frame of the observations t+1 .. t+H.
+    :param observations: (B, C * frame_stack, h, w) stacked observations at t.
+    :param future_frames: (B, H, C, h, w) the newest frame of the observations t+1 .. t+H (C: 3 for RGB, 1 grey).
     :param steps: (B,) k in [1, H] per sample.
     """
     batch, channels, height, width = observations.shape
+    frame_channels = future_frames.shape[2] if future_frames.dim() == 5 else 0
     if (
-        channels % FRAME_CHANNELS
-        or future_frames.dim() != 5
+        not frame_channels
+        or channels % frame_channels
         or future_frames.shape[0] != batch
-        or tuple(future_frames.shape[2:]) != (FRAME_CHANNELS, height, width)
+        or tuple(future_frames.shape[3:]) != (height, width)
     ):
         raise ValueError(
-            f"Expected observations (batch, 3 * frame_stack, h, w) and future_frames (batch, H, 3, h, w), got "
+            f"Expected observations (batch, C * frame_stack, h, w) and future_frames (batch, H, C, h, w), got "
             f"{tuple(observations.shape)} and {tuple(future_frames.shape)}"
         )
-    frame_stack, horizon = channels // FRAME_CHANNELS, future_frames.shape[1]
-    context = observations.unflatten(1, (frame_stack, FRAME_CHANNELS))
+    frame_stack, horizon = channels // frame_channels, future_frames.shape[1]
+    context = observations.unflatten(1, (frame_stack, frame_channels))
     rows = th.arange(batch, device=observations.device)
     stacked = []
     for slot in range(frame_stack):  # slot j of the observation at t+k is frame t+k-frame_stack+1+j

@@ -65,11 +65,11 @@ def check_image_observations(space: spaces.Space, algorithm: str) -> None:
 class OnPolicyEFMixin(AuxiliaryHostMixin):
     """Adds Ego-Foresight to an SB3 on-policy algorithm with ``CnnPolicy``: ``class PPOEF(OnPolicyEFMixin, PPO)``.
 
-    :param beta: weight of the EF loss, added to the host's loss on each minibatch (its gradient is not clipped; the
-        default makes it about as strong as the host's on the encoder, docs/ef.md).
+    :param beta: weight of the EF loss, added to the host's loss on each minibatch (its gradient clipped apart to
+        ``beta * max_grad_norm``: ``beta`` sets EF's pull on the shared encoder against the host's, docs/ef.md).
     :param ef_horizon: EF's horizon H, at most ``n_steps * ef_rollouts``.
-    :param ef_rollouts: rollouts EF's windows are cut from: 1, the current one, where they start at the minibatch's
-        steps (one encoder pass serves both losses); more, a ring of the last ones, drawn uniformly and encoded apart.
+    :param ef_rollouts: rollouts EF's windows are cut from: a ring of the last ones, drawn uniformly and encoded
+        apart; 1, the current one, where they start at the minibatch's steps (one encoder pass serves both losses).
     :param agent_dim: size of h_a, the first features of the policy's shared features extractor.
     :param ef_kwargs: extra arguments of :class:`sb3_ef.ef.EgoForesight`.
     :param frame_channels: channels of one frame (``None``: the observation's channels over the frames stacked).
@@ -95,9 +95,9 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
         policy: str | type[ActorCriticCnnPolicy],
         env: GymEnv | str,
         *,
-        beta: float = 0.01,
+        beta: float = 1.0,
         ef_horizon: int = 10,
-        ef_rollouts: int = 1,
+        ef_rollouts: int = 4,
         agent_dim: int = 32,
         ef_kwargs: dict[str, Any] | None = None,
         frame_channels: int | None = None,
@@ -287,13 +287,15 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
 
     def _step(self, host_loss: th.Tensor | None, ef_loss: th.Tensor) -> dict[str, th.Tensor]:
         """One step of the policy's optimiser on the host's gradient, clipped as SB3 clips it (over the policy), plus
-        EF's ``beta``-weighted one, unclipped as EF's authors train it; ``host_loss=None`` steps EF alone."""
+        EF's, clipped apart (over the encoder and EF) to ``beta * max_grad_norm``; ``host_loss=None`` steps EF alone.
+        ``ef_loss`` is ``beta * L_ef``, so that EF's gradient is its own clipped as the host's is, times ``beta``."""
         assert self.auxiliary is not None
         self._check_finite(ef_loss=ef_loss, **({} if host_loss is None else {"loss": host_loss}))
         encoder = list(self.policy.features_extractor.parameters())
         self.policy.optimizer.zero_grad()
         ef_loss.backward(retain_graph=host_loss is not None)
-        logs = {"ef_grad_norm": gradient_norm([*encoder, *self.auxiliary.parameters()])}
+        ef_params = [*encoder, *self.auxiliary.parameters()]
+        logs = {"ef_grad_norm": th.nn.utils.clip_grad_norm_(ef_params, self.beta * self.max_grad_norm)}
         if host_loss is not None:
             ef_grads = [param.grad for param in encoder]
             self.policy.zero_grad()  # the policy's parameters: EF's own keep their gradients
@@ -403,16 +405,10 @@ class PPOEF(OnPolicyEFMixin, PPO):
 
 
 class A2CEF(OnPolicyEFMixin, A2C):
-    """A2C (Mnih et al., 2016) from stacked uint8 frames with Ego-Foresight (arguments: :class:`OnPolicyEFMixin`;
-    ``ef_horizon`` defaults to A2C's ``n_steps``, 5)."""
+    """A2C (Mnih et al., 2016) from stacked frames with Ego-Foresight (arguments: :class:`OnPolicyEFMixin`)."""
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"CnnPolicy": ActorCriticCnnPolicy}
     default_log_interval = 100
-
-    def __init__(
-        self, policy: str | type[ActorCriticCnnPolicy], env: GymEnv | str, *, ef_horizon: int = 5, **kwargs: Any
-    ):
-        super().__init__(policy, env, ef_horizon=ef_horizon, **kwargs)
 
     def train(self) -> None:
         """SB3's ``A2C.train`` (one update on the whole rollout) with EF's loss joining it; a babbling rollout trains

@@ -41,7 +41,7 @@ def test_the_stacked_observation_at_t_plus_k_holds_frames_t_plus_k_minus_2_to_t_
     assert stacked.shape == observations.shape and stacked.dtype == th.uint8
     times = stacked.unflatten(1, (STACK, 3))[:, :, 0, 0, 0].long() - 10
     assert th.equal(times, steps[:, None] + th.arange(-STACK + 1, 1))
-    with pytest.raises(ValueError, match=r"future_frames \(batch, H, 3, h, w\)"):
+    with pytest.raises(ValueError, match=r"future_frames \(batch, H, C, h, w\)"):
         stacked_observations_at(observations, future[:, :, :, :8], steps)
 
 

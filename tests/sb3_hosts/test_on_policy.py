@@ -1,5 +1,9 @@
 """PPO-EF and A2C-EF: SB3's contract (parts of SB3's test_run, test_save_load and test_predict, adapted), the host's
-update left as SB3's, EF's gradient routes, babbling, Atari frames and bad input."""
+update left as SB3's, EF's gradient routes, babbling, Atari frames and bad input.
+
+Differences from SB3's tests: image envs (the toy world, FakeImageEnv frames stacked as Atari's) with a small CNN
+instead of MlpPolicy on vector envs (EF needs frames); CPU only (no CUDA here) and no torch.compile round trip;
+CnnPolicy only (MlpPolicy and MultiInputPolicy are refused)."""
 
 from copy import deepcopy
 from pathlib import Path
@@ -293,7 +297,7 @@ class UnboundedActions(gym.ActionWrapper):
         (VectorEnv(), {}, r"PPOEF needs image observations: a uint8 Box"),
         (toy_env(), {"policy": "MultiInputPolicy"}, r"PPOEF supports policy 'CnnPolicy'"),
         (UnboundedActions(toy_env()), {}, r"encodes actions of a Box \(finite bounds\), Discrete, MultiDiscrete"),
-        (toy_env(), {"ef_horizon": 9}, r"ef_horizon <= n_steps \* ef_rollouts = 8 \* 1, got ef_horizon=9"),
+        (toy_env(), {"ef_horizon": 33}, r"ef_horizon <= n_steps \* ef_rollouts = 8 \* 4, got ef_horizon=33"),
         (toy_env(), {"beta": 0.0}, r"use PPO to train without Ego-Foresight"),
         (toy_env(), {"agent_dim": 32}, r"feature_dim=32\), got 32"),
         (toy_env(), {"frame_channels": 2}, r"frame_channels must divide the observation's 9 channels, got 2"),
@@ -376,3 +380,10 @@ def test_bf16_updates_stay_close_to_float32_and_the_option_is_saved(algorithm, t
     for key in ("train/ef_loss", "train/value_loss"):
         assert np.isfinite(logs["bf16"][key])
         assert logs["bf16"][key] == pytest.approx(logs["fp32"][key], rel=0.05), key
+
+
+def test_latent_ef_predicts_the_features_of_grey_frame_stacks():
+    ef_kwargs = {"target": "latent", "rollout_hidden_dims": (16,), "projection_dim": 8, "head_hidden_dim": 16}
+    model = make(PPOEF, grey_stack(), ef_kwargs=ef_kwargs)
+    model.learn(32)
+    assert model.ef.target == "latent" and np.isfinite(model.logger.name_to_value["train/ef_loss"])

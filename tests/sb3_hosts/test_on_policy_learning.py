@@ -16,8 +16,8 @@ def toy_env() -> ToyAgentEnv:
 @pytest.mark.slow
 def test_ppo_ef_learns_to_bring_the_agent_to_the_centre():
     """Reward: minus the agent's distance to the frame centre, so the policy must find the red square in the image.
-    Random actions earn about -6.7 per 20-step episode; PPO-EF (beta 0.01) after 4096 steps about -1.9 (~1-2.5 min
-    on 2 loaded cores)."""
+    Random actions earn about -6.7 per 20-step episode; PPO-EF after 4096 steps about -1.0 (~1-2.5 min on 2 loaded
+    cores)."""
     policy = {
         "net_arch": [64],
         "normalize_images": False,

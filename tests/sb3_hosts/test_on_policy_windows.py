@@ -73,7 +73,7 @@ def test_valid_windows_follow_the_frame_stack_of_a_real_rollout():
     step t+i of a window has observation t+i's newest frame one slot back in observation t+i+1, and its target is
     the newest frame of that observation."""
     env = VecFrameStack(DummyVecEnv([lambda: FakeImageEnv(screen_height=32, screen_width=32)] * 2), 2)
-    model = PPOEF("CnnPolicy", env, n_steps=16, batch_size=32, policy_kwargs=dict(POLICY), seed=0, **EF)
+    model = PPOEF("CnnPolicy", env, n_steps=16, batch_size=32, policy_kwargs=dict(POLICY), seed=0, ef_rollouts=1, **EF)
     model.learn(32)  # two rollouts; FakeImageEnv's episodes last 10 steps
     buffer = model.rollout_buffer  # train() read (flattened) the last rollout: collect one more and cut it
     model.collect_rollouts(model.env, model._init_callback(None), buffer, model.n_steps)

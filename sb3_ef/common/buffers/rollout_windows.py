@@ -129,7 +129,8 @@ class RolloutRing:
 
     def add(self, observations: np.ndarray, actions: th.Tensor, episode_starts: np.ndarray, device: th.device) -> None:
         frames = th.as_tensor(observations, device=device).to(th.uint8)
-        self.rollouts.append((frames, actions.to(device), th.as_tensor(episode_starts, device=device)))
+        starts = th.as_tensor(episode_starts, dtype=th.bool, device=device)  # a copy, not a view of SB3's array
+        self.rollouts.append((frames, actions.to(device), starts))
 
     def windows(
         self, last_observations: np.ndarray, last_episode_starts: np.ndarray, frame_channels: int, horizon: int
