@@ -21,6 +21,8 @@ MOVED_MODULES = {
     "sb3_ef.dreamerv3.timing": f"left the package: its loop timing is benchmarks/dreamer_timing.py {_REPOSITORY}",
     "sb3_ef.offline.shards": "was merged into sb3_ef.offline.tfrecord (ExampleShards, record_offsets, read_record_at)",
     "sb3_ef.offline.interrupt": "moved to sb3_ef.common.interrupt (Interrupted; the sb3-ef script prints the line)",
+    "sb3_ef.auxiliary.step": "moved to sb3_ef.sb3_hosts.step (AuxiliaryStepMixin, also sb3_ef.sb3_hosts')",
+    "sb3_ef.zoo.sheeprl_run": "moved to sb3_ef.dreamerv3.zoo_run (Dreamer-v3's train and enjoy in rl-zoo3's folders)",
 }
 #: Old name in a module that remains -> where it went.
 MOVED_NAMES = {
@@ -30,6 +32,11 @@ MOVED_NAMES = {
     "sb3_ef.offline.tfrecord.serialize_example": (
         f"left the package (it wrote test fixtures): tests/offline/examples.py {_REPOSITORY}"
     ),
+    "sb3_ef.auxiliary.AuxiliaryStepMixin": "moved to sb3_ef.sb3_hosts.AuxiliaryStepMixin (an SB3 off-policy host's)",
+    "sb3_ef.ef.foresight.ForesightLoss": "moved to sb3_ef.ef.losses.ForesightLoss (also sb3_ef.ef.ForesightLoss)",
+    "sb3_ef.ef.foresight.ForesightTargets": "moved to sb3_ef.ef.losses.ForesightTargets",
+    "sb3_ef.ef.foresight.momentum_target": "left the package: sb3_ef.ef.foresight_loss builds latent EF and its target",
+    "sb3_ef.ef.latent.check_target": "left the package: sb3_ef.ef.check_ef_kwargs checks ef_kwargs",
 }
 _MODULES_WITH_MOVED_NAMES = {path.rpartition(".")[0] for path in MOVED_NAMES}
 
