@@ -72,20 +72,38 @@ def transcriptions() -> tuple[Any, Callable[[TDMPC2], Any]]:
 
 
 def drqv2_reference(model: DrQv2) -> Any:
-    """The authors' DrQ-v2 agent (``RefAgent``, with ``model``'s weights). The transcription's sizes are module
-    constants, the test's tiny ones: set here to the paper's (84x84 frames, 1024-wide heads, trunk 50, h_a 32)."""
+    """The authors' DrQ-v2 agent (examples/drqv2_ef_single_file.py's ``DrQv2EFAgent``, with ``model``'s weights),
+    built by the reference test's ``reference_of`` with its tiny sizes set to the model's (84x84 frames, 1024-wide
+    heads, trunk 50, the EF sizes)."""
     reference, _ = transcriptions()
-    policy = model.policy
-    reference.FRAME, reference.HIDDEN, reference.TRUNK = model.observation_space.shape[-1], 1024, policy.trunk_dim
-    reference.AGENT, reference.BETA, reference.LR = getattr(policy, "agent_dim", 32), 1.0, model.lr_schedule(1)
+    from examples.drqv2_ef_single_file import Config
+
+    policy, ef_kwargs = model.policy, getattr(model.policy, "ef_kwargs", {})
+    reference.FRAME, reference.FEATURES = model.observation_space.shape[-1], policy.encoder.features_dim
+    reference.AGENT = getattr(policy, "agent_dim", 32)
+    reference.CONFIG = Config(
+        learning_rate=model.lr_schedule(1), features_dim=reference.FEATURES, trunk_dim=policy.trunk_dim,
+        agent_dim=reference.AGENT, horizon=getattr(model, "ef_horizon", 10),
+        rollout_hidden_dims=tuple(ef_kwargs.get("rollout_hidden_dims", (512, 512))),
+        decoder_channels=ef_kwargs.get("decoder_channels", 64),
+    )  # fmt: skip
     return reference.reference_of(model)
 
 
 def drqv2_shifted(model: DrQv2, sampled: Any) -> tuple[Any, ...]:
-    """The arguments of ``RefAgent.update``: the batch shifted as sb3-ef's update shifts it."""
+    """The arguments of the reference's ``update``: the batch shifted as sb3-ef's update shifts it."""
+    from examples.drqv2_ef_single_file import Batch as ReferenceBatch
+
     observations, next_observations, targets = model._augment(sampled)
-    discounts = (1.0 - sampled.dones) * sampled.discounts
-    return observations, sampled.actions, sampled.rewards, discounts, next_observations, 0, targets
+    ef = {} if targets is None else {
+        "ef_step": int(targets.steps[0]), "ef_frames": targets.target, "ef_actions": targets.actions,
+        "ef_valid": targets.valid,
+    }  # fmt: skip
+    batch = ReferenceBatch(
+        observations, sampled.actions, sampled.rewards, sampled.discounts, sampled.dones, next_observations,
+        **{"ef_step": 1, "ef_frames": None, "ef_actions": None, "ef_valid": None, **ef},
+    )  # fmt: skip
+    return batch, 0
 
 
 def tdmpc2_reference(model: TDMPC2) -> Any:
