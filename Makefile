@@ -19,7 +19,7 @@ format:
 type:
 	mypy
 
-test:  ## the default set, about 8-9 minutes on 2 cores
+test:  ## the default set, about 11 minutes on 2 cores
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PYTHON) -m pytest
 
 test-slow:  ## the slow set only: learning checks, notebooks, the two-node Ray cluster
