@@ -31,7 +31,7 @@ class SimNorm(nn.Module):
     def forward(self, x: th.Tensor) -> th.Tensor:
         if x.shape[-1] % self.group_dim != 0:
             raise ValueError(f"SimNorm needs a feature size divisible by {self.group_dim}, got {x.shape[-1]}")
-        groups = x.float().unflatten(-1, (-1, self.group_dim))  # the softmax in float32 (of bf16 mixed precision)
+        groups = x.float().unflatten(-1, (-1, self.group_dim))  # a float32 softmax of bf16 outputs (mixed precision)
         return F.softmax(groups, dim=-1).flatten(-2)
 
     def extra_repr(self) -> str:

@@ -21,8 +21,6 @@ from torch import nn
 
 from sb3_ef.common.validation import PRECISIONS, check_choice
 
-__all__ = ["PRECISIONS", "autocast", "check_precision", "float32", "float32_outputs"]
-
 
 def check_precision(precision: Any, device: th.device | str) -> str:
     """``precision`` if it is one of :data:`PRECISIONS` and ``device`` can run it; else a ``ValueError`` naming both."""
@@ -31,18 +29,12 @@ def check_precision(precision: Any, device: th.device | str) -> str:
         resolved = get_device(device)  # "auto" and a missing GPU as the algorithms resolve them
         if resolved.type not in ("cpu", "cuda"):
             raise ValueError(f"precision='bf16' runs on 'cpu' and 'cuda' devices, got device {str(resolved)!r}")
-        if resolved.type == "cuda" and not _native_bf16(resolved):
+        if resolved.type == "cuda" and th.cuda.get_device_capability(resolved) < (8, 0):  # emulated: slower
             raise ValueError(
                 f"precision='bf16' needs a GPU with native bfloat16 maths (compute capability 8.0 or newer), and "
                 f"{th.cuda.get_device_name(resolved)} has none: use precision='fp32'"
             )
     return precision
-
-
-def _native_bf16(device: th.device) -> bool:
-    """Whether the GPU ``device`` runs bfloat16 natively (emulated bfloat16 is slower than float32)."""
-    with th.cuda.device(device):
-        return th.cuda.is_bf16_supported(including_emulation=False)
 
 
 @contextmanager

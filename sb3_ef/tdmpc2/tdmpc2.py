@@ -54,7 +54,8 @@ class TDMPC2(AuxiliaryHostMixin, OwnExplorationMixin, OffPolicyAlgorithm):
     :param seed_burst: run as many updates as seed steps when they end (TD-MPC2); ``False``: one update per step.
     :param check_finite_losses: raise a ``ValueError`` naming a NaN or infinite loss before the step (debugging).
     :param compile: ``torch.compile`` the losses: ``False``, ``True``, a mode name or a dict of its arguments.
-    :param precision: ``"fp32"`` or ``"bf16"`` (bfloat16 mixed precision of the updates, docs/precision.md).
+    :param precision: ``"fp32"`` or ``"bf16"`` (bfloat16 mixed precision of the updates and the planner,
+        docs/precision.md).
     :param replay_buffer_class: a :class:`SequenceReplayBuffer` (sub)class; ``None`` picks it.
     :param replay_buffer_kwargs: extra buffer arguments (``n_steps`` and the window horizon are filled in).
     :param stats_window_size: episodes averaged for the rollout logs.
