@@ -29,6 +29,8 @@ def new_dreamerv3(spec: RunSpec, env: gym.Env, device: str, work_dir: Path) -> D
     """The model of a ``dreamerv3`` run that starts anew, on ``env``, writing into ``work_dir``."""
     from sb3_ef.dreamerv3 import DreamerV3
 
+    if spec.vectorized:
+        raise ValueError(f"{spec.run_id}: DreamerV3 trains on one env; n_envs > 1 and env_wrapper are not supported")
     given = sorted(set(RUNNER_SET) & set(spec.hyperparams))
     if given:
         raise ValueError(f"{spec.run_id}: {given} are set by the runner, not by the hyperparameters")

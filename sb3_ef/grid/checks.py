@@ -6,9 +6,8 @@ import os
 from collections.abc import Sequence
 from typing import Any
 
-from sb3_ef import registry
-from sb3_ef.grid.grid import RunSpec
-from sb3_ef.grid.run import RunPaths, build_env, new_model, read_result
+from sb3_ef.grid.grid import RunSpec, algorithm_class
+from sb3_ef.grid.run import RunPaths, build_training_env, new_model, read_result
 from sb3_ef.registry import import_target
 
 #: Errors of a row's check reported by their message alone (others are prefixed by their type: a likely bug).
@@ -45,9 +44,9 @@ def _describe(error: Exception) -> str:
 
 def check_row(spec: RunSpec, device: str = "auto") -> None:
     """Raise what the start of ``spec``'s run would raise (module docstring); nothing is trained or written."""
-    env = build_env(spec, seed=spec.seed)
+    env = build_training_env(spec, seed=spec.seed)
     try:
-        registry.entry(spec.algo, "RunSpec.algo")  # a known key
+        algorithm_class(spec.algo, "RunSpec.algo")  # a known key
         (import_target(GRID_CHECKS[spec.algo]) if spec.algo in GRID_CHECKS else check_sb3_row)(spec, env, device)
     finally:
         env.close()

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
 import fnmatch
 import os
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -27,7 +29,10 @@ REQUIRED_BLOCK_KEYS = frozenset({"algorithms", "tasks", "seeds", "eval_freq"})
 ALGORITHM_KEYS = frozenset({"algo", "conf_file", "hyperparams", "env_kwargs", "steps_per_second"})
 
 #: Zoo-config keys the runner reads itself; the rest go to the algorithm constructor.
-RUNNER_KEYS = frozenset({"n_timesteps", "env_kwargs", "n_envs"})
+RUNNER_KEYS = frozenset({"n_timesteps", "env_kwargs", "n_envs", "env_wrapper", "frame_stack"})
+
+#: Keys whose ``lin_<initial value>`` strings rl-zoo3 turns into linear schedules.
+LINEAR_SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf")
 
 #: Zoo-config values rl-zoo3 evaluates when they are strings (``policy_kwargs: dict(...)``).
 EVALUATED_KEYS = ("policy_kwargs", "replay_buffer_class", "replay_buffer_kwargs")
@@ -49,7 +54,8 @@ class Algorithm:
     """One algorithm column of a grid.
 
     :param label: its name in the records, folders and tables (``drqv2_ef_beta1e-3``).
-    :param algo: the registry key of the class; default ``label``.
+    :param algo: the registry key of the class, or a key of rl-zoo3's own algorithms for a baseline (``ppo``: SB3's PPO,
+        its entries from rl-zoo3's hyperparameter files); default ``label``.
     :param conf_file: zoo-format YAML the entries come from; default ``zoo_configs/<algo>.yml``.
     :param hyperparams: overrides of the entries' values, in zoo syntax.
     :param env_kwargs: env options merged over the entries' and the grid's ``env_kwargs``.
@@ -65,7 +71,7 @@ class Algorithm:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "algo", self.algo or self.label)
-        registry.entry(str(self.algo), f"Algorithm {self.label!r}: algo")  # a known key
+        algorithm_class(str(self.algo), f"Algorithm {self.label!r}: algo")  # a known key
         if not self.label or "/" in self.label or self.label != self.label.strip():
             raise ValueError(
                 f"Algorithm label must be a non-empty name without '/' or spaces around, got {self.label!r}"
@@ -89,6 +95,9 @@ class RunSpec:
     hyperparams: Mapping[str, Any] = field(default_factory=dict)
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)
     steps_per_second: float | None = None
+    n_envs: int = 1
+    env_wrapper: Any = None
+    frame_stack: int | None = None
 
     @property
     def run_id(self) -> str:
@@ -97,22 +106,66 @@ class RunSpec:
 
     @property
     def action_repeat(self) -> int:
-        """Env frames per agent step (``make_env``'s default 2 unless ``env_kwargs`` says otherwise)."""
+        """Env frames per agent step: ``make_env``'s default 2 unless ``env_kwargs`` says otherwise; SB3's
+        ``AtariWrapper`` in ``env_wrapper`` skips its ``frame_skip`` (4); 1 otherwise."""
         if self.task.startswith(MAKE_ENV_SUITES):
             return int(self.env_kwargs.get("action_repeat", 2))
+        wrappers = self.env_wrapper if isinstance(self.env_wrapper, list) else [self.env_wrapper]
+        for wrapper in wrappers:
+            name, kwargs = next(iter(wrapper.items())) if isinstance(wrapper, dict) else (wrapper, None)
+            if str(name).endswith("AtariWrapper"):
+                return int((kwargs or {}).get("frame_skip", 4))
         return 1
+
+    @property
+    def vectorized(self) -> bool:
+        """Whether the run's envs are built as rl-zoo3 builds them (``n_envs`` > 1, an ``env_wrapper`` or a
+        ``frame_stack``), not as one env given to the algorithm."""
+        return self.n_envs > 1 or self.env_wrapper is not None or bool(self.frame_stack)
+
+
+def algorithm_class(algo: str, argument: str = "algo") -> type:
+    """The class of a grid's ``algo``: a key of sb3-ef's registry, else of rl-zoo3's own algorithms (baselines)."""
+    if algo in registry.ALGORITHMS:
+        return registry.entry(algo).algorithm_class
+    from rl_zoo3 import ALGOS
+
+    if algo in ALGOS:
+        return ALGOS[algo]
+    zoo = sorted(set(ALGOS) - set(registry.ALGORITHMS))
+    raise ValueError(
+        f"{argument} {algo!r}{did_you_mean(str(algo), [*registry.ALGORITHMS, *zoo])} is not a known algorithm: "
+        f"expected one of sb3-ef's {', '.join(registry.ALGORITHMS)} or rl-zoo3's {', '.join(zoo)}"
+    )
+
+
+def config_path(algo: str) -> Path:
+    """The default zoo file of ``algo``: sb3-ef's ``zoo_configs/<algo>.yml``, or rl-zoo3's own for its algorithms."""
+    if algo in registry.ALGORITHMS:
+        return zoo_config.default_config_path(algo)
+    import rl_zoo3
+
+    return Path(rl_zoo3.__file__).parent / "hyperparams" / f"{algo}.yml"
+
+
+def register_atari(task: str) -> None:
+    """Register the Atari ids with gymnasium (``ale-py``, the ``atari`` extra) unless ``task`` is registered."""
+    if task not in gym.envs.registry:
+        with contextlib.suppress(ImportError):
+            import ale_py  # noqa: F401  (as rl-zoo3's import_envs does)
 
 
 def resolve_task(task: str) -> str:
     """The registered gymnasium id for ``task``: itself, or with ``-v0`` appended (``dmc/cartpole-balance``)."""
     if not isinstance(task, str):
         raise ValueError(f"A task must be a gymnasium id (a string), got {task!r}")
+    register_atari(task)
     for candidate in (task, f"{task}-v0"):
         if candidate in gym.envs.registry:
             return candidate
     raise ValueError(
         f"Unknown task {task!r}{did_you_mean(task, gym.envs.registry)}: expected a registered id such as "
-        "'dmc/cartpole-balance-v0' or 'toy/agent-v0'"
+        "'dmc/cartpole-balance-v0', 'toy/agent-v0' or 'PongNoFrameskip-v4'"
     )
 
 
@@ -176,17 +229,17 @@ def _positive(name: str, value: Any) -> int:
 
 def _entry(algorithm: Algorithm, task: str, overrides: Mapping[str, Any]) -> dict[str, Any]:
     """The zoo entry for ``task`` with ``overrides`` applied, every key checked."""
-    algo_class = registry.entry(algorithm.algo).algorithm_class
-    path = algorithm.conf_file or zoo_config.default_config_path(algorithm.algo)
+    algo_class = algorithm_class(algorithm.algo)
+    path = algorithm.conf_file or config_path(algorithm.algo)
     entries = zoo_config.load_config(path)
-    zoo_config.validate_config(algorithm.algo, algo_class, entries, source=os.fspath(path))
+    if algorithm.algo in registry.ALGORITHMS:  # rl-zoo3's own files name envs of packages not imported here
+        zoo_config.validate_config(algorithm.algo, algo_class, entries, source=os.fspath(path))
     zoo_config.check_keys(algorithm.algo, algo_class, overrides, where=f"hyperparams of {algorithm.label!r}")
     entry = {**zoo_config.select_entry(entries, task), **overrides}
     unsupported = set(entry) & (zoo_config.ZOO_KEYS - RUNNER_KEYS)
     if unsupported:
         raise ValueError(f"{algorithm.label} on {task}: key(s) {sorted(unsupported)} are not supported by the runner")
-    if entry.get("n_envs", 1) != 1:
-        raise ValueError(f"{algorithm.label} on {task}: the runner trains on one env, got n_envs={entry['n_envs']}")
+    _positive("n_envs", entry.get("n_envs", 1))
     try:
         constructor_kwargs(entry)
     except Exception as error:  # a zoo string that does not evaluate: name the run it belongs to
@@ -197,15 +250,20 @@ def _entry(algorithm: Algorithm, task: str, overrides: Mapping[str, Any]) -> dic
 def constructor_kwargs(hyperparams: Mapping[str, Any]) -> dict[str, Any]:
     """A zoo entry's constructor arguments, strings of :data:`EVALUATED_KEYS` evaluated as rl-zoo3 does."""
     from rl_zoo3 import exp_manager
+    from rl_zoo3.utils import linear_schedule
 
     from sb3_ef.zoo.registration import config_namespace
 
     namespace = {**vars(exp_manager), **config_namespace()}
-    return {
+    kwargs = {
         key: eval(value, namespace) if key in EVALUATED_KEYS and isinstance(value, str) else value
         for key, value in hyperparams.items()
         if key not in RUNNER_KEYS
     }
+    for key in LINEAR_SCHEDULE_KEYS:
+        if isinstance(kwargs.get(key), str) and kwargs[key].startswith("lin_"):
+            kwargs[key] = linear_schedule(float(kwargs[key][len("lin_") :]))
+    return kwargs
 
 
 def grid_runs(
@@ -259,6 +317,12 @@ def grid_runs(
                     raise ValueError(
                         f"eval_freq ({eval_freq}) exceeds n_timesteps ({steps}) of {algorithm.label} on {task}"
                     )
+                n_envs = entry.get("n_envs", 1)
+                if eval_freq % n_envs:
+                    raise ValueError(
+                        f"eval_freq ({eval_freq}) of {algorithm.label} on {task} must be a multiple of its n_envs "
+                        f"({n_envs}): each env step is n_envs agent steps"
+                    )
             except ValueError as error:
                 problems[str(error)] = None
                 continue
@@ -267,7 +331,8 @@ def grid_runs(
                 "eval_freq": eval_freq, "eval_episodes": eval_episodes, "checkpoint_freq": checkpoint_freq,
                 "hyperparams": {key: value for key, value in entry.items() if key not in RUNNER_KEYS},
                 "env_kwargs": {**(entry.get("env_kwargs") or {}), **(env_kwargs or {}), **algorithm.env_kwargs},
-                "steps_per_second": algorithm.steps_per_second,
+                "steps_per_second": algorithm.steps_per_second, "n_envs": n_envs,
+                "env_wrapper": entry.get("env_wrapper"), "frame_stack": entry.get("frame_stack"),
             })  # fmt: skip
     if problems:
         raise GridError(list(problems))

@@ -12,7 +12,6 @@ from typing import TYPE_CHECKING, Any, TypedDict
 
 import gymnasium as gym
 
-from sb3_ef import registry
 from sb3_ef.analysis.records import (
     RECORD_COLUMNS,
     RUN_RESULT_FILE,
@@ -24,12 +23,12 @@ from sb3_ef.analysis.records import (
 from sb3_ef.common.evaluation import EVAL_SEED_OFFSET, StepSeededEvalCallback
 from sb3_ef.common.files import write_text_atomically
 from sb3_ef.envs.factory import MAKE_ENV_SUITES
-from sb3_ef.grid.grid import RunSpec, constructor_kwargs
+from sb3_ef.grid.grid import RunSpec, algorithm_class, constructor_kwargs, register_atari
 from sb3_ef.registry import import_target
 
 if TYPE_CHECKING:
     from stable_baselines3.common.noise import ActionNoise
-    from stable_baselines3.common.vec_env import DummyVecEnv
+    from stable_baselines3.common.vec_env import VecEnv
 
 #: The training function (``"module:function"``) of each registry key that SB3's ``learn`` does not train, by path,
 #: as it lives in that algorithm's workbench package, above the grid; the others train with :func:`train_sb3`.
@@ -101,17 +100,37 @@ def build_env(spec: RunSpec, seed: int) -> gym.Env:
         from sb3_ef.envs import make_env
 
         return make_env(spec.task, seed=seed, **spec.env_kwargs)
+    register_atari(spec.task)
     return gym.make(spec.task, **spec.env_kwargs)
 
 
-def build_eval_env(spec: RunSpec, seed: int) -> DummyVecEnv:
-    """One monitored env seeded with ``seed + EVAL_SEED_OFFSET``, so its episodes differ from the training ones."""
-    from stable_baselines3.common.monitor import Monitor
-    from stable_baselines3.common.vec_env import DummyVecEnv
+def build_vec_env(spec: RunSpec, seed: int, n_envs: int) -> VecEnv:
+    """``n_envs`` of the run's envs as rl-zoo3 builds them: seeded ``seed + i``, each monitored inside the entry's
+    ``env_wrapper`` (so an evaluation reads whole games' unclipped returns), frames stacked by ``VecFrameStack``, and
+    channels-last images transposed as SB3 transposes the training envs."""
+    from rl_zoo3.utils import get_wrapper_class
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.preprocessing import is_image_space, is_image_space_channels_first
+    from stable_baselines3.common.vec_env import VecFrameStack, VecTransposeImage
 
-    eval_env = DummyVecEnv([lambda: Monitor(build_env(spec, seed=seed + EVAL_SEED_OFFSET))])
-    eval_env.seed(seed + EVAL_SEED_OFFSET)
-    return eval_env
+    wrapper = get_wrapper_class({"env_wrapper": spec.env_wrapper}) if spec.env_wrapper is not None else None
+    envs = make_vec_env(lambda: build_env(spec, seed), n_envs, seed=seed, wrapper_class=wrapper)
+    if spec.frame_stack:
+        envs = VecFrameStack(envs, spec.frame_stack)
+    space = envs.observation_space
+    if is_image_space(space) and not is_image_space_channels_first(space):  # type: ignore[arg-type]
+        envs = VecTransposeImage(envs)
+    return envs
+
+
+def build_training_env(spec: RunSpec, seed: int) -> gym.Env | VecEnv:
+    """The env a run trains on: its one env, or rl-zoo3's vectorised envs where the entry asks for them."""
+    return build_vec_env(spec, seed, spec.n_envs) if spec.vectorized else build_env(spec, seed)
+
+
+def build_eval_env(spec: RunSpec, seed: int) -> VecEnv:
+    """One monitored env seeded with ``seed + EVAL_SEED_OFFSET``, so its episodes differ from the training ones."""
+    return build_vec_env(spec, seed + EVAL_SEED_OFFSET, n_envs=1)
 
 
 def action_noise(noise_type: Any, noise_std: Any, action_space: gym.Space) -> ActionNoise:
@@ -130,14 +149,13 @@ def action_noise(noise_type: Any, noise_std: Any, action_space: gym.Space) -> Ac
     return kinds[noise_type](mean=np.zeros(size), sigma=noise_std * np.ones(size))
 
 
-def new_model(spec: RunSpec, env: gym.Env, device: str, **options: Any) -> Any:
+def new_model(spec: RunSpec, env: gym.Env | VecEnv, device: str, **options: Any) -> Any:
     """The algorithm of a run that starts anew, on ``env``, with the run's hyperparameters and ``options``."""
     kwargs = constructor_kwargs(dict(spec.hyperparams))
     if "noise_type" in kwargs or "noise_std" in kwargs:
         noise = kwargs.pop("noise_type", None), kwargs.pop("noise_std", None)
         kwargs["action_noise"] = action_noise(*noise, env.action_space)
-    algo_class = registry.entry(spec.algo).algorithm_class
-    return algo_class(env=env, seed=spec.seed, device=device, **kwargs, **options)
+    return algorithm_class(spec.algo)(env=env, seed=spec.seed, device=device, **kwargs, **options)
 
 
 class RunOptions(TypedDict):
@@ -162,7 +180,7 @@ def execute_run(
     finished = read_result(paths)
     if finished is not None:
         return finished
-    registry.entry(spec.algo, "RunSpec.algo")  # a known key
+    algorithm_class(spec.algo, "RunSpec.algo")  # a known key
     train = import_target(GRID_RUNS[spec.algo]) if spec.algo in GRID_RUNS else train_sb3
     start = time.perf_counter()
     steps, resumed_from = train(spec, paths, threads, device, keep_checkpoints)
@@ -180,9 +198,9 @@ def train_sb3(
     from sb3_ef.zoo.progress import ProgressLogCallback
 
     th.set_num_threads(threads)
-    env = build_env(spec, seed=spec.seed)
+    env = build_training_env(spec, seed=spec.seed)
     eval_env = build_eval_env(spec, spec.seed)
-    algo_class = registry.entry(spec.algo).algorithm_class
+    algo_class = algorithm_class(spec.algo)
     checkpoint = latest_checkpoint(paths.checkpoints)
     if checkpoint is None:
         paths.records.unlink(missing_ok=True)
@@ -198,13 +216,13 @@ def train_sb3(
         paths.records, algo=record_name, task=spec.task, seed=spec.seed, action_repeat=spec.action_repeat
     )
     evaluation = StepSeededEvalCallback(
-        eval_env, spec.seed, eval_freq=spec.eval_freq, n_eval_episodes=spec.eval_episodes,
+        eval_env, spec.seed, eval_freq=spec.eval_freq // spec.n_envs, n_eval_episodes=spec.eval_episodes,
         callback_after_eval=recorder, verbose=0,
     )  # fmt: skip
     # Checkpoints are written at the start of the rollout after their step, so after that step's evaluation.
     callbacks = [
         evaluation,
-        ResumableCheckpointCallback(spec.checkpoint_freq, str(paths.checkpoints), keep=keep_checkpoints),
+        ResumableCheckpointCallback(spec.checkpoint_freq // spec.n_envs, str(paths.checkpoints), keep=keep_checkpoints),
         ProgressLogCallback(spec.n_timesteps, prefix=f"[{spec.run_id}] "),
     ]
     remaining = spec.n_timesteps - model.num_timesteps

@@ -94,8 +94,9 @@ def allowed_keys(algo_class: type) -> frozenset[str]:
 
 
 def check_keys(algo: str, algo_class: type, keys: Any, where: str) -> None:
-    """Raise ``ValueError`` naming the first key that ``algo_class`` (through rl-zoo3) would not accept."""
-    item = registry.entry(algo)
+    """Raise ``ValueError`` naming the first key that ``algo_class`` (through rl-zoo3) would not accept; an ``algo``
+    outside the registry is one of rl-zoo3's own (SB3's classes: every rl-zoo3 key)."""
+    item = registry.ALGORITHMS.get(algo, registry.AlgorithmEntry(algo, "", zoo_frame_stack=True))
     allowed = allowed_keys(algo_class) | (frozenset() if item.own_exploration else NOISE_KEYS)
     allowed |= {"frame_stack"} if item.zoo_frame_stack else frozenset()
     rejected = {

@@ -86,7 +86,12 @@ def _block(**changes) -> dict:
 @pytest.mark.parametrize(
     ("document", "message"),
     [
-        ({"grids": [_block(algorithms=["ppo"])]}, "algo 'ppo' (did you mean 'ppo_ef'?) is not a known algorithm"),
+        ({"grids": [_block(algorithms=["ppo_eff"])]}, "'ppo_eff' (did you mean 'ppo_ef' or 'ppo'?) is not a known"),
+        ({"grids": [_block(algorithms=["ppo"], hyperparams={"n_envs": 0})]}, "'n_envs' must be a positive integer"),
+        (
+            {"grids": [_block(algorithms=["ppo"], tasks=["PongNoFrameskip-v4"], n_timesteps=100)]},
+            "eval_freq (10) of ppo on PongNoFrameskip-v4 must be a multiple of its n_envs (8)",
+        ),
         ({"grids": [_block(tasks=["dmc/cartpole-balanse"])]}, "Unknown task 'dmc/cartpole-balanse'"),
         ({"grids": [_block(hyperparams={"batch_sise": 8})]}, "unknown key 'batch_sise'"),
         ({"grids": [_block(hyperparams={"normalize": True})]}, "['normalize'] are not supported by the runner"),
