@@ -12,6 +12,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from sb3_ef.analysis.prediction import ForesightModel
 from sb3_ef.analysis.report import foresight_report, record_rollout
 from sb3_ef.common.acting import EpisodeActor
+from sb3_ef.common.buffers import SequenceReplayBuffer
 from sb3_ef.ef.probe import fit_probe
 
 _NOT_TEXT = ("stdout", "log", "json", "csv")
@@ -63,10 +64,17 @@ class ForesightLoggerCallback(BaseCallback):
             raise ValueError(
                 f"ForesightLoggerCallback needs a model with Ego-Foresight; {type(self.model).__name__}.ef is None"
             )
-        expected = tuple(cast(ForesightModel, self.model).frame_shape[1:])
+        model = cast(ForesightModel, self.model)
+        expected = tuple(model.frame_shape[1:])
         received = tuple(self.eval_env.observation_space.shape or ())[1:]
         if expected != received:
             raise ValueError(f"eval_env frames are {received}, the model predicts {expected} frames")
+        if model.ef.target == "latent" and not isinstance(getattr(model, "replay_buffer", None), SequenceReplayBuffer):
+            raise ValueError(
+                "ForesightLoggerCallback draws latent EF's frames through its probe decoder, fitted on the model's "
+                f"SequenceReplayBuffer; {type(model).__name__} keeps none (it learns from rollouts): log its pixel EF "
+                "(ef_kwargs target='pixel')"
+            )
 
     def _on_step(self) -> bool:
         if self.n_calls % self.log_freq == 0:
@@ -84,6 +92,7 @@ class ForesightLoggerCallback(BaseCallback):
             lambda observation, _: actor(observation),
             steps=self.steps or model.ef.horizon,
             seed=self.seed,
+            frame_channels=model.frame_shape[0],
         )
         report = foresight_report(model, rollout, patch_size=self.patch_size, **self.threshold_kwargs)
         self.logger.record("foresight/prediction", Image(report.prediction_image(), "HWC"), exclude=_NOT_TEXT)

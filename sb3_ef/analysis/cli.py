@@ -51,10 +51,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     model = commands.add_parser("model", help="open-loop prediction, saliency and mask scores of a saved model")
     model.add_argument("path", help="saved model (.zip)")
-    model.add_argument("--env", required=True, help="env name, e.g. dmc/reacher-easy, metaworld/hammer, toy/agent-v0")
+    model.add_argument(
+        "--env", required=True,
+        help="env name, e.g. dmc/reacher-easy, metaworld/hammer, toy/agent-v0, or an Atari id: PongNoFrameskip-v4",
+    )  # fmt: skip
     model.add_argument("--algo", choices=sorted(EF_ALGORITHMS), help="default: the file's, else each tried in turn")
     model.add_argument("--steps", type=int, help="prediction length T (default: the EF horizon)")
-    model.add_argument("--actions", choices=("policy", "figure8"), default="policy", help="actions played")
+    model.add_argument(
+        "--actions", choices=("policy", "figure8"), default="policy",
+        help="actions played: the model's, or a figure-eight probe (Box action spaces only)",
+    )  # fmt: skip
     model.add_argument("--action-repeat", type=int, default=2, help="action repeat of dmc/ and metaworld/ envs")
     model.add_argument(
         "--env-kwargs", nargs="+", default=None, metavar="KEY:VALUE",
@@ -93,7 +99,8 @@ def make_analysis_env(
     action_repeat: int,
     env_kwargs: dict[str, Any] | None = None,
 ) -> gym.Env:
-    """The model's env at its frame size, with the training env's other ``env_kwargs`` (checked against the model)."""
+    """The model's env at its frame size, with the training env's other ``env_kwargs`` (checked against the model);
+    an Atari id as :func:`atari_env` makes it."""
     kwargs = dict(env_kwargs or {})
     size = frame_shape[-1]
     for key, expected in (("size", size), ("frame_stack", frame_stack)):
@@ -104,7 +111,31 @@ def make_analysis_env(
         from sb3_ef.envs import make_env
 
         return make_env(name, size=size, frame_stack=frame_stack, **{"action_repeat": action_repeat, **kwargs})
+    if is_atari_id(name):
+        return atari_env(name, size, frame_stack, **kwargs)
     return gym.make(name, size=size, frame_stack=frame_stack, **kwargs)
+
+
+def is_atari_id(name: str) -> bool:
+    """Whether ``name`` is an Arcade Learning Environment id (``ale_py``'s, registered here when it is installed)."""
+    try:
+        import ale_py
+    except ImportError:
+        return False
+    gym.register_envs(ale_py)
+    spec = gym.registry.get(name)
+    return spec is not None and str(spec.entry_point).startswith("ale_py")
+
+
+def atari_env(name: str, size: int, frame_stack: int, **kwargs: Any) -> gym.Env:
+    """An Atari game's observations as SB3's ``make_atari_env`` + ``VecFrameStack`` give them, channels first: the
+    ``AtariWrapper``'s grey ``size`` x ``size`` frames, ``frame_stack`` of them, oldest first, zeros before the first;
+    for evaluation, a lost life does not end the episode and rewards are not clipped (``kwargs``: ``gym.make``'s)."""
+    from stable_baselines3.common.atari_wrappers import AtariWrapper
+
+    env = AtariWrapper(gym.make(name, **kwargs), screen_size=size, terminal_on_life_loss=False, clip_reward=False)
+    stacked = gym.wrappers.FrameStackObservation(env, frame_stack, padding_type="zero")
+    return gym.wrappers.ReshapeObservation(stacked, (frame_stack, size, size))
 
 
 def saved_algorithm_classes(path: str, algo: str | None) -> list[type[BaseAlgorithm]]:
@@ -178,15 +209,22 @@ def analyze_model(
     model = load_ef_model(path, algo)
     if getattr(model, "ef", None) is None:
         raise ValueError(f"{path} is a {type(model).__name__} without Ego-Foresight: nothing to analyze")
-    if model.frame_shape[0] != 3 or not isinstance(model.action_space, gym.spaces.Box):
+    if actions == "figure8" and not isinstance(model.action_space, gym.spaces.Box):
         raise ValueError(
-            f"`analyze model` reads RGB frames and Box actions; {path} holds a {type(model).__name__} of "
-            f"{model.frame_shape[0]}-channel frames and {model.action_space} actions"
+            f"--actions figure8 plays a Box's actions (a figure-eight velocity); {path} holds a "
+            f"{type(model).__name__} of {model.action_space} actions: analyze it with --actions policy"
         )
-    frame_stack = model.observation_space.shape[0] // 3
+    frame_channels = model.frame_shape[0]
+    frame_stack = model.observation_space.shape[0] // frame_channels
     if env_kwargs is None:
         env_kwargs = run_env_kwargs(path)
     env = make_analysis_env(env_name, model.frame_shape, frame_stack, action_repeat, env_kwargs)
+    if env.observation_space.shape != model.observation_space.shape:
+        env.close()
+        raise ValueError(
+            f"{env_name} gives observations of shape {env.observation_space.shape}, {path} reads "
+            f"{model.observation_space.shape} ({frame_stack} frames of {model.frame_shape})"
+        )
     steps = steps or model.ef.horizon
     if actions == "figure8":
         sequence = figure_eight_actions(steps, model.action_space.shape[0])
@@ -195,7 +233,7 @@ def analyze_model(
         actor = EpisodeActor(model)
         act = lambda observation, _step: actor(observation)  # noqa: E731
     try:
-        report = foresight_report(model, record_rollout(env, act, steps, seed=seed))
+        report = foresight_report(model, record_rollout(env, act, steps, seed, frame_channels))
     finally:
         env.close()
     os.makedirs(out, exist_ok=True)

@@ -124,7 +124,8 @@ def plot_prediction(report: ForesightReport, path: str | os.PathLike, title: str
 def prediction_figure(report: ForesightReport, title: str):
     """The figure of :func:`plot_prediction` (open, for display or inspection)."""
     image = report.prediction_image()
-    steps = max(len(report.predicted), report.rollout.first_observation.shape[0] // 3)
+    contexts = report.rollout.first_observation.shape[0] // report.predicted.shape[-1]
+    steps = max(len(report.predicted), contexts)
     figure, axis = pyplot().subplots(figsize=(max(4.0, 1.1 * (steps + 1)), 3.8))
     axis.imshow(image)
     columns = [f"t+{index + 1}" for index in range(len(report.predicted))]
@@ -132,7 +133,6 @@ def prediction_figure(report: ForesightReport, title: str):
     _frame_row_axes(axis, ["context", "predicted", "true"], columns, frame_size)
     axis.set_xlabel("predicted and true frames")
     # The context row's columns (the stacked frames up to t) get their own labels, above the grid.
-    contexts = report.rollout.first_observation.shape[0] // 3
     context = axis.secondary_xaxis("top")
     context.set_xticks(
         [(frame_size + 2) * (index + 0.5) for index in range(contexts)],

@@ -9,13 +9,21 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_ef.analysis.masks import MaskScores, mask_scores, threshold_saliency
-from sb3_ef.analysis.prediction import FRAME_CHANNELS, ForesightModel, context_frames, frame_grid, predict_open_loop
+from sb3_ef.analysis.prediction import (
+    FRAME_CHANNELS,
+    ForesightModel,
+    context_frames,
+    frame_grid,
+    frame_images,
+    predict_open_loop,
+)
 from sb3_ef.analysis.saliency import Saliency, compute_saliency, saliency_overlay
 
 
 @dataclass(frozen=True)
 class Rollout:
-    """The first stacked observation, the T actions, the T newest frames after them and the final agent mask."""
+    """The first stacked observation, the env's T actions as SB3's buffers keep them (float, (T, action_dim)), the
+    T newest frames after them ((T, h, w, C)) and the final agent mask."""
 
     first_observation: np.ndarray
     actions: np.ndarray
@@ -24,16 +32,21 @@ class Rollout:
 
 
 def record_rollout(
-    env: gym.Env, act: Callable[[np.ndarray, int], np.ndarray], steps: int, seed: int | None = None
+    env: gym.Env,
+    act: Callable[[np.ndarray, int], np.ndarray],
+    steps: int,
+    seed: int | None = None,
+    frame_channels: int = FRAME_CHANNELS,
 ) -> Rollout:
-    """Reset ``env`` and take up to ``steps`` actions ``act(observation, t)`` (fewer if the episode ends)."""
+    """Reset ``env`` and take up to ``steps`` actions ``act(observation, t)`` (fewer if the episode ends); its
+    observations stack frames of ``frame_channels`` channels (a model's ``frame_shape[0]``)."""
     first_observation, _ = env.reset(seed=seed)
     observation, actions, frames = first_observation, [], []
     for step in range(steps):
-        action = np.asarray(act(observation, step), dtype=np.float32).reshape(-1)
+        action = act(observation, step)
         observation, _, terminated, truncated, _ = env.step(action)
-        actions.append(action)
-        frames.append(observation[-FRAME_CHANNELS:].transpose(1, 2, 0))
+        actions.append(np.asarray(action, dtype=np.float32).reshape(-1))
+        frames.append(observation[-frame_channels:].transpose(1, 2, 0))
         if terminated or truncated:
             break
     mask_fn = getattr(env.unwrapped, "agent_mask", None)
@@ -53,13 +66,14 @@ class ForesightReport:
 
     def prediction_image(self) -> np.ndarray:
         """Rows: context frames, predicted frames, true frames."""
-        return frame_grid([context_frames(self.rollout.first_observation), self.predicted, self.rollout.true_frames])
+        context = context_frames(self.rollout.first_observation, self.predicted.shape[-1])
+        return frame_grid([context, self.predicted, self.rollout.true_frames])
 
     def saliency_panels(self) -> dict[str, np.ndarray]:
         """The last predicted frame, with its h_a saliency in red and with its h_s saliency in blue, by title."""
         frame = self.saliency.frame
         return {
-            "predicted frame": frame,
+            "predicted frame": frame_images(frame),
             "h_a saliency (red)": saliency_overlay(frame, self.saliency.agent, color=(255, 0, 0)),
             "h_s saliency (blue)": saliency_overlay(frame, self.saliency.scene, color=(0, 0, 255)),
         }
@@ -86,6 +100,11 @@ def foresight_report(
 ) -> ForesightReport:
     """``rollout`` predicted open loop, with saliency and mask scores of its last predicted frame."""
     predicted = predict_open_loop(rollout.first_observation, rollout.actions, model=model)
+    if rollout.true_frames.shape[-1] != predicted.shape[-1]:
+        raise ValueError(
+            f"The rollout's frames have {rollout.true_frames.shape[-1]} channels, the model predicts frames of "
+            f"{predicted.shape[-1]}: record it with frame_channels=model.frame_shape[0]"
+        )
     saliency = compute_saliency(rollout.first_observation, rollout.actions, model=model, patch_size=patch_size)
     mse = float(np.mean((predicted / 255.0 - rollout.true_frames / 255.0) ** 2))
     scores = None

@@ -13,6 +13,7 @@ from sb3_ef.analysis.prediction import (
     action_batch,
     as_observation_batch,
     eval_mode,
+    frame_images,
     module_device,
     resolve_foresight,
     to_uint8_frames,
@@ -84,21 +85,22 @@ def compute_saliency(
     patch_size: int = 4,
 ) -> Saliency:
     """Saliency of EF's prediction after ``actions`` (``None``: its reconstruction of the newest frame)."""
-    encode, foresight = resolve_foresight(model, encoder, ef)
+    encode, foresight, channels, action_space = resolve_foresight(model, encoder, ef)
     device = module_device(foresight)
     with th.no_grad(), eval_mode(foresight, encoder):
-        h_scene, h_agent = foresight.split(encode(as_observation_batch(observation, device)))
+        h_scene, h_agent = foresight.split(encode(as_observation_batch(observation, device, channels)))
         if actions is not None:
-            h_agent = foresight.rollout(h_agent, action_batch(actions, foresight, device))[:, -1]
+            h_agent = foresight.rollout(h_agent, action_batch(actions, foresight, device, action_space))[:, -1]
     return decoder_saliency(foresight, h_scene, h_agent, patch_size=patch_size)
 
 
 def saliency_overlay(
     frame: np.ndarray, saliency_map: np.ndarray, alpha: float = 0.7, color: tuple[int, int, int] = (255, 0, 0)
 ) -> np.ndarray:
-    """Blend ``color`` into a uint8 (h, w, 3) frame in proportion to a [0, 1] (h, w) map: weight ``alpha * map``."""
+    """Blend ``color`` into a uint8 (h, w, C) frame (:func:`~sb3_ef.analysis.prediction.frame_images`) in
+    proportion to a [0, 1] (h, w) map: weight ``alpha * map``; an RGB image."""
     if frame.shape[:2] != saliency_map.shape:
         raise ValueError(f"Frame {frame.shape[:2]} and saliency map {saliency_map.shape} differ in size")
     weight = alpha * np.clip(saliency_map, 0.0, 1.0)[..., None]
-    blended = (1.0 - weight) * frame.astype(np.float64) + weight * np.asarray(color, dtype=np.float64)
+    blended = (1.0 - weight) * frame_images(frame).astype(np.float64) + weight * np.asarray(color, dtype=np.float64)
     return blended.round().astype(np.uint8)

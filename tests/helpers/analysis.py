@@ -52,6 +52,7 @@ class FakeModel:
         self.ef = FakeForesight()
         self.encoder = nn.Linear(9 * SIZE * SIZE, 12)
         self.frame_shape = (3, SIZE, SIZE)
+        self.action_space = gym.spaces.Box(-1, 1, (2,), np.float32)
         self.logger = logger
         self.num_timesteps = 0
 
