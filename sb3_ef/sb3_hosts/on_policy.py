@@ -23,7 +23,7 @@ from stable_baselines3.common.utils import explained_variance
 from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, unwrap_vec_wrapper
 from torch.nn import functional as F
 
-from sb3_ef.auxiliary.host import AuxiliaryHostMixin, gradient_norm
+from sb3_ef.auxiliary.host import gradient_norm
 from sb3_ef.common.buffers.rollout_windows import (
     RolloutRing,
     RolloutWindow,
@@ -35,11 +35,9 @@ from sb3_ef.common.buffers.rollout_windows import (
 from sb3_ef.common.env_checks import policy_observation_space
 from sb3_ef.common.precision import autocast, float32_outputs
 from sb3_ef.common.validation import check_algorithm_arguments
-from sb3_ef.ef.arguments import check_ef_kwargs
 from sb3_ef.ef.babbling import babble_env_actions
-from sb3_ef.ef.foresight import EgoForesight
-from sb3_ef.ef.host import check_ef_arguments
-from sb3_ef.ef.losses import ForesightLoss, foresight_loss
+from sb3_ef.ef.host import EFBaseMixin
+from sb3_ef.ef.losses import ForesightLoss
 from sb3_ef.sb3_hosts.ef_hosts import float_features, normalized_features
 
 SelfOnPolicyEF = TypeVar("SelfOnPolicyEF", bound="OnPolicyEFMixin")
@@ -88,7 +86,7 @@ def check_image_observations(space: spaces.Space, algorithm: str) -> None:
         )
 
 
-class OnPolicyEFMixin(AuxiliaryHostMixin):
+class OnPolicyEFMixin(EFBaseMixin):
     """Adds Ego-Foresight to an SB3 on-policy algorithm with ``CnnPolicy`` or ``MultiInputPolicy``: ``class
     PPOEF(OnPolicyEFMixin, PPO)``.
 
@@ -141,9 +139,7 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
     ):
         name = type(self).__name__
         check_algorithm_arguments(type(self), locals())
-        plain = next(c for c in type(self).__mro__ if c in (PPO, A2C))
-        check_ef_arguments(beta, ef_horizon, babbling_steps, babbling_mode, plain.__name__)
-        check_ef_kwargs(ef_kwargs or {})
+        self._keep_ef_arguments(beta, ef_horizon, babbling_steps, babbling_mode, ef_kwargs)
         if env is not None:
             env = maybe_make_env(env, kwargs.get("verbose", 0))
             if not isinstance(env.observation_space, spaces.Dict):  # a Dict's image key is chosen in _setup_model
@@ -155,11 +151,9 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
                 f"{name} cuts EF's windows from its last ef_rollouts rollouts: expected an integer ef_rollouts >= 1 "
                 f"and ef_horizon <= n_steps * ef_rollouts = {self.n_steps} * {ef_rollouts}, got ef_horizon={ef_horizon}"
             )
-        self._beta = beta  # until the loss module that keeps it is built
-        self.ef_horizon, self.ef_rollouts, self.agent_dim = ef_horizon, ef_rollouts, agent_dim
+        self.ef_rollouts, self.agent_dim = ef_rollouts, agent_dim
         self.ef_kwargs = dict(ef_kwargs or {})
         self.frame_channels, self.ef_image_key = frame_channels, ef_image_key
-        self.babbling_steps, self.babbling_mode = babbling_steps, babbling_mode
         self.check_finite_losses = check_finite_losses
         self.precision = precision
         self.babbling = False  # whether the last rollout babbled
@@ -167,26 +161,9 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
             self._setup_model()
 
     @property
-    def beta(self) -> float:
-        """Weight of EF's loss, kept once, as a buffer of the loss module; setting it changes the next updates."""
-        return self._beta if self.auxiliary is None else float(self.auxiliary.beta)
-
-    @beta.setter
-    def beta(self, value: float) -> None:
-        check_ef_arguments(value, self.ef_horizon, 0, "sign", "the host without EF")
-        if self.auxiliary is None:
-            self._beta = value
-        else:
-            self.auxiliary.beta.fill_(value)
-
-    @property
     def auxiliary(self) -> ForesightLoss | None:
+        """EF's loss, kept on the algorithm (``auxiliary_module``): the policy is SB3's own."""
         return self.auxiliary_module
-
-    @property
-    def ef(self) -> EgoForesight | None:
-        """The Ego-Foresight module (read by ``sb3_ef.analysis``); ``None`` before the model is set up."""
-        return None if self.auxiliary is None else self.auxiliary.ef
 
     @property
     def image_space(self) -> spaces.Space:
@@ -252,12 +229,10 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
         encoder = self.policy.features_extractor
         encode = normalized_features if self.policy.normalize_images else float_features  # as extract_features
         with th.random.fork_rng(devices=[]):
-            loss = foresight_loss(
-                encoder.features_dim, action_encoding_dim(self.action_space), self.frame_shape, self.agent_dim,
-                self.ef_horizon, self._beta, self.ef_kwargs, encoder=encoder, encode=encode,
+            return self._foresight_loss(
+                encoder, encoder.features_dim, self.agent_dim, self.ef_kwargs, encode=encode,
+                action_dim=action_encoding_dim(self.action_space),
             )  # fmt: skip
-        del self._beta  # kept by the loss from now on
-        return loss
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "_ef_ring"]  # rollouts are not saved (SB3's rollout buffer is not)

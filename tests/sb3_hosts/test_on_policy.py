@@ -388,3 +388,12 @@ def test_latent_ef_predicts_the_features_of_grey_frame_stacks():
     model = make(PPOEF, grey_stack(), ef_kwargs=ef_kwargs)
     model.learn(32)
     assert model.ef.target == "latent" and np.isfinite(model.logger.name_to_value["train/ef_loss"])
+
+
+def test_setting_beta_checks_it_and_reaches_the_loss():
+    model = make(A2CEF, toy_env())
+    model.beta = 0.25
+    assert (model.beta, float(model.auxiliary.beta)) == (0.25, 0.25)
+    with pytest.raises(ValueError, match=r"beta must be a positive number \(use A2C to train without Ego-Foresight\)"):
+        model.beta = 0.0
+    assert model.beta == 0.25
