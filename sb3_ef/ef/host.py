@@ -1,4 +1,5 @@
-"""What makes a host an Ego-Foresight variant: :class:`EFMixin` adds EF's arguments, its loss and motor babbling."""
+"""What makes a host an Ego-Foresight variant: :class:`EFBaseMixin` keeps EF's arguments and reads ``beta`` and ``ef``
+through to the loss (every EF host); :class:`EFMixin` adds the off-policy hosts' loss and motor babbling callback."""
 
 from __future__ import annotations
 
@@ -26,6 +27,13 @@ def check_ef_arguments(
 ) -> None:
     """Check EF's algorithm-level arguments; ``plain_variant`` names the class to use without EF."""
     check_babbling(babbling_steps, babbling_mode)
+    check_beta(beta, plain_variant)
+    if not isinstance(ef_horizon, int) or ef_horizon < 1:
+        raise ValueError(f"ef_horizon must be a positive integer, got {ef_horizon!r}")
+
+
+def check_beta(beta: float, plain_variant: str) -> None:
+    """Check EF's loss weight; ``plain_variant`` names the class to use without EF."""
     if isinstance(beta, bool) or not isinstance(beta, numbers.Real) or not beta > 0:
         received = (
             repr(beta)
@@ -35,8 +43,6 @@ def check_ef_arguments(
         raise ValueError(
             f"beta must be a positive number (use {plain_variant} to train without Ego-Foresight), got {received}"
         )
-    if not isinstance(ef_horizon, int) or ef_horizon < 1:
-        raise ValueError(f"ef_horizon must be a positive integer, got {ef_horizon!r}")
 
 
 def check_horizon_fits_episodes(ef_horizon: int | None, steps: int | None) -> None:
@@ -59,16 +65,13 @@ class EFPolicyMixin:
         return {**data, "agent_dim": self.agent_dim, "ef_kwargs": self.ef_kwargs}
 
 
-class EFMixin(AuxiliaryHostMixin):
-    """Mixed in before a plain host to make its Ego-Foresight variant (``class DrQv2EF(EFMixin, DrQv2)``): EF's
-    arguments and their one check, ``model.beta`` and ``model.ef`` (read through to the loss), the babbling callback.
-    The variant's ``_build_auxiliary`` builds the loss with :meth:`_foresight_loss` on the encoder EF trains; the
-    host's ``_setup_model`` gives it to an optimiser and its ``train`` calls it, as for any auxiliary loss."""
+class EFBaseMixin(AuxiliaryHostMixin):
+    """What every Ego-Foresight host shares, off-policy (:class:`EFMixin`) or on-policy (``OnPolicyEFMixin``): EF's
+    algorithm-level arguments checked and kept, ``model.beta`` and ``model.ef`` read through to the loss."""
 
     ef_horizon: int
     babbling_steps: int = 0
     babbling_mode: str = "sign"
-    babbling_in_eval: bool = False
     # ``beta`` as given to the constructor, until the loss that keeps it is built.
     _beta: float
 
@@ -80,11 +83,65 @@ class EFMixin(AuxiliaryHostMixin):
 
     @beta.setter
     def beta(self, value: float) -> None:
+        check_beta(value, self._plain_variant().__name__)
         auxiliary = self.auxiliary
         if isinstance(auxiliary, ForesightLoss):
             auxiliary.beta.fill_(value)
         else:
             self._beta = value
+
+    @property
+    def ef(self) -> EgoForesight | None:
+        """The Ego-Foresight module (read by ``sb3_ef.analysis``); ``None`` before the model is set up."""
+        auxiliary = self.auxiliary
+        return auxiliary.ef if isinstance(auxiliary, ForesightLoss) else None
+
+    def _plain_variant(self) -> type:
+        """The host without EF (named by the errors that say how to train without it)."""
+        return next(c for c in type(self).__mro__ if issubclass(c, BaseAlgorithm) and not issubclass(c, EFBaseMixin))
+
+    def _keep_ef_arguments(
+        self, beta: float, ef_horizon: int, babbling_steps: int, babbling_mode: str, ef_kwargs: dict[str, Any] | None
+    ) -> None:
+        """Check and keep EF's arguments (``ef_kwargs`` checked before any network is built, kept by the caller)."""
+        check_ef_kwargs(ef_kwargs or {})
+        check_ef_arguments(beta, ef_horizon, babbling_steps, babbling_mode, self._plain_variant().__name__)
+        self._beta = beta
+        self.ef_horizon = ef_horizon
+        self.babbling_steps = babbling_steps
+        self.babbling_mode = babbling_mode
+
+    def _foresight_loss(
+        self,
+        encoder: nn.Module,
+        feature_dim: int,
+        agent_dim: int,
+        ef_kwargs: dict[str, Any] | None,
+        channels_last: bool = False,
+        encode: Encode = feed_encoder,
+        action_dim: int | None = None,
+    ) -> ForesightLoss:
+        """EF's loss (pixel or latent, as ``ef_kwargs`` says) on ``encoder``, fed as ``encode`` says, reading actions
+        of ``action_dim`` (``None``: the Box action space's size); it takes ``beta`` over from the constructor's
+        argument and keeps it from then on."""
+        if action_dim is None:
+            action_dim = int(np.prod(self.action_space.shape))  # type: ignore[arg-type]
+        loss = foresight_loss(
+            feature_dim, action_dim, self.frame_shape, agent_dim, self.ef_horizon, self._beta, ef_kwargs,
+            channels_last, encoder, encode,
+        )  # fmt: skip
+        del self._beta
+        return loss
+
+
+class EFMixin(EFBaseMixin):
+    """Mixed in before a plain off-policy host to make its Ego-Foresight variant (``class DrQv2EF(EFMixin, DrQv2)``):
+    :class:`EFBaseMixin`'s arguments with ``babbling_in_eval``, EF's window in the replay buffer and the babbling
+    callback. The variant's ``_build_auxiliary`` builds the loss with :meth:`_foresight_loss` on the encoder EF
+    trains; the host's ``_setup_model`` gives it to an optimiser and its ``train`` calls it, as for any auxiliary
+    loss."""
+
+    babbling_in_eval: bool = False
 
     def _init_ef(
         self,
@@ -95,22 +152,10 @@ class EFMixin(AuxiliaryHostMixin):
         babbling_in_eval: bool,
         ef_kwargs: dict[str, Any] | None,
     ) -> None:
-        """Check and keep EF's arguments (``ef_kwargs`` checked before any network is built, kept by the caller)."""
+        """:meth:`_keep_ef_arguments`, and ``babbling_in_eval``."""
         check_algorithm_arguments(type(self), {"ef_horizon": ef_horizon, "babbling_steps": babbling_steps})
-        check_ef_kwargs(ef_kwargs or {})
-        plain = next(c for c in type(self).__mro__ if issubclass(c, BaseAlgorithm) and not issubclass(c, EFMixin))
-        check_ef_arguments(beta, ef_horizon, babbling_steps, babbling_mode, plain.__name__)
-        self._beta = beta
-        self.ef_horizon = ef_horizon
-        self.babbling_steps = babbling_steps
-        self.babbling_mode = babbling_mode
+        self._keep_ef_arguments(beta, ef_horizon, babbling_steps, babbling_mode, ef_kwargs)
         self.babbling_in_eval = babbling_in_eval
-
-    @property
-    def ef(self) -> EgoForesight | None:
-        """The Ego-Foresight module (read by ``sb3_ef.analysis``); ``None`` before the model is set up."""
-        auxiliary = self.auxiliary
-        return auxiliary.ef if isinstance(auxiliary, ForesightLoss) else None
 
     def _auxiliary_horizon(self) -> int:
         return self.ef_horizon
@@ -136,22 +181,3 @@ class EFMixin(AuxiliaryHostMixin):
             name = type(self).__name__
             raise TypeError(f"{name} needs a {expected.__name__} (EF's sizes), got {type(policy).__name__}")
         return policy
-
-    def _foresight_loss(
-        self,
-        encoder: nn.Module,
-        feature_dim: int,
-        agent_dim: int,
-        ef_kwargs: dict[str, Any] | None,
-        channels_last: bool = False,
-        encode: Encode = feed_encoder,
-    ) -> ForesightLoss:
-        """EF's loss (pixel or latent, as ``ef_kwargs`` says) on ``encoder``, fed as ``encode`` says; it takes
-        ``beta`` over from the constructor's argument and keeps it from then on."""
-        action_dim = int(np.prod(self.action_space.shape))  # type: ignore[arg-type]
-        loss = foresight_loss(
-            feature_dim, action_dim, self.frame_shape, agent_dim, self.ef_horizon, self._beta, ef_kwargs,
-            channels_last, encoder, encode,
-        )  # fmt: skip
-        del self._beta
-        return loss

@@ -11,13 +11,19 @@ from gymnasium import spaces
 from stable_baselines3 import A2C, PPO
 from stable_baselines3.common.base_class import maybe_make_env
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.policies import ActorCriticCnnPolicy, BasePolicy
+from stable_baselines3.common.policies import (
+    ActorCriticCnnPolicy,
+    ActorCriticPolicy,
+    BasePolicy,
+    MultiInputActorCriticPolicy,
+)
+from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, RolloutBufferSamples
 from stable_baselines3.common.utils import explained_variance
 from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, unwrap_vec_wrapper
 from torch.nn import functional as F
 
-from sb3_ef.auxiliary.host import AuxiliaryHostMixin, gradient_norm
+from sb3_ef.auxiliary.host import gradient_norm
 from sb3_ef.common.buffers.rollout_windows import (
     RolloutRing,
     RolloutWindow,
@@ -29,11 +35,9 @@ from sb3_ef.common.buffers.rollout_windows import (
 from sb3_ef.common.env_checks import policy_observation_space
 from sb3_ef.common.precision import autocast, float32_outputs
 from sb3_ef.common.validation import check_algorithm_arguments
-from sb3_ef.ef.arguments import check_ef_kwargs
 from sb3_ef.ef.babbling import babble_env_actions
-from sb3_ef.ef.foresight import EgoForesight
-from sb3_ef.ef.host import check_ef_arguments
-from sb3_ef.ef.losses import ForesightLoss, foresight_loss
+from sb3_ef.ef.host import EFBaseMixin
+from sb3_ef.ef.losses import ForesightLoss
 from sb3_ef.sb3_hosts.ef_hosts import float_features, normalized_features
 
 SelfOnPolicyEF = TypeVar("SelfOnPolicyEF", bound="OnPolicyEFMixin")
@@ -48,13 +52,33 @@ def frames_per_observation(env: VecEnv) -> int:
     return int(env.get_attr("frame_stack", indices=[0])[0]) if env.has_attr("frame_stack") else 1
 
 
+def image_keys(space: spaces.Dict) -> list[str]:
+    """The keys of a Dict observation space that SB3's ``CombinedExtractor`` reads as images."""
+    return [key for key, subspace in space.spaces.items() if is_image_space(subspace, check_channels=False)]
+
+
+def ef_image_key(space: spaces.Space, key: str | None, multi_input: bool, algorithm: str) -> str | None:
+    """The Dict observations' key whose frames EF predicts: ``key``, or the only image key; ``None`` for one image
+    observation (``CnnPolicy``)."""
+    if not isinstance(space, spaces.Dict):
+        if multi_input or key is not None:
+            what = "MultiInputPolicy" if multi_input else f"ef_image_key={key!r}"
+            raise ValueError(f"{algorithm}: {what} reads Dict observations, got {space}: use CnnPolicy")
+        return None
+    images = image_keys(space)
+    if key is None and len(images) == 1:
+        return images[0]
+    if key is None or key not in images:
+        received = "none" if key is None else f"{key!r}" + (f", a {space[key]}" if key in space.spaces else "")
+        raise ValueError(
+            f"{algorithm} predicts the frames of one image key of the Dict observations (a uint8 Box (channels, "
+            f"height, width) with bounds 0 and 255): expected ef_image_key to name one of {images}, got {received}"
+        )
+    return key
+
+
 def check_image_observations(space: spaces.Space, algorithm: str) -> None:
     """Refuse observations that are not one image of stacked uint8 frames, channels first (as SB3 gives them)."""
-    if isinstance(space, spaces.Dict):
-        raise ValueError(
-            f"{algorithm} trains Ego-Foresight on one image observation; dict observations (MultiInputPolicy) are not "
-            f"supported, got {space}: give the env's image alone (e.g. gymnasium's FilterObservation)"
-        )
     if not (isinstance(space, spaces.Box) and space.dtype == np.uint8 and len(space.shape) == 3):
         raise ValueError(
             f"{algorithm} needs image observations: a uint8 Box (channels, height, width) of stacked frames "
@@ -62,8 +86,9 @@ def check_image_observations(space: spaces.Space, algorithm: str) -> None:
         )
 
 
-class OnPolicyEFMixin(AuxiliaryHostMixin):
-    """Adds Ego-Foresight to an SB3 on-policy algorithm with ``CnnPolicy``: ``class PPOEF(OnPolicyEFMixin, PPO)``.
+class OnPolicyEFMixin(EFBaseMixin):
+    """Adds Ego-Foresight to an SB3 on-policy algorithm with ``CnnPolicy`` or ``MultiInputPolicy``: ``class
+    PPOEF(OnPolicyEFMixin, PPO)``.
 
     :param beta: weight of the EF loss, added to the host's loss on each minibatch (its gradient clipped apart to
         ``beta * max_grad_norm``: ``beta`` sets EF's pull on the shared encoder against the host's, docs/ef.md).
@@ -73,6 +98,8 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
     :param agent_dim: size of h_a, the first features of the policy's shared features extractor.
     :param ef_kwargs: extra arguments of :class:`sb3_ef.ef.EgoForesight`.
     :param frame_channels: channels of one frame (``None``: the observation's channels over the frames stacked).
+    :param ef_image_key: with Dict observations (``MultiInputPolicy``), the image key whose frames EF predicts
+        (``None``: the only image key).
     :param babbling_steps: motor babbling at the start: rollouts of random actions that train EF alone (0: none).
     :param babbling_mode: ``"sign"`` or ``"clamped_uniform"`` for Box actions (discrete ones are drawn uniformly).
     :param check_finite_losses: raise a ``ValueError`` naming a NaN or infinite loss before its step.
@@ -82,6 +109,7 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
     rollout_buffer: Any
     max_grad_norm: float
     n_steps: int
+    n_envs: int
     _last_obs: Any
     _last_episode_starts: Any
     #: ``log_interval`` of ``learn`` (rollouts between logs), as the host's own ``learn`` defaults it.
@@ -92,7 +120,7 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
 
     def __init__(
         self,
-        policy: str | type[ActorCriticCnnPolicy],
+        policy: str | type[ActorCriticPolicy],
         env: GymEnv | str,
         *,
         beta: float = 1.0,
@@ -101,6 +129,7 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
         agent_dim: int = 32,
         ef_kwargs: dict[str, Any] | None = None,
         frame_channels: int | None = None,
+        ef_image_key: str | None = None,
         babbling_steps: int = 0,
         babbling_mode: str = "sign",
         check_finite_losses: bool = False,
@@ -109,34 +138,22 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
         **kwargs: Any,
     ):
         name = type(self).__name__
-        if policy == "MultiInputPolicy":
-            raise ValueError(f"{name} supports policy 'CnnPolicy' (one image observation), not 'MultiInputPolicy'")
         check_algorithm_arguments(type(self), locals())
-        plain = next(c for c in type(self).__mro__ if c in (PPO, A2C))
-        check_ef_arguments(beta, ef_horizon, babbling_steps, babbling_mode, plain.__name__)
-        check_ef_kwargs(ef_kwargs or {})
+        self._keep_ef_arguments(beta, ef_horizon, babbling_steps, babbling_mode, ef_kwargs)
         if env is not None:
             env = maybe_make_env(env, kwargs.get("verbose", 0))
-            check_image_observations(policy_observation_space(env.observation_space), name)
+            if not isinstance(env.observation_space, spaces.Dict):  # a Dict's image key is chosen in _setup_model
+                check_image_observations(policy_observation_space(env.observation_space), name)
             action_encoding_dim(env.action_space)  # raises for a space EF cannot encode, naming those it can
         super().__init__(policy, env, _init_setup_model=False, **kwargs)  # type: ignore[call-arg]
-        if self.env is not None:
-            channels = self.observation_space.shape[0]  # type: ignore[index]
-            frame_channels = frame_channels or channels // frames_per_observation(self.env)
-            if not isinstance(frame_channels, int) or frame_channels < 1 or channels % frame_channels:
-                raise ValueError(
-                    f"frame_channels must divide the observation's {channels} channels, got {frame_channels}"
-                )
         if not isinstance(ef_rollouts, int) or ef_rollouts < 1 or ef_horizon > self.n_steps * ef_rollouts:
             raise ValueError(
                 f"{name} cuts EF's windows from its last ef_rollouts rollouts: expected an integer ef_rollouts >= 1 "
                 f"and ef_horizon <= n_steps * ef_rollouts = {self.n_steps} * {ef_rollouts}, got ef_horizon={ef_horizon}"
             )
-        self._beta = beta  # until the loss module that keeps it is built
-        self.ef_horizon, self.ef_rollouts, self.agent_dim = ef_horizon, ef_rollouts, agent_dim
+        self.ef_rollouts, self.agent_dim = ef_rollouts, agent_dim
         self.ef_kwargs = dict(ef_kwargs or {})
-        self.frame_channels = frame_channels
-        self.babbling_steps, self.babbling_mode = babbling_steps, babbling_mode
+        self.frame_channels, self.ef_image_key = frame_channels, ef_image_key
         self.check_finite_losses = check_finite_losses
         self.precision = precision
         self.babbling = False  # whether the last rollout babbled
@@ -144,34 +161,36 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
             self._setup_model()
 
     @property
-    def beta(self) -> float:
-        """Weight of EF's loss, kept once, as a buffer of the loss module; setting it changes the next updates."""
-        return self._beta if self.auxiliary is None else float(self.auxiliary.beta)
-
-    @beta.setter
-    def beta(self, value: float) -> None:
-        check_ef_arguments(value, self.ef_horizon, 0, "sign", "the host without EF")
-        if self.auxiliary is None:
-            self._beta = value
-        else:
-            self.auxiliary.beta.fill_(value)
-
-    @property
     def auxiliary(self) -> ForesightLoss | None:
+        """EF's loss, kept on the algorithm (``auxiliary_module``): the policy is SB3's own."""
         return self.auxiliary_module
 
     @property
-    def ef(self) -> EgoForesight | None:
-        """The Ego-Foresight module (read by ``sb3_ef.analysis``); ``None`` before the model is set up."""
-        return None if self.auxiliary is None else self.auxiliary.ef
+    def image_space(self) -> spaces.Space:
+        """The observations EF's frames are cut from: the observation space, or its ``ef_image_key``'s."""
+        space = self.observation_space
+        return space[self.ef_image_key] if isinstance(space, spaces.Dict) and self.ef_image_key else space
 
     @property
     def frame_shape(self) -> tuple[int, int, int]:
         """``(channels, height, width)`` of one frame: EF predicts the newest frame of the stack."""
         if self.frame_channels is None:
             raise ValueError(f"{type(self).__name__} was built without an env: pass frame_channels")
-        _, height, width = self.observation_space.shape  # type: ignore[misc]
+        _, height, width = self.image_space.shape  # type: ignore[misc]
         return self.frame_channels, height, width
+
+    def _check_frames(self) -> None:
+        """Choose the image key of Dict observations and the frame's channels (``ef_image_key`` and ``frame_channels``
+        as given or saved, else read from the env; here, so that ``load`` checks them against its env)."""
+        multi_input = issubclass(self.policy_class, MultiInputActorCriticPolicy)  # type: ignore[attr-defined]
+        name = type(self).__name__
+        self.ef_image_key = ef_image_key(self.observation_space, self.ef_image_key, multi_input, name)
+        channels = self.image_space.shape[0]  # type: ignore[index]
+        assert self.env is not None
+        frame_channels = self.frame_channels or channels // frames_per_observation(self.env)
+        if not isinstance(frame_channels, int) or frame_channels < 1 or channels % frame_channels:
+            raise ValueError(f"frame_channels must divide the observation's {channels} channels, got {frame_channels}")
+        self.frame_channels = frame_channels
 
     def encode(self, observations: th.Tensor) -> th.Tensor:
         """Features h of the policy's shared features extractor for uint8 stacked observations."""
@@ -179,6 +198,8 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
 
     def _setup_model(self) -> None:
         """SB3's setup, then EF's loss, the ring of rollouts EF's windows are cut from, and the babbling generator."""
+        if self.env is not None:
+            self._check_frames()
         super()._setup_model()
         auxiliary = self._build_auxiliary()
         self.auxiliary_module = auxiliary.to(self.device)  # on the algorithm: the policy stays SB3's own
@@ -187,7 +208,8 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
         self.policy.optimizer.add_param_group({"name": "auxiliary", "params": list(auxiliary.parameters())})
         if self.precision == "bf16":  # SB3's distributions and value loss read float32 heads
             float32_outputs(self.policy.action_net, self.policy.value_net)
-        self._ef_ring = RolloutRing(self.ef_rollouts)
+        space = self.observation_space
+        self._ef_ring = RolloutRing(self.ef_rollouts, image_keys(space) if isinstance(space, spaces.Dict) else ())
         if self._babbling_rng is None:
             self._babbling_rng = np.random.default_rng(self.seed)
 
@@ -198,15 +220,19 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
                 f"{type(self).__name__} trains EF on the features the actor and critic share: leave policy_kwargs "
                 "share_features_extractor at True"
             )
+        if self.ef_image_key is not None and self.ef_kwargs.get("target") == "latent":
+            raise ValueError(
+                f"{type(self).__name__} with Dict observations trains pixel EF: latent EF's target encodes the whole "
+                f"observation at t+k, whose other keys the windows do not keep; expected ef_kwargs target 'pixel', "
+                "got 'latent'"
+            )
         encoder = self.policy.features_extractor
         encode = normalized_features if self.policy.normalize_images else float_features  # as extract_features
         with th.random.fork_rng(devices=[]):
-            loss = foresight_loss(
-                encoder.features_dim, action_encoding_dim(self.action_space), self.frame_shape, self.agent_dim,
-                self.ef_horizon, self._beta, self.ef_kwargs, encoder=encoder, encode=encode,
+            return self._foresight_loss(
+                encoder, encoder.features_dim, self.agent_dim, self.ef_kwargs, encode=encode,
+                action_dim=action_encoding_dim(self.action_space),
             )  # fmt: skip
-        del self._beta  # kept by the loss from now on
-        return loss
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "_ef_ring"]  # rollouts are not saved (SB3's rollout buffer is not)
@@ -251,7 +277,7 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
     def _babbling_forward(self, obs: th.Tensor, deterministic: bool = False) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
         """The policy's ``forward`` while babbling: random env actions; zero values and log-probabilities (unused)."""
         assert self._babbling_rng is not None
-        n_envs = len(obs)
+        n_envs = self.n_envs  # obs may be a dict
         actions = babble_env_actions(self._babbling_rng, self.action_space, n_envs, self.babbling_mode)
         zeros = th.zeros(n_envs, device=self.device)
         return th.as_tensor(actions, device=self.device), zeros[:, None], zeros
@@ -263,7 +289,9 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
             raise RuntimeError("train() reads a rollout once: collect a new one first (SB3's learn does)")
         actions = encode_actions(th.as_tensor(buffer.actions), self.action_space)
         self._ef_ring.add(buffer.observations, actions, buffer.episode_starts, self.device)
-        return self._ef_ring.windows(self._last_obs, self._last_episode_starts, self.frame_shape[0], self.ef_horizon)
+        return self._ef_ring.windows(
+            self._last_obs, self._last_episode_starts, self.frame_shape[0], self.ef_horizon, self.ef_image_key
+        )
 
     def _ef_loss_at(
         self, windows: RolloutWindows, indices: np.ndarray, data: RolloutBufferSamples
@@ -278,9 +306,11 @@ class OnPolicyEFMixin(AuxiliaryHostMixin):
 
     def _ef_loss(self, window: RolloutWindow) -> tuple[th.Tensor, th.Tensor, dict[str, th.Tensor]]:
         """EF's calls: the shared features of the window's observations (unshifted, the minibatch's own, so that the
-        host's loss reads the same features), ``beta * L_ef`` and its logs."""
+        host's loss reads the same features; with Dict observations every key's), ``beta * L_ef`` and its logs."""
         assert self.auxiliary is not None
-        observations, targets = self.auxiliary.prepare(window, 0, self._auxiliary_generator)  # type: ignore[arg-type]
+        observations = window.observations
+        images = observations[self.ef_image_key] if isinstance(observations, dict) else observations  # type: ignore[index]
+        _, targets = self.auxiliary.prepare(window._replace(observations=images), 0, self._auxiliary_generator)  # type: ignore[arg-type]
         features = self.policy.extract_features(observations)
         loss, logs = self.auxiliary(features, targets)
         return features, loss, logs
@@ -340,7 +370,10 @@ def entropy_loss(log_prob: th.Tensor, entropy: th.Tensor | None) -> th.Tensor:
 class PPOEF(OnPolicyEFMixin, PPO):
     """PPO (Schulman et al., 2017) from stacked frames with Ego-Foresight (arguments: :class:`OnPolicyEFMixin`)."""
 
-    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"CnnPolicy": ActorCriticCnnPolicy}
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
+        "CnnPolicy": ActorCriticCnnPolicy,
+        "MultiInputPolicy": MultiInputActorCriticPolicy,
+    }
 
     def train(self) -> None:
         """SB3's ``PPO.train`` with EF's loss joining each minibatch's; a babbling rollout trains EF alone."""
@@ -407,7 +440,10 @@ class PPOEF(OnPolicyEFMixin, PPO):
 class A2CEF(OnPolicyEFMixin, A2C):
     """A2C (Mnih et al., 2016) from stacked frames with Ego-Foresight (arguments: :class:`OnPolicyEFMixin`)."""
 
-    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"CnnPolicy": ActorCriticCnnPolicy}
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
+        "CnnPolicy": ActorCriticCnnPolicy,
+        "MultiInputPolicy": MultiInputActorCriticPolicy,
+    }
     default_log_interval = 100
 
     def train(self) -> None:

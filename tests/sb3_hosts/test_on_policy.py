@@ -3,7 +3,7 @@ update left as SB3's, EF's gradient routes, babbling, Atari frames and bad input
 
 Differences from SB3's tests: image envs (the toy world, FakeImageEnv frames stacked as Atari's) with a small CNN
 instead of MlpPolicy on vector envs (EF needs frames); CPU only (no CUDA here) and no torch.compile round trip;
-CnnPolicy only (MlpPolicy and MultiInputPolicy are refused)."""
+CnnPolicy here (MlpPolicy is refused; MultiInputPolicy: test_on_policy_dict.py)."""
 
 from copy import deepcopy
 from pathlib import Path
@@ -295,7 +295,8 @@ class UnboundedActions(gym.ActionWrapper):
     ("env", "kwargs", "message"),
     [
         (VectorEnv(), {}, r"PPOEF needs image observations: a uint8 Box"),
-        (toy_env(), {"policy": "MultiInputPolicy"}, r"PPOEF supports policy 'CnnPolicy'"),
+        (toy_env(), {"policy": "MultiInputPolicy"}, r"PPOEF: MultiInputPolicy reads Dict observations, got Box"),
+        (toy_env(), {"ef_image_key": "pixels"}, r"PPOEF: ef_image_key='pixels' reads Dict observations, got Box"),
         (UnboundedActions(toy_env()), {}, r"encodes actions of a Box \(finite bounds\), Discrete, MultiDiscrete"),
         (toy_env(), {"ef_horizon": 33}, r"ef_horizon <= n_steps \* ef_rollouts = 8 \* 4, got ef_horizon=33"),
         (toy_env(), {"beta": 0.0}, r"use PPO to train without Ego-Foresight"),
@@ -387,3 +388,12 @@ def test_latent_ef_predicts_the_features_of_grey_frame_stacks():
     model = make(PPOEF, grey_stack(), ef_kwargs=ef_kwargs)
     model.learn(32)
     assert model.ef.target == "latent" and np.isfinite(model.logger.name_to_value["train/ef_loss"])
+
+
+def test_setting_beta_checks_it_and_reaches_the_loss():
+    model = make(A2CEF, toy_env())
+    model.beta = 0.25
+    assert (model.beta, float(model.auxiliary.beta)) == (0.25, 0.25)
+    with pytest.raises(ValueError, match=r"beta must be a positive number \(use A2C to train without Ego-Foresight\)"):
+        model.beta = 0.0
+    assert model.beta == 0.25

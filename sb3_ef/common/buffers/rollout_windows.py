@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Iterator
-from typing import NamedTuple
+from collections.abc import Collection, Iterator
+from typing import NamedTuple, TypeAlias
 
 import numpy as np
 import torch as th
@@ -14,6 +14,8 @@ from stable_baselines3.common.type_aliases import RolloutBufferSamples
 from torch.nn import functional as F
 
 ENCODED_ACTION_SPACES = "Box (finite bounds), Discrete, MultiDiscrete or MultiBinary"
+#: A rollout's observations: one image tensor, or a dict of them by key (``MultiInputPolicy``).
+Observations: TypeAlias = "th.Tensor | dict[str, th.Tensor]"
 
 
 def action_encoding_dim(space: spaces.Space) -> int:
@@ -60,7 +62,7 @@ def rollout_minibatches(
 class RolloutWindow(NamedTuple):
     """EF's windows starting at some steps of a rollout (what ``ForesightLoss.prepare`` reads)."""
 
-    observations: th.Tensor  # (B, C * stack, h, w) uint8: the observation at t
+    observations: Observations  # (B, C * stack, h, w) uint8: the observation at t (a dict: each key's)
     future_frames: th.Tensor  # (B, H, C, h, w) uint8: the newest frame of the observations t+1 .. t+H
     future_actions: th.Tensor  # (B, H, A) float: the encoded actions t .. t+H-1
     future_mask: th.Tensor  # (B, H) bool: step t+i was taken in t's episode and its next observation is in the rollout
@@ -70,37 +72,50 @@ class RolloutWindows:
     """The EF windows of one rollout of ``n_steps`` x ``n_envs`` steps (or of several rollouts in a row, concatenated
     along the steps: :class:`RolloutRing`), cut at SB3's flat indices ``env * n_steps + step``; frames kept as uint8.
 
-    :param observations: (n_steps, n_envs, C * stack, h, w) the rollout's observations, oldest frame first.
+    :param observations: (n_steps, n_envs, C * stack, h, w) the rollout's observations, oldest frame first; or a
+        dict of each key's (n_steps, n_envs, ...), its image keys uint8 (:class:`RolloutRing` keeps them so).
     :param actions: (n_steps, n_envs, A) the encoded actions (:func:`encode_actions`).
     :param episode_starts: (n_steps, n_envs) observation t is the first of its episode (SB3's ``episode_starts``).
-    :param last_observations: (n_envs, C * stack, h, w) the observations after the last step.
+    :param last_observations: (n_envs, C * stack, h, w) the observations after the last step (a dict: each key's).
     :param last_episode_starts: (n_envs,) whether those start an episode (the last step ended one).
     :param frame_channels: channels of one frame: the last ``frame_channels`` channels are the newest frame.
     :param horizon: H, the window's steps.
     :param device: where the windows are gathered.
+    :param image_key: with dict observations, the key whose frames are EF's targets.
     """
 
     def __init__(
         self,
-        observations: np.ndarray | th.Tensor,
+        observations: np.ndarray | th.Tensor | dict[str, th.Tensor],
         actions: th.Tensor,
         episode_starts: np.ndarray | th.Tensor,
-        last_observations: np.ndarray | th.Tensor,
+        last_observations: np.ndarray | th.Tensor | dict[str, np.ndarray],
         last_episode_starts: np.ndarray | th.Tensor,
         frame_channels: int,
         horizon: int,
         device: th.device | str = "cpu",
+        image_key: str | None = None,
     ):
         n_steps, n_envs = episode_starts.shape
-        if tuple(observations.shape[:2]) != (n_steps, n_envs) or tuple(actions.shape[:2]) != (n_steps, n_envs):
+        as_frames = lambda array: th.as_tensor(array, device=device).to(th.uint8)  # noqa: E731  (SB3 keeps float32)
+        if isinstance(observations, dict):
+            if image_key is None or not isinstance(last_observations, dict):
+                raise ValueError(
+                    "Expected an image_key and dict last_observations with dict observations, got image_key="
+                    f"{image_key!r} and last_observations of type {type(last_observations).__name__}"
+                )
+            self.observations: Observations = {key: th.as_tensor(v, device=device) for key, v in observations.items()}
+            images, last = self.observations[image_key], as_frames(last_observations[image_key])
+        else:
+            images = self.observations = as_frames(observations)
+            last = as_frames(last_observations)
+        if tuple(images.shape[:2]) != (n_steps, n_envs) or tuple(actions.shape[:2]) != (n_steps, n_envs):
             raise ValueError(
                 f"Expected observations and actions of shape ({n_steps}, {n_envs}, ...), got "
-                f"{tuple(observations.shape)} and {tuple(actions.shape)}"
+                f"{tuple(images.shape)} and {tuple(actions.shape)}"
             )
-        as_frames = lambda array: th.as_tensor(array, device=device).to(th.uint8)  # noqa: E731  (SB3 keeps float32)
-        self.observations = as_frames(observations)
-        last = as_frames(last_observations)[None, :, -frame_channels:]
-        self.frames = th.cat([self.observations[:, :, -frame_channels:], last])  # newest of observations 0 .. n_steps
+        # the newest frame of observations 0 .. n_steps
+        self.frames = th.cat([images[:, :, -frame_channels:], last[None, :, -frame_channels:]])
         starts = th.cat([th.as_tensor(s, device=device).bool() for s in (episode_starts, last_episode_starts[None])])
         self.continues = ~starts[1:]  # observation t+1 is in t's episode
         self.actions = actions.to(device)
@@ -115,29 +130,67 @@ class RolloutWindows:
         inside = ahead < self.n_steps
         ahead = ahead.clamp(max=self.n_steps - 1)
         mask = (self.continues[ahead, envs] & inside).int().cumprod(dim=1).bool()
-        return RolloutWindow(
-            self.observations[steps, envs[:, 0]], self.frames[ahead + 1, envs], self.actions[ahead, envs], mask
+        at = lambda values: values[steps, envs[:, 0]]  # noqa: E731
+        observations = (
+            {key: at(values) for key, values in self.observations.items()}
+            if isinstance(self.observations, dict)
+            else at(self.observations)
         )
+        return RolloutWindow(observations, self.frames[ahead + 1, envs], self.actions[ahead, envs], mask)
 
 
 class RolloutRing:
-    """The last ``size`` rollouts (observations as uint8, encoded actions, episode starts), for windows that run from
-    one rollout into the next (each rollout continues where the one before it stopped, as in SB3's ``learn``)."""
+    """The last ``size`` rollouts (observations, encoded actions, episode starts), for windows that run from one
+    rollout into the next (each rollout continues where the one before it stopped, as in SB3's ``learn``).
 
-    def __init__(self, size: int):
-        self.rollouts: deque[tuple[th.Tensor, th.Tensor, th.Tensor]] = deque(maxlen=size)
+    :param size: rollouts kept.
+    :param image_keys: with dict observations, the keys kept as uint8 (SB3's buffer keeps every key as float32);
+        the others are kept as SB3 gives them. One image observation is kept as uint8.
+    """
 
-    def add(self, observations: np.ndarray, actions: th.Tensor, episode_starts: np.ndarray, device: th.device) -> None:
-        frames = th.as_tensor(observations, device=device).to(th.uint8)
+    def __init__(self, size: int, image_keys: Collection[str] = ()):
+        self.rollouts: deque[tuple[Observations, th.Tensor, th.Tensor]] = deque(maxlen=size)
+        self.image_keys = frozenset(image_keys)
+
+    def add(
+        self,
+        observations: np.ndarray | dict[str, np.ndarray],
+        actions: th.Tensor,
+        episode_starts: np.ndarray,
+        device: th.device | str,
+    ) -> None:
+        """Keep a rollout: copies of SB3's arrays, not views."""
+        kept: Observations
+        if isinstance(observations, dict):
+            kept = {
+                key: th.as_tensor(value, device=device).to(th.uint8)
+                if key in self.image_keys
+                else th.tensor(value, device=device)
+                for key, value in observations.items()
+            }
+        else:
+            kept = th.as_tensor(observations, device=device).to(th.uint8)
         starts = th.as_tensor(episode_starts, dtype=th.bool, device=device)  # a copy, not a view of SB3's array
-        self.rollouts.append((frames, actions.to(device), starts))
+        self.rollouts.append((kept, actions.to(device), starts))
 
     def windows(
-        self, last_observations: np.ndarray, last_episode_starts: np.ndarray, frame_channels: int, horizon: int
+        self,
+        last_observations: np.ndarray | dict[str, np.ndarray],
+        last_episode_starts: np.ndarray,
+        frame_channels: int,
+        horizon: int,
+        image_key: str | None = None,
     ) -> RolloutWindows:
-        """The windows of the rollouts held, oldest first, with the observations after the newest."""
-        observations, actions, starts = (th.cat(parts) for parts in zip(*self.rollouts, strict=True))
+        """The windows of the rollouts held, oldest first, with the observations after the newest (arguments as
+        :class:`RolloutWindows`')."""
+        held, actions, starts = zip(*self.rollouts, strict=True)
+        episode_starts = th.cat(starts)  # on the device the rollouts are kept on
+        observations = (
+            {key: th.cat([part[key] for part in held]) for key in held[0]}
+            if isinstance(held[0], dict)
+            else th.cat(held)
+        )
         return RolloutWindows(
-            observations, actions, starts, last_observations, last_episode_starts, frame_channels, horizon,
-            observations.device,
+            observations, th.cat(actions), episode_starts, last_observations, last_episode_starts, frame_channels,
+            horizon, episode_starts.device, image_key,
         )  # fmt: skip
