@@ -331,15 +331,13 @@ def test_caller_dicts_are_left_unchanged():
     assert policy_kwargs == POLICY and ef_kwargs == EF["ef_kwargs"]
 
 
-def test_analyze_model_reads_rgb_frames_and_names_what_it_cannot_read(tmp_path):
+def test_analyze_model_reads_a_ppo_ef_model_of_rgb_frames(tmp_path):
+    """(Grey frames and discrete actions: tests/analysis/test_grey_discrete.py.)"""
     from sb3_ef.analysis.cli import analyze_model
 
     make(PPOEF, toy_env()).learn(8).save(tmp_path / "rgb.zip")
     written = analyze_model(str(tmp_path / "rgb.zip"), "toy/agent-v0", str(tmp_path / "rgb"), env_kwargs={})
     assert all(Path(path).is_file() for path in written.values())
-    make(PPOEF, grey_stack()).learn(16).save(tmp_path / "grey.zip")
-    with pytest.raises(ValueError, match=r"reads RGB frames and Box actions; .* 1-channel frames and Discrete\(6\)"):
-        analyze_model(str(tmp_path / "grey.zip"), "PongNoFrameskip-v4", str(tmp_path / "grey"), env_kwargs={})
 
 
 @pytest.mark.parametrize("algorithm", HOSTS)
