@@ -25,6 +25,7 @@ from sb3_ef.common.files import write_text_atomically
 from sb3_ef.envs.factory import MAKE_ENV_SUITES
 from sb3_ef.grid.grid import RunSpec, algorithm_class, constructor_kwargs, register_atari
 from sb3_ef.registry import import_target
+from sb3_ef.zoo.config import is_atari
 
 if TYPE_CHECKING:
     from stable_baselines3.common.noise import ActionNoise
@@ -215,9 +216,10 @@ def train_sb3(
     recorder = EvalRecorderCallback(
         paths.records, algo=record_name, task=spec.task, seed=spec.seed, action_repeat=spec.action_repeat
     )
+    # The deterministic action, but a sampled one on Atari, as rl-zoo3 evaluates (a greedy policy can loop there).
     evaluation = StepSeededEvalCallback(
         eval_env, spec.seed, eval_freq=spec.eval_freq // spec.n_envs, n_eval_episodes=spec.eval_episodes,
-        callback_after_eval=recorder, verbose=0,
+        callback_after_eval=recorder, deterministic=not is_atari(spec.task), verbose=0,
     )  # fmt: skip
     # Checkpoints are written at the start of the rollout after their step, so after that step's evaluation.
     callbacks = [
