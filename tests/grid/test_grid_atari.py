@@ -3,6 +3,8 @@ rl-zoo3 runs them, and evaluations score whole games."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -49,3 +51,15 @@ def test_ppo_ef_trains_and_evaluates_on_pong_from_rl_zoo3s_atari_settings(tmp_pa
     records = read_records(RunPaths.of(tmp_path, spec).records)
     assert [(row["step"], row["frame"]) for row in records] == [(128, 512), (256, 1024)]  # 4 frames per agent step
     assert all(-21 <= row["return"] <= 21 and row["return"] == int(row["return"]) for row in records)
+
+
+def test_an_atari_run_resumes_from_its_checkpoint(tmp_path):
+    (spec,) = grid_runs(
+        {"ppo": {"hyperparams": {"n_steps": 16}}}, ["PongNoFrameskip-v4"], seeds=1, eval_freq=128, n_timesteps=384,
+        eval_episodes=1,
+    )  # fmt: skip
+    execute_run(replace(spec, n_timesteps=256), tmp_path, keep_checkpoints=None)
+    RunPaths.of(tmp_path, spec).result.unlink()  # the shorter run finished; the longer one resumes from its newest
+    result = execute_run(spec, tmp_path)  # checkpoint, written at the start of the rollout after step 128
+    assert result.status == "done" and result.resumed_from == 128 and result.steps == 384
+    assert [row["step"] for row in read_records(RunPaths.of(tmp_path, spec).records)] == [128, 256, 384]
