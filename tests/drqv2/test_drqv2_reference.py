@@ -58,6 +58,7 @@ from sb3_ef import SEAR, DrQv2, DrQv2EF
 from sb3_ef.common.buffers import MASKS_INFO_KEY
 from sb3_ef.envs.toy import ToyAgentEnv
 from tests.helpers.drqv2 import TerminatingToyEnv
+from tests.helpers.references import assert_parameters_close
 
 FRAME, BATCH, HIDDEN, TRUNK, FEATURES, AGENT = 32, 8, 16, 8, 64, 8
 # Values far from the defaults, so that a swapped constant shows; n_steps above frame_stack + 1, so that an n-step
@@ -293,14 +294,7 @@ def test_three_updates_match_the_single_file_reference_to_float_rounding(algorit
         for name, value in expected.items():
             logged = th.tensor(model.logger.name_to_value[f"train/{name}"], dtype=th.float32)
             th.testing.assert_close(logged, value, msg=lambda m, where=f"{name} at {update}": f"{where}: {m}")
-        for name, (ours, theirs) in parameters(model, reference).items():
-            th.testing.assert_close(
-                ours,
-                theirs,
-                atol=ADAM_ROUNDING,
-                rtol=1e-4,
-                msg=lambda m, where=f"{name} after {update}": f"{where}: {m}",
-            )
+        assert_parameters_close(parameters(model, reference), ADAM_ROUNDING, f"after {update}")
     after = {name: ours.detach() for name, (ours, _) in parameters(model, reference).items()}
     moved = [name for name in before if not th.equal(before[name], after[name])]
     assert len(moved) == len(before), sorted(set(before) - set(moved))

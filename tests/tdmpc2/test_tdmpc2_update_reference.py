@@ -15,6 +15,7 @@ import torch as th
 
 from sb3_ef.envs.toy import ToyAgentEnv
 from sb3_ef.tdmpc2 import TDMPC2
+from tests.helpers.references import assert_parameters_close
 from tests.helpers.tdmpc2_reference import RefTDMPC2, reference_of
 
 BATCH = 8
@@ -96,14 +97,7 @@ def test_three_updates_match_the_authors_update_to_float_rounding():
         for name, value in expected.items():
             th.testing.assert_close(logs[name], value, msg=lambda m, where=f"{name} at {update}": f"{where}: {m}")
         th.testing.assert_close(model.policy.q_scale, reference.scale[0])
-        for name, (ours, theirs) in pairs(model, reference).items():
-            th.testing.assert_close(
-                ours,
-                theirs,
-                atol=ADAM_ROUNDING,
-                rtol=1e-4,
-                msg=lambda m, where=f"{name} after {update}": f"{where}: {m}",
-            )
+        assert_parameters_close(pairs(model, reference), ADAM_ROUNDING, f"after {update}")
 
 
 def test_the_planners_value_estimate_is_the_authors():
