@@ -17,6 +17,7 @@ from sb3_ef import registry
 from sb3_ef.common.acting import EpisodeActor
 from sb3_ef.common.files import write_text_atomically
 from sb3_ef.envs.factory import MAKE_ENV_SUITES
+from sb3_ef.envs.registration import is_atari
 
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
@@ -111,20 +112,9 @@ def make_analysis_env(
         from sb3_ef.envs import make_env
 
         return make_env(name, size=size, frame_stack=frame_stack, **{"action_repeat": action_repeat, **kwargs})
-    if is_atari_id(name):
+    if is_atari(name):
         return atari_env(name, size, frame_stack, **kwargs)
     return gym.make(name, size=size, frame_stack=frame_stack, **kwargs)
-
-
-def is_atari_id(name: str) -> bool:
-    """Whether ``name`` is an Arcade Learning Environment id (``ale_py``'s, registered here when it is installed)."""
-    try:
-        import ale_py
-    except ImportError:
-        return False
-    gym.register_envs(ale_py)
-    spec = gym.registry.get(name)
-    return spec is not None and str(spec.entry_point).startswith("ale_py")
 
 
 def atari_env(name: str, size: int, frame_stack: int, **kwargs: Any) -> gym.Env:

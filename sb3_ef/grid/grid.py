@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import fnmatch
 import os
 from collections.abc import Iterable, Mapping, Sequence
@@ -17,6 +16,7 @@ import sb3_ef  # noqa: F401  (registers the environments)
 from sb3_ef import registry
 from sb3_ef.common.validation import did_you_mean
 from sb3_ef.envs.factory import MAKE_ENV_SUITES
+from sb3_ef.envs.registration import register_atari
 from sb3_ef.zoo import config as zoo_config
 
 FILE_KEYS = frozenset({"grids", "anchors"})
@@ -146,13 +146,6 @@ def config_path(algo: str) -> Path:
     import rl_zoo3
 
     return Path(rl_zoo3.__file__).parent / "hyperparams" / f"{algo}.yml"
-
-
-def register_atari(task: str) -> None:
-    """Register the Atari ids with gymnasium (``ale-py``, the ``atari`` extra) unless ``task`` is registered."""
-    if task not in gym.envs.registry:
-        with contextlib.suppress(ImportError):
-            import ale_py  # noqa: F401  (as rl-zoo3's import_envs does)
 
 
 def resolve_task(task: str) -> str:

@@ -23,9 +23,9 @@ from sb3_ef.analysis.records import (
 from sb3_ef.common.evaluation import EVAL_SEED_OFFSET, StepSeededEvalCallback
 from sb3_ef.common.files import write_text_atomically
 from sb3_ef.envs.factory import MAKE_ENV_SUITES
-from sb3_ef.grid.grid import RunSpec, algorithm_class, constructor_kwargs, register_atari
+from sb3_ef.envs.registration import is_atari, register_atari
+from sb3_ef.grid.grid import RunSpec, algorithm_class, constructor_kwargs
 from sb3_ef.registry import import_target
-from sb3_ef.zoo.config import is_atari
 
 if TYPE_CHECKING:
     from stable_baselines3.common.noise import ActionNoise

@@ -13,6 +13,7 @@ import yaml
 
 from sb3_ef import registry
 from sb3_ef.common.validation import did_you_mean
+from sb3_ef.envs.registration import is_atari
 
 #: The ``train`` and ``enjoy`` functions (``"module:function"``) of each registry key that trains in its own loop, not
 #: rl-zoo3's; by path, as they live in the workbench package of that algorithm, above the zoo.
@@ -61,11 +62,6 @@ def load_config(path: str | Path) -> dict[str, dict[str, Any]]:
     if not isinstance(config, dict) or not all(isinstance(entry, dict) for entry in config.values()):
         raise ValueError(f"{path}: expected a mapping of env id -> mapping of hyperparameters")
     return config
-
-
-def is_atari(env_id: str) -> bool:
-    """Whether ``env_id`` is an ALE game (rl-zoo3 gives it a config's ``atari`` entry)."""
-    return env_id in gym.envs.registry and "AtariEnv" in str(gym.envs.registry[env_id].entry_point)
 
 
 def select_entry(config: dict[str, dict[str, Any]], env_id: str) -> dict[str, Any]:

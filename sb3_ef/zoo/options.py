@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import ast
-import contextlib
 import importlib
 import types
 from collections.abc import Sequence
@@ -194,6 +193,7 @@ def check_algo_and_env(args: argparse.Namespace) -> None:
     import gymnasium as gym
 
     import sb3_ef  # noqa: F401  (registers sb3-ef's env ids)
+    from sb3_ef.envs.registration import register_atari
 
     for package in args.gym_packages or ():
         try:
@@ -201,9 +201,7 @@ def check_algo_and_env(args: argparse.Namespace) -> None:
         except ImportError as error:
             raise UsageError(f"--gym-packages: cannot import {package!r} ({error})") from None
     env = args.env or "CartPole-v1"
-    if env not in gym.envs.registry:
-        with contextlib.suppress(ImportError):
-            import ale_py  # noqa: F401  (registers the Atari ids, as rl-zoo3's import_envs does)
+    register_atari(env)
     if env not in gym.envs.registry:
         raise UsageError(
             f"Unknown env id {env!r}{did_you_mean(env, gym.envs.registry)}: sb3-ef registers ids like "
